@@ -1,0 +1,62 @@
+"""Per-channel histogram statistics of a colour image: the features every classifier starts from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+Roi = tuple[int, int, int, int]
+"""Region of interest (x, y, w, h) [px]."""
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelStats:
+    """Histogram, mode and mean of each of R, G, B."""
+
+    histograms: NDArray[np.int64]
+    """Shape (3, 256): pixel counts per grey level, rows R, G, B."""
+    modes: NDArray[np.int64]
+    """Shape (3,): most frequent level per channel; ties go to the lowest level."""
+    means: NDArray[np.float64]
+    """Shape (3,): mean level per channel."""
+
+    @property
+    def pixels(self) -> int:
+        return int(self.histograms[0].sum())
+
+
+def crop(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8]:
+    """The part of ``image`` (H, W, C) inside ``roi``; the whole image when ``roi`` is None.
+
+    Raises ValueError when the ROI does not lie inside the image.
+    """
+    if roi is None:
+        return image
+    x, y, w, h = roi
+    height, width = image.shape[:2]
+    if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > width or y + h > height:
+        raise ValueError(f"ROI {list(roi)} does not lie inside the {width}×{height} frame")
+    return image[y : y + h, x : x + w]
+
+
+def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
+    """Histograms of shape (3, 256) of an RGB image of shape (H, W, 3), uint8."""
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"expected an RGB image of shape (H, W, 3), uint8; got {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError("empty image")
+    rows = [cv2.calcHist([image], [c], None, [256], [0, 256]).ravel() for c in range(3)]
+    return np.asarray(rows, dtype=np.float64).round().astype(np.int64)
+
+
+def channel_stats(image: NDArray[np.uint8], roi: Roi | None = None) -> ChannelStats:
+    """Histogram, mode and mean of each channel of ``image`` inside ``roi``."""
+    hist = channel_histograms(crop(image, roi))
+    levels = np.arange(256, dtype=np.float64)
+    counts = hist.sum(axis=1)
+    modes = hist.argmax(axis=1)  # argmax returns the first maximum: ties go to the lowest level
+    means = (hist * levels).sum(axis=1) / counts
+    return ChannelStats(histograms=hist, modes=modes.astype(np.int64), means=means)

@@ -1,0 +1,134 @@
+"""Domain errors and their single mapping to RFC 9457 problem+json."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from app.observability import FRAMES_REJECTED
+
+log = logging.getLogger("vantage.errors")
+
+PROBLEM_JSON = "application/problem+json"
+
+
+class VantageError(Exception):
+    """Base of every error the service reports to clients; carries its HTTP status."""
+
+    status = 400
+    title = "Bad request"
+
+    def __init__(self, detail: str, *, headers: dict[str, str] | None = None, **extra: Any):
+        super().__init__(detail)
+        self.detail = detail
+        self.headers = headers
+        self.extra = extra
+
+
+class Unauthorized(VantageError):
+    status = 401
+    title = "Unauthorized"
+
+    def __init__(self, detail: str = "missing or unknown token", **extra: Any):
+        headers = {"WWW-Authenticate": 'Bearer, Basic realm="vantage"'}
+        super().__init__(detail, headers=headers, **extra)
+
+
+class Forbidden(VantageError):
+    status = 403
+    title = "Forbidden"
+
+
+class NotFound(VantageError):
+    status = 404
+    title = "Not found"
+
+
+class Conflict(VantageError):
+    status = 409
+    title = "Conflict"
+
+
+class PayloadTooLarge(VantageError):
+    status = 413
+    title = "Payload too large"
+
+
+class UnsupportedMediaType(VantageError):
+    status = 415
+    title = "Unsupported media type"
+
+
+class Unprocessable(VantageError):
+    status = 422
+    title = "Unprocessable content"
+
+
+class ServiceUnavailable(VantageError):
+    status = 503
+    title = "Service unavailable"
+
+
+def problem(
+    status: int,
+    title: str,
+    detail: str,
+    *,
+    headers: dict[str, str] | None = None,
+    **extra: Any,
+) -> JSONResponse:
+    body = {"type": "about:blank", "title": title, "status": status, "detail": detail, **extra}
+    return JSONResponse(body, status_code=status, headers=headers, media_type=PROBLEM_JSON)
+
+
+def _jsonable(errors: Any) -> Any:
+    # validation errors may carry exceptions or bytes in ctx/input; keep what JSON can hold
+    out = []
+    for e in errors:
+        item = {k: e[k] for k in ("loc", "msg", "type") if k in e}
+        item["loc"] = [str(p) for p in item.get("loc", [])]
+        out.append(item)
+    return out
+
+
+FRAMES_ROUTE = "/cameras/{camera_id}/frames"
+
+
+def _count_rejected_frame(request: Request, status: int, code: str | None) -> None:
+    route = request.scope.get("route")
+    if getattr(route, "path", None) != FRAMES_ROUTE or request.method != "POST":
+        return
+    # label only cameras that passed authentication and exist: bounded label cardinality
+    camera = request.path_params.get("camera_id") if status not in (401, 403, 404) else None
+    FRAMES_REJECTED.labels(camera or "unknown", code or str(status)).inc()
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(VantageError)
+    async def _vantage(request: Request, exc: VantageError) -> JSONResponse:
+        _count_rejected_frame(request, exc.status, exc.extra.get("code"))
+        return problem(exc.status, exc.title, exc.detail, headers=exc.headers, **exc.extra)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        _count_rejected_frame(request, 422, "invalid_parameters")
+        errors = _jsonable(exc.errors())
+        first = errors[0] if errors else {"loc": [], "msg": "invalid request"}
+        detail = f"{'.'.join(first['loc'])}: {first['msg']}"
+        return problem(422, "Unprocessable content", detail, errors=errors)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        title = {404: "Not found", 405: "Method not allowed"}.get(exc.status_code, "Error")
+        headers = dict(exc.headers) if exc.headers else None
+        return problem(exc.status_code, title, str(exc.detail), headers=headers)
+
+    @app.exception_handler(Exception)
+    async def _unexpected(_: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error", exc_info=exc)
+        return problem(500, "Internal server error", "the service failed; see its logs")

@@ -1,0 +1,52 @@
+"""The application factory."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+
+from app import __version__
+from app.db.session import make_engine, make_sessionmaker
+from app.errors import install_error_handlers
+from app.observability import RequestIdMiddleware, configure_logging
+from app.routers import cameras, health, panels, robots
+from app.security import admin_token_hash
+from app.services.storage import FrameStore
+from app.settings import Settings, get_settings
+
+log = logging.getLogger("vantage")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the service. The database schema must already be at the migrations' head."""
+    settings = settings or get_settings()
+    configure_logging(settings.log_level, settings.log_json)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
+        yield
+        engine.dispose()
+
+    app = FastAPI(
+        title="Vantage",
+        version=__version__,
+        summary="Cameras as measuring instruments.",
+        lifespan=lifespan,
+    )
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.effective_database_url)
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.sessionmaker = make_sessionmaker(engine)
+    app.state.admin_token_hash = admin_token_hash(settings)
+    app.state.frame_store = FrameStore(settings.data_dir)
+
+    install_error_handlers(app)
+    app.add_middleware(RequestIdMiddleware)
+    for module in (health, cameras, panels, robots):
+        app.include_router(module.router)
+    return app

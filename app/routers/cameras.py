@@ -1,0 +1,182 @@
+"""Cameras and their frames."""
+
+from __future__ import annotations
+
+import time
+from datetime import UTC, datetime, timedelta
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse
+from sqlalchemy import select
+from sqlalchemy.orm import selectinload
+
+from app.db.models import Frame
+from app.deps import (
+    Admin,
+    CameraId,
+    SessionDep,
+    SettingsDep,
+    UploadTargetDep,
+)
+from app.errors import NotFound, Unprocessable
+from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
+from app.routers.responses import (
+    AUTH_ERRORS,
+    CONFLICT,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    UPLOAD_ERRORS,
+    frame_out,
+)
+from app.schemas import CameraCreate, CameraCreated, CameraOut, FrameOut
+from app.services import ingest, registry
+from app.uploads import read_jpeg
+
+router = APIRouter(tags=["cameras"])
+
+FRAMES_PATH = "/cameras/{camera_id}/frames"
+# a camera's clock may run a little ahead; further ahead is a broken clock
+MAX_CLOCK_SKEW = timedelta(minutes=10)
+
+Limit = Annotated[int, Query(ge=1, le=1000)]
+Offset = Annotated[int, Query(ge=0)]
+
+_JPEG_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "image/jpeg": {"schema": {"type": "string", "format": "binary"}},
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "properties": {"file": {"type": "string", "format": "binary"}},
+                    "required": ["file"],
+                }
+            },
+        },
+    }
+}
+
+
+@router.post(
+    "/cameras",
+    status_code=201,
+    response_model=CameraCreated,
+    responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
+)
+def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCreated:
+    """Register a camera; the response carries its upload token, shown only this once."""
+    camera, token = registry.create_camera(session, body)
+    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
+
+
+@router.get("/cameras", response_model=list[CameraOut], responses=AUTH_ERRORS)
+def list_cameras(
+    session: SessionDep, _: Admin, limit: Limit = 100, offset: Offset = 0
+) -> list[CameraOut]:
+    """List cameras, ordered by id."""
+    cameras = registry.list_cameras(session, limit=limit, offset=offset)
+    return [CameraOut.model_validate(c) for c in cameras]
+
+
+@router.get(
+    "/cameras/{camera_id}", response_model=CameraOut, responses={**AUTH_ERRORS, **NOT_FOUND}
+)
+def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
+    """One camera."""
+    return CameraOut.model_validate(registry.get_camera(session, camera_id))
+
+
+def _captured_at(value: datetime | None) -> datetime | None:
+    if value is None:
+        return None
+    value = value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+    if value > datetime.now(UTC) + MAX_CLOCK_SKEW:
+        raise Unprocessable(f"captured_at {value.isoformat()} lies in the future", code="bad_time")
+    return value
+
+
+@router.post(
+    FRAMES_PATH,
+    status_code=201,
+    response_model=FrameOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UPLOAD_ERRORS},
+    openapi_extra=_JPEG_BODY,
+)
+async def post_frame(
+    request: Request,
+    target: UploadTargetDep,
+    session: SessionDep,
+    settings: SettingsDep,
+    captured_at: Annotated[
+        datetime | None,
+        Query(description="When the frame was taken (RFC 3339; default: when received)."),
+    ] = None,
+) -> FrameOut:
+    """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict."""
+    start = time.perf_counter()
+    when = _captured_at(captured_at)
+    data = await read_jpeg(request, settings.max_body_bytes)
+    frame, verdict = await run_in_threadpool(
+        ingest.ingest,
+        session,
+        request.app.state.frame_store if settings.store_frames else None,
+        camera_id=target.id,
+        roi=target.roi,
+        data=data,
+        captured_at=when,
+        max_pixels=settings.max_pixels,
+    )
+    FRAMES_RECEIVED.labels(target.id).inc()
+    INGEST_SECONDS.observe(time.perf_counter() - start)
+    return frame_out(frame, verdict)
+
+
+@router.get(
+    "/cameras/{camera_id}/frames",
+    response_model=list[FrameOut],
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def list_frames(
+    camera_id: CameraId, session: SessionDep, _: Admin, limit: Limit = 50, offset: Offset = 0
+) -> list[FrameOut]:
+    """A camera's frames with their verdicts, newest first."""
+    registry.get_camera(session, camera_id)
+    frames = session.scalars(
+        select(Frame)
+        .where(Frame.camera_id == camera_id)
+        .options(selectinload(Frame.verdict))
+        .order_by(Frame.captured_at.desc(), Frame.id)
+        .limit(limit)
+        .offset(offset)
+    ).all()
+    return [frame_out(f, f.verdict) for f in frames]
+
+
+@router.get("/frames/{frame_id}", response_model=FrameOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_frame(frame_id: str, session: SessionDep, _: Admin) -> FrameOut:
+    """One frame with its verdict."""
+    frame = session.scalars(
+        select(Frame).where(Frame.id == frame_id).options(selectinload(Frame.verdict))
+    ).first()
+    if frame is None:
+        raise NotFound(f"no frame {frame_id!r}")
+    return frame_out(frame, frame.verdict)
+
+
+@router.get(
+    "/frames/{frame_id}/image",
+    response_class=FileResponse,
+    responses={200: {"content": {"image/jpeg": {}}}, **AUTH_ERRORS, **NOT_FOUND},
+)
+def get_frame_image(frame_id: str, session: SessionDep, _: Admin, request: Request) -> FileResponse:
+    """The stored JPEG of a frame."""
+    frame = session.get(Frame, frame_id)
+    if frame is None or frame.stored_path is None:
+        raise NotFound(f"no stored image for frame {frame_id!r}")
+    path = request.app.state.frame_store.path(frame.stored_path)
+    if not path.exists():
+        raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
+    return FileResponse(path, media_type="image/jpeg")

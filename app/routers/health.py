@@ -1,0 +1,40 @@
+"""Liveness, readiness and metrics."""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from sqlalchemy import text
+from sqlalchemy.exc import SQLAlchemyError
+
+from app import __version__
+from app.deps import get_sessionmaker
+from app.schemas import Health
+
+router = APIRouter(tags=["health"])
+log = logging.getLogger("vantage.health")
+
+
+@router.get("/health", response_model=Health, responses={503: {"model": Health}})
+def health(request: Request) -> JSONResponse:
+    """Whether the service and its database answer; the version."""
+    try:
+        with get_sessionmaker(request)() as session:
+            session.execute(text("SELECT 1"))
+        database = "ok"
+    except SQLAlchemyError as exc:
+        log.warning("database unreachable: %s", exc)
+        database = "unreachable"
+    body = Health(
+        status="ok" if database == "ok" else "degraded", database=database, version=__version__
+    )
+    return JSONResponse(body.model_dump(), status_code=200 if database == "ok" else 503)
+
+
+@router.get("/metrics", include_in_schema=False)
+def metrics() -> Response:
+    """Prometheus metrics."""
+    return Response(generate_latest(), media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,83 @@
+"""Shaping rows into response bodies, and the error responses routes declare in OpenAPI."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from app.db.models import Frame, PanelVerdict, SkyVerdict, Verdict
+from app.schemas import FrameOut, PanelVerdictOut, RigVerdictOut, SkyVerdictOut, VerdictOut
+
+
+def _problem(description: str) -> dict[str, Any]:
+    return {
+        "description": description,
+        "content": {
+            "application/problem+json": {
+                "schema": {
+                    "type": "object",
+                    "properties": {
+                        "type": {"type": "string"},
+                        "title": {"type": "string"},
+                        "status": {"type": "integer"},
+                        "detail": {"type": "string"},
+                    },
+                    "required": ["title", "status", "detail"],
+                }
+            }
+        },
+    }
+
+
+AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: _problem("Missing or unknown token"),
+    403: _problem("Valid token of the wrong role or for another camera"),
+}
+NOT_FOUND = {404: _problem("No such resource")}
+CONFLICT = {409: _problem("The id is taken")}
+UNPROCESSABLE = {422: _problem("Invalid input")}
+UPLOAD_ERRORS = {
+    413: _problem("Body over the size limit"),
+    415: _problem("Not a JPEG"),
+    422: _problem("Truncated or undecodable JPEG, over the pixel limit, or bad parameters"),
+}
+
+
+def category_message(category: str | None) -> str | None:
+    return f"Today's Air Quality is {category}" if category else None
+
+
+def verdict_out(verdict: Verdict) -> VerdictOut:
+    common = {"modes": verdict.modes, "means": verdict.means, "reason": verdict.reason}
+    if isinstance(verdict, PanelVerdict):
+        return PanelVerdictOut(
+            panel_id=verdict.panel_id,
+            clean=verdict.clean,
+            t2=verdict.t2,
+            f_stat=verdict.f_stat,
+            p_value=verdict.p_value,
+            threshold=verdict.threshold,
+            state=verdict.state,
+            **common,
+        )
+    if isinstance(verdict, SkyVerdict):
+        return SkyVerdictOut(
+            level=verdict.level,
+            category=verdict.category,
+            message=category_message(verdict.category),
+            **common,
+        )
+    return RigVerdictOut(**common)
+
+
+def frame_out(frame: Frame, verdict: Verdict) -> FrameOut:
+    return FrameOut(
+        frame_id=frame.id,
+        camera_id=frame.camera_id,
+        captured_at=frame.captured_at,
+        received_at=frame.received_at,
+        width=frame.width,
+        height=frame.height,
+        sha256=frame.sha256,
+        stored=frame.stored_path is not None,
+        verdict=verdict_out(verdict),
+    )

@@ -1,0 +1,76 @@
+"""Registering cameras, panels and robots."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from app.db.models import Camera, CameraKind, Panel, Robot
+from app.errors import Conflict, NotFound, Unprocessable
+from app.schemas import CameraCreate, PanelCreate, RobotCreate
+from app.security import hash_token, new_token
+
+
+def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
+    if session.get(type(row), row.id) is not None:
+        raise Conflict(f"a {what} with id {row.id!r} already exists")
+    session.add(row)
+    try:
+        session.flush()
+    except IntegrityError:  # a concurrent request inserted the same id first
+        raise Conflict(f"a {what} with id {row.id!r} already exists") from None
+
+
+def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
+    """Register a camera; returns it with its token (the only time the token is seen)."""
+    if data.panel_id is not None:
+        if data.kind != CameraKind.panel:
+            raise Unprocessable(f"panel_id is only for panel cameras, not {data.kind.value}")
+        if session.get(Panel, data.panel_id) is None:
+            raise Unprocessable(f"panel {data.panel_id!r} does not exist; create it first")
+    token = new_token("vc")
+    camera = Camera(**data.model_dump(), token_hash=hash_token(token))
+    _insert(session, camera, "camera")
+    return camera, token
+
+
+def get_camera(session: Session, camera_id: str) -> Camera:
+    camera = session.get(Camera, camera_id)
+    if camera is None:
+        raise NotFound(f"no camera {camera_id!r}")
+    return camera
+
+
+def list_cameras(session: Session, *, limit: int, offset: int) -> Sequence[Camera]:
+    return session.scalars(select(Camera).order_by(Camera.id).limit(limit).offset(offset)).all()
+
+
+def create_panel(session: Session, data: PanelCreate) -> Panel:
+    panel = Panel(**data.model_dump())
+    _insert(session, panel, "panel")
+    return panel
+
+
+def get_panel(session: Session, panel_id: str) -> Panel:
+    panel = session.get(Panel, panel_id)
+    if panel is None:
+        raise NotFound(f"no panel {panel_id!r}")
+    return panel
+
+
+def list_panels(session: Session, *, limit: int, offset: int) -> Sequence[Panel]:
+    return session.scalars(select(Panel).order_by(Panel.id).limit(limit).offset(offset)).all()
+
+
+def create_robot(session: Session, data: RobotCreate) -> tuple[Robot, str]:
+    token = new_token("vr")
+    robot = Robot(**data.model_dump(), token_hash=hash_token(token))
+    _insert(session, robot, "robot")
+    return robot, token
+
+
+def list_robots(session: Session, *, limit: int, offset: int) -> Sequence[Robot]:
+    return session.scalars(select(Robot).order_by(Robot.id).limit(limit).offset(offset)).all()

@@ -1,0 +1,56 @@
+"""Service settings, read from the environment with the ``VANTAGE_`` prefix."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Everything the service can be told from outside.
+
+    Defaults are for a single machine: an SQLite file in ``data_dir`` and frames stored beside it.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="VANTAGE_", env_file=".env", extra="ignore")
+
+    env: Literal["development", "test", "production"] = "development"
+    data_dir: Path = Field(default=Path("data"), description="Database file, frames, admin token.")
+    database_url: str | None = Field(
+        default=None, description="SQLAlchemy URL; default: SQLite file in data_dir."
+    )
+    admin_token: SecretStr | None = Field(
+        default=None, description="Operator token; generated and saved in data_dir when unset."
+    )
+    max_body_bytes: int = Field(default=10 * 1024 * 1024, gt=0, description="Request body cap [B].")
+    max_pixels: int = Field(default=40_000_000, gt=0, description="Frame size cap [px].")
+    frame_retention_days: float = Field(default=30.0, gt=0, description="Keep frames this long [d].")
+    store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
+    log_level: str = "INFO"
+    log_json: bool = True
+
+    @model_validator(mode="after")
+    def _refuse_unsafe(self) -> Settings:
+        if self.env == "production" and self.admin_token is not None:
+            if len(self.admin_token.get_secret_value()) < 24:
+                raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
+        return self
+
+    @property
+    def effective_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'vantage.db').resolve()}"
+
+    @property
+    def frames_dir(self) -> Path:
+        return self.data_dir / "frames"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,78 @@
+"""Reading upload bodies over HTTP: size-capped while streaming, raw JPEG or multipart."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+
+from fastapi import Request
+from starlette.datastructures import UploadFile
+from starlette.formparsers import MultiPartException, MultiPartParser
+
+from app.errors import PayloadTooLarge, Unprocessable, UnsupportedMediaType
+
+
+async def read_capped(request: Request, limit: int) -> bytes:
+    """The whole body, refusing (413) as soon as it is known to exceed ``limit`` bytes.
+
+    A declared Content-Length over the limit is refused before a byte is read; a chunked or
+    lying body is cut off when the running count passes the limit.
+    """
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        try:
+            size = int(declared)
+        except ValueError:
+            raise Unprocessable("Content-Length is not a number") from None
+        if size > limit:
+            raise PayloadTooLarge(
+                f"body of {size} bytes exceeds the limit of {limit}", code="too_large"
+            )
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise PayloadTooLarge(f"body exceeds the limit of {limit} bytes", code="too_large")
+    return bytes(body)
+
+
+async def _once(data: bytes) -> AsyncIterator[bytes]:
+    yield data
+
+
+async def read_files(
+    request: Request, field: str, limit: int, *, max_files: int = 1
+) -> list[tuple[str | None, bytes]]:
+    """The files of a multipart body's repeated ``field``: [(filename, bytes), ...]."""
+    body = await read_capped(request, limit)
+    parser = MultiPartParser(
+        request.headers, _once(body), max_files=max_files, max_fields=100, max_part_size=limit
+    )
+    try:
+        form = await parser.parse()
+    except MultiPartException as exc:
+        raise Unprocessable(f"malformed multipart body: {exc.message}", code="bad_multipart") from None
+    try:
+        files = []
+        for item in form.getlist(field):
+            if not isinstance(item, UploadFile):
+                raise Unprocessable(f"multipart field {field!r} must be a file, not text")
+            files.append((item.filename, await item.read()))
+    finally:
+        await form.close()
+    if not files:
+        raise Unprocessable(f"multipart body has no file in field {field!r}", code="no_file")
+    return files
+
+
+async def read_jpeg(request: Request, limit: int) -> bytes:
+    """The JPEG of a frame upload: a raw ``image/jpeg`` body or multipart field ``file``."""
+    content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if content_type in ("image/jpeg", "image/jpg"):
+        return await read_capped(request, limit)
+    if content_type == "multipart/form-data":
+        [(_, data)] = await read_files(request, "file", limit)
+        return data
+    raise UnsupportedMediaType(
+        f"expected Content-Type image/jpeg or multipart/form-data; got {content_type or 'none'!r}",
+        code="not_jpeg",
+    )

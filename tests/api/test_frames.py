@@ -1,0 +1,262 @@
+"""Frame ingest over HTTP: storage, verdicts, and every kind of bad input."""
+
+from __future__ import annotations
+
+import base64
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+
+from tests.conftest import make_jpeg, table_counts
+
+
+def bomb_jpeg(width: int = 60000, height: int = 60000) -> bytes:
+    """A genuine 1×1 JPEG whose start-of-frame header is patched to claim ``width``×``height``."""
+    data = bytearray(make_jpeg(1, 1))
+    sof = data.index(b"\xff\xc0")
+    data[sof + 5 : sof + 7] = height.to_bytes(2, "big")
+    data[sof + 7 : sof + 9] = width.to_bytes(2, "big")
+    return bytes(data)
+
+
+def png_bytes() -> bytes:
+    ok, buf = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
+    assert ok
+    return buf.tobytes()
+
+
+@pytest.fixture
+def camera(client: TestClient, admin: dict[str, str]) -> dict[str, Any]:
+    r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def cam_headers(camera: dict[str, Any]) -> dict[str, str]:
+    return {"Authorization": f"Bearer {camera['token']}", "Content-Type": "image/jpeg"}
+
+
+def stored_files(data_dir: Path) -> list[Path]:
+    return sorted((data_dir / "frames").rglob("*.jpg")) if (data_dir / "frames").exists() else []
+
+
+class TestPostFrame:
+    def test_raw_jpeg_is_stored_with_its_verdict(
+        self, client: TestClient, camera: dict[str, Any], admin: dict[str, str], settings: Any
+    ) -> None:
+        body = make_jpeg(64, 48, (90, 140, 200))
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=body,
+            headers=cam_headers(camera),
+            params={"captured_at": "2026-05-01T12:00:00Z"},
+        )
+        assert r.status_code == 201, r.text
+        out = r.json()
+        assert out["camera_id"] == "cam-1"
+        assert out["captured_at"].startswith("2026-05-01T12:00:00")
+        assert (out["width"], out["height"]) == (64, 48)
+        # a flat colour survives JPEG to within a level or two
+        np.testing.assert_allclose(out["verdict"]["modes"], [90, 140, 200], atol=2)
+        np.testing.assert_allclose(out["verdict"]["means"], [90, 140, 200], atol=2)
+        files = stored_files(settings.data_dir)
+        assert len(files) == 1
+        assert files[0].read_bytes() == body
+        image = client.get(f"/frames/{out['frame_id']}/image", headers=admin)
+        assert image.status_code == 200
+        assert image.content == body
+        listed = client.get("/cameras/cam-1/frames", headers=admin).json()
+        assert [f["frame_id"] for f in listed] == [out["frame_id"]]
+
+    def test_multipart_upload(self, client: TestClient, camera: dict[str, Any]) -> None:
+        r = client.post(
+            "/cameras/cam-1/frames",
+            files={"file": ("f.jpg", make_jpeg(), "image/jpeg")},
+            headers={"Authorization": f"Bearer {camera['token']}"},
+        )
+        assert r.status_code == 201, r.text
+
+    def test_basic_auth_with_camera_id_and_token(
+        self, client: TestClient, camera: dict[str, Any]
+    ) -> None:
+        cred = base64.b64encode(f"cam-1:{camera['token']}".encode()).decode()
+        headers = {"Authorization": f"Basic {cred}", "Content-Type": "image/jpeg"}
+        r = client.post("/cameras/cam-1/frames", content=make_jpeg(), headers=headers)
+        assert r.status_code == 201, r.text
+
+    def test_admin_may_post(self, client: TestClient, camera: dict[str, Any], admin: dict[str, str]) -> None:
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=make_jpeg(),
+            headers={**admin, "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201
+
+    def test_roi_restricts_the_statistics(self, client: TestClient, admin: dict[str, str]) -> None:
+        cam = client.post(
+            "/cameras", json={"id": "c", "kind": "rig", "roi": [0, 0, 32, 48]}, headers=admin
+        ).json()
+        image = np.zeros((48, 64, 3), np.uint8)
+        image[:, :32] = (200, 30, 30)  # left half red (RGB) inside the ROI
+        image[:, 32:] = (10, 10, 250)
+        ok, buf = cv2.imencode(".jpg", image[:, :, ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 100])
+        r = client.post("/cameras/c/frames", content=buf.tobytes(), headers=cam_headers(cam))
+        assert r.status_code == 201, r.text
+        np.testing.assert_allclose(r.json()["verdict"]["modes"], [200, 30, 30], atol=3)
+
+    def test_identical_bytes_share_one_file(
+        self, client: TestClient, camera: dict[str, Any], settings: Any
+    ) -> None:
+        body = make_jpeg()
+        for _ in range(2):
+            assert client.post("/cameras/cam-1/frames", content=body, headers=cam_headers(camera)).status_code == 201
+        assert len(stored_files(settings.data_dir)) == 1
+
+    def test_verdict_kind_follows_camera_kind(self, client: TestClient, admin: dict[str, str]) -> None:
+        client.post("/panels", json={"id": "p1"}, headers=admin)
+        panel_cam = client.post(
+            "/cameras", json={"id": "pc", "kind": "panel", "panel_id": "p1"}, headers=admin
+        ).json()
+        sky_cam = client.post("/cameras", json={"id": "sc", "kind": "sky"}, headers=admin).json()
+        pv = client.post("/cameras/pc/frames", content=make_jpeg(), headers=cam_headers(panel_cam)).json()
+        sv = client.post("/cameras/sc/frames", content=make_jpeg(), headers=cam_headers(sky_cam)).json()
+        assert pv["verdict"]["panel_id"] == "p1"
+        assert "clean" in pv["verdict"]
+        assert "level" in sv["verdict"]
+        assert "category" in sv["verdict"]
+
+
+class TestBadInput:
+    """Each bad upload gets the contract's 4xx as problem+json and leaves nothing behind."""
+
+    @pytest.fixture
+    def snapshot(self, engine: Engine, settings: Any, camera: dict[str, Any]) -> Any:
+        def take() -> tuple[dict[str, int], list[Path]]:
+            return table_counts(engine), stored_files(settings.data_dir)
+
+        return take
+
+    @pytest.mark.parametrize(
+        ("body", "content_type", "status"),
+        [
+            pytest.param(b"", "image/jpeg", 422, id="empty"),
+            pytest.param(make_jpeg(320, 240, noise=30)[:2000], "image/jpeg", 422, id="truncated"),
+            pytest.param(b"\xff\xd8\xff\xe0garbage" * 10 + b"\xff\xd9", "image/jpeg", 422, id="garbage"),
+            pytest.param(png_bytes(), "image/jpeg", 415, id="png-as-jpeg"),
+            pytest.param(bomb_jpeg(), "image/jpeg", 422, id="bomb-60000x60000"),
+            pytest.param(make_jpeg(), "text/plain", 415, id="wrong-content-type"),
+        ],
+    )
+    def test_refused_and_nothing_stored(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any, body: bytes, content_type: str, status: int
+    ) -> None:
+        before = snapshot()
+        headers = {**cam_headers(camera), "Content-Type": content_type}
+        r = client.post("/cameras/cam-1/frames", content=body, headers=headers)
+        assert r.status_code == status, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        problem = r.json()
+        assert problem["status"] == status
+        assert problem["title"]
+        assert problem["detail"]
+        assert snapshot() == before
+
+    def test_bomb_is_refused_from_the_header(self, client: TestClient, camera: dict[str, Any]) -> None:
+        r = client.post("/cameras/cam-1/frames", content=bomb_jpeg(), headers=cam_headers(camera))
+        assert r.status_code == 422
+        assert "3600000000 pixels" in r.json()["detail"]
+
+    def test_body_over_limit(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any, settings: Any
+    ) -> None:
+        before = snapshot()
+        big = b"\xff\xd8" + b"\0" * settings.max_body_bytes
+        r = client.post("/cameras/cam-1/frames", content=big, headers=cam_headers(camera))
+        assert r.status_code == 413
+        assert r.headers["content-type"] == "application/problem+json"
+
+        def chunks() -> Any:  # no Content-Length: the cap must hold while streaming
+            for _ in range(settings.max_body_bytes // 65536 + 2):
+                yield b"\0" * 65536
+
+        r = client.post("/cameras/cam-1/frames", content=chunks(), headers=cam_headers(camera))
+        assert r.status_code == 413
+        assert snapshot() == before
+
+    def test_unknown_camera(self, client: TestClient, admin: dict[str, str], snapshot: Any) -> None:
+        before = snapshot()
+        r = client.post(
+            "/cameras/nope/frames", content=make_jpeg(), headers={**admin, "Content-Type": "image/jpeg"}
+        )
+        assert r.status_code == 404
+        assert r.headers["content-type"] == "application/problem+json"
+        assert snapshot() == before
+
+    def test_another_cameras_token(
+        self, client: TestClient, admin: dict[str, str], camera: dict[str, Any], snapshot: Any
+    ) -> None:
+        client.post("/cameras", json={"id": "cam-2", "kind": "rig"}, headers=admin)
+        before = snapshot()
+        r = client.post("/cameras/cam-2/frames", content=make_jpeg(), headers=cam_headers(camera))
+        assert r.status_code == 403
+        assert r.headers["content-type"] == "application/problem+json"
+        assert snapshot() == before
+
+    @pytest.mark.parametrize("value", ["yesterday", "2026-13-01T00:00:00Z", "2999-01-01T00:00:00Z"])
+    def test_malformed_captured_at(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any, value: str
+    ) -> None:
+        before = snapshot()
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=make_jpeg(),
+            headers=cam_headers(camera),
+            params={"captured_at": value},
+        )
+        assert r.status_code == 422
+        assert r.headers["content-type"] == "application/problem+json"
+        assert snapshot() == before
+
+    @pytest.mark.parametrize(
+        ("path", "status"),
+        [("/cameras/a/b/frames", 404), (f"/cameras/{'x' * 200}/frames", 422)],
+        ids=["slash", "200-chars"],
+    )
+    def test_bad_camera_id(
+        self, client: TestClient, admin: dict[str, str], snapshot: Any, path: str, status: int
+    ) -> None:
+        before = snapshot()
+        r = client.post(path, content=make_jpeg(), headers={**admin, "Content-Type": "image/jpeg"})
+        assert r.status_code == status
+        assert r.headers["content-type"] == "application/problem+json"
+        assert snapshot() == before
+
+    def test_roi_outside_frame(self, client: TestClient, admin: dict[str, str], engine: Engine) -> None:
+        cam = client.post(
+            "/cameras", json={"id": "c2", "kind": "rig", "roi": [600, 400, 100, 100]}, headers=admin
+        ).json()
+        before = table_counts(engine)
+        r = client.post("/cameras/c2/frames", content=make_jpeg(64, 48), headers=cam_headers(cam))
+        assert r.status_code == 422
+        assert "does not lie inside" in r.json()["detail"]
+        assert table_counts(engine) == before
+
+    def test_multipart_without_file_field(self, client: TestClient, camera: dict[str, Any], snapshot: Any) -> None:
+        before = snapshot()
+        r = client.post(
+            "/cameras/cam-1/frames",
+            files={"other": ("f.jpg", make_jpeg(), "image/jpeg")},
+            headers={"Authorization": f"Bearer {camera['token']}"},
+        )
+        assert r.status_code == 422
+        assert snapshot() == before
+
+    def test_rejections_are_counted(self, client: TestClient, camera: dict[str, Any]) -> None:
+        client.post("/cameras/cam-1/frames", content=png_bytes(), headers=cam_headers(camera))
+        metrics = client.get("/metrics").text
+        assert 'vantage_frames_rejected_total{camera_id="cam-1",reason="not_jpeg"}' in metrics
