@@ -156,8 +156,8 @@ def get_upload_target(camera_id: CameraId, principal: CameraAuth, request: Reque
         row = session.execute(select(Camera.id, Camera.roi).where(Camera.id == camera_id)).first()
     if row is None:
         raise NotFound(f"no camera {camera_id!r}")
-    roi = tuple(row.roi) if row.roi else None
-    return UploadTarget(row.id, roi)  # type: ignore[arg-type]
+    roi = (row.roi[0], row.roi[1], row.roi[2], row.roi[3]) if row.roi else None
+    return UploadTarget(row.id, roi)
 
 
 UploadTargetDep = Annotated[UploadTarget, Depends(get_upload_target)]

@@ -22,7 +22,9 @@ FRAMES_RECEIVED = Counter(
     "vantage_frames_received_total", "Frames stored, per camera.", ["camera_id"]
 )
 FRAMES_REJECTED = Counter(
-    "vantage_frames_rejected_total", "Frames refused, per camera and reason.", ["camera_id", "reason"]
+    "vantage_frames_rejected_total",
+    "Frames refused, per camera and reason.",
+    ["camera_id", "reason"],
 )
 INGEST_SECONDS = Histogram(
     "vantage_ingest_seconds",
@@ -54,8 +56,20 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(out, default=str)
 
 
+class _StderrHandler(logging.StreamHandler[Any]):
+    """Writes to whatever ``sys.stderr`` is at the time of each record."""
+
+    @property
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _: Any) -> None:
+        pass
+
+
 def configure_logging(level: str, as_json: bool) -> None:
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _StderrHandler()
     if as_json:
         handler.setFormatter(JsonFormatter())
     else:

@@ -123,9 +123,7 @@ class RigVerdictOut(VerdictBase):
     kind: Literal["rig"] = "rig"
 
 
-VerdictOut = Annotated[
-    PanelVerdictOut | SkyVerdictOut | RigVerdictOut, Field(discriminator="kind")
-]
+VerdictOut = Annotated[PanelVerdictOut | SkyVerdictOut | RigVerdictOut, Field(discriminator="kind")]
 
 
 class FrameOut(Out):

@@ -28,7 +28,9 @@ class Settings(BaseSettings):
     )
     max_body_bytes: int = Field(default=10 * 1024 * 1024, gt=0, description="Request body cap [B].")
     max_pixels: int = Field(default=40_000_000, gt=0, description="Frame size cap [px].")
-    frame_retention_days: float = Field(default=30.0, gt=0, description="Keep frames this long [d].")
+    frame_retention_days: float = Field(
+        default=30.0, gt=0, description="Keep frames this long [d]."
+    )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
     log_level: str = "INFO"
     log_json: bool = True

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncGenerator
 
 from fastapi import Request
 from starlette.datastructures import UploadFile
@@ -35,7 +35,7 @@ async def read_capped(request: Request, limit: int) -> bytes:
     return bytes(body)
 
 
-async def _once(data: bytes) -> AsyncIterator[bytes]:
+async def _once(data: bytes) -> AsyncGenerator[bytes, None]:
     yield data
 
 
@@ -50,7 +50,9 @@ async def read_files(
     try:
         form = await parser.parse()
     except MultiPartException as exc:
-        raise Unprocessable(f"malformed multipart body: {exc.message}", code="bad_multipart") from None
+        raise Unprocessable(
+            f"malformed multipart body: {exc.message}", code="bad_multipart"
+        ) from None
     try:
         files = []
         for item in form.getlist(field):

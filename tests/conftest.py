@@ -48,7 +48,7 @@ def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     else:
         url = f"sqlite:///{tmp_path_factory.mktemp('db') / 'vantage.db'}"
     migrate(url)
-    yield url
+    return url
 
 
 @pytest.fixture(scope="session")

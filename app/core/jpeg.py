@@ -142,4 +142,4 @@ def decode_rgb(
         raise CorruptJpegError("JPEG could not be decoded")
     if reduce != 1:  # the reduced modes have no RGB variant
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    return header, image
+    return header, np.asarray(image, dtype=np.uint8)

@@ -15,7 +15,10 @@ router = APIRouter(tags=["panels"])
 
 
 @router.post(
-    "/panels", status_code=201, response_model=PanelOut, responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE}
+    "/panels",
+    status_code=201,
+    response_model=PanelOut,
+    responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
 def create_panel(body: PanelCreate, session: SessionDep, _: Admin) -> PanelOut:
     """Register a solar panel."""
@@ -30,7 +33,10 @@ def list_panels(
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[PanelOut]:
     """List panels, ordered by id."""
-    return [PanelOut.model_validate(p) for p in registry.list_panels(session, limit=limit, offset=offset)]
+    return [
+        PanelOut.model_validate(p)
+        for p in registry.list_panels(session, limit=limit, offset=offset)
+    ]
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})

@@ -28,14 +28,16 @@ def _problem(description: str) -> dict[str, Any]:
     }
 
 
-AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
+Responses = dict[int | str, dict[str, Any]]
+
+AUTH_ERRORS: Responses = {
     401: _problem("Missing or unknown token"),
     403: _problem("Valid token of the wrong role or for another camera"),
 }
-NOT_FOUND = {404: _problem("No such resource")}
-CONFLICT = {409: _problem("The id is taken")}
-UNPROCESSABLE = {422: _problem("Invalid input")}
-UPLOAD_ERRORS = {
+NOT_FOUND: Responses = {404: _problem("No such resource")}
+CONFLICT: Responses = {409: _problem("The id is taken")}
+UNPROCESSABLE: Responses = {422: _problem("Invalid input")}
+UPLOAD_ERRORS: Responses = {
     413: _problem("Body over the size limit"),
     415: _problem("Not a JPEG"),
     422: _problem("Truncated or undecodable JPEG, over the pixel limit, or bad parameters"),

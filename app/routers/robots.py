@@ -15,7 +15,10 @@ router = APIRouter(tags=["robots"])
 
 
 @router.post(
-    "/robots", status_code=201, response_model=RobotCreated, responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE}
+    "/robots",
+    status_code=201,
+    response_model=RobotCreated,
+    responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
 def create_robot(body: RobotCreate, session: SessionDep, _: Admin) -> RobotCreated:
     """Register a cleaning robot; the response carries its token, shown only this once."""
@@ -31,4 +34,7 @@ def list_robots(
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[RobotOut]:
     """List robots, ordered by id."""
-    return [RobotOut.model_validate(r) for r in registry.list_robots(session, limit=limit, offset=offset)]
+    return [
+        RobotOut.model_validate(r)
+        for r in registry.list_robots(session, limit=limit, offset=offset)
+    ]

@@ -32,7 +32,9 @@ def analyse(data: bytes, *, roi: Roi | None, max_pixels: int) -> Decoded:
     if not data:
         raise Unprocessable("empty body: expected a JPEG", code="empty")
     if not data.startswith(SOI):
-        raise UnsupportedMediaType("the body is not a JPEG (no FF D8 start marker)", code="not_jpeg")
+        raise UnsupportedMediaType(
+            "the body is not a JPEG (no FF D8 start marker)", code="not_jpeg"
+        )
     try:
         header, image = decode_rgb(data, max_pixels=max_pixels)
     except TooManyPixelsError as exc:

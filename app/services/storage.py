@@ -26,7 +26,7 @@ class FrameStore:
         return self.root / relative
 
     def put(self, data: bytes, sha256: str) -> tuple[str, bool]:
-        """Write the bytes (atomically: temp file, fsync, rename). Returns (relative path, created)."""
+        """Write the bytes atomically (temp file, fsync, rename); return (path, created)."""
         relative = self.relative_path(sha256)
         target = self.path(relative)
         if target.exists():

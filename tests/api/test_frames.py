@@ -89,7 +89,9 @@ class TestPostFrame:
         r = client.post("/cameras/cam-1/frames", content=make_jpeg(), headers=headers)
         assert r.status_code == 201, r.text
 
-    def test_admin_may_post(self, client: TestClient, camera: dict[str, Any], admin: dict[str, str]) -> None:
+    def test_admin_may_post(
+        self, client: TestClient, camera: dict[str, Any], admin: dict[str, str]
+    ) -> None:
         r = client.post(
             "/cameras/cam-1/frames",
             content=make_jpeg(),
@@ -114,17 +116,28 @@ class TestPostFrame:
     ) -> None:
         body = make_jpeg()
         for _ in range(2):
-            assert client.post("/cameras/cam-1/frames", content=body, headers=cam_headers(camera)).status_code == 201
+            assert (
+                client.post(
+                    "/cameras/cam-1/frames", content=body, headers=cam_headers(camera)
+                ).status_code
+                == 201
+            )
         assert len(stored_files(settings.data_dir)) == 1
 
-    def test_verdict_kind_follows_camera_kind(self, client: TestClient, admin: dict[str, str]) -> None:
+    def test_verdict_kind_follows_camera_kind(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
         client.post("/panels", json={"id": "p1"}, headers=admin)
         panel_cam = client.post(
             "/cameras", json={"id": "pc", "kind": "panel", "panel_id": "p1"}, headers=admin
         ).json()
         sky_cam = client.post("/cameras", json={"id": "sc", "kind": "sky"}, headers=admin).json()
-        pv = client.post("/cameras/pc/frames", content=make_jpeg(), headers=cam_headers(panel_cam)).json()
-        sv = client.post("/cameras/sc/frames", content=make_jpeg(), headers=cam_headers(sky_cam)).json()
+        pv = client.post(
+            "/cameras/pc/frames", content=make_jpeg(), headers=cam_headers(panel_cam)
+        ).json()
+        sv = client.post(
+            "/cameras/sc/frames", content=make_jpeg(), headers=cam_headers(sky_cam)
+        ).json()
         assert pv["verdict"]["panel_id"] == "p1"
         assert "clean" in pv["verdict"]
         assert "level" in sv["verdict"]
@@ -146,14 +159,22 @@ class TestBadInput:
         [
             pytest.param(b"", "image/jpeg", 422, id="empty"),
             pytest.param(make_jpeg(320, 240, noise=30)[:2000], "image/jpeg", 422, id="truncated"),
-            pytest.param(b"\xff\xd8\xff\xe0garbage" * 10 + b"\xff\xd9", "image/jpeg", 422, id="garbage"),
+            pytest.param(
+                b"\xff\xd8\xff\xe0garbage" * 10 + b"\xff\xd9", "image/jpeg", 422, id="garbage"
+            ),
             pytest.param(png_bytes(), "image/jpeg", 415, id="png-as-jpeg"),
             pytest.param(bomb_jpeg(), "image/jpeg", 422, id="bomb-60000x60000"),
             pytest.param(make_jpeg(), "text/plain", 415, id="wrong-content-type"),
         ],
     )
     def test_refused_and_nothing_stored(
-        self, client: TestClient, camera: dict[str, Any], snapshot: Any, body: bytes, content_type: str, status: int
+        self,
+        client: TestClient,
+        camera: dict[str, Any],
+        snapshot: Any,
+        body: bytes,
+        content_type: str,
+        status: int,
     ) -> None:
         before = snapshot()
         headers = {**cam_headers(camera), "Content-Type": content_type}
@@ -166,7 +187,9 @@ class TestBadInput:
         assert problem["detail"]
         assert snapshot() == before
 
-    def test_bomb_is_refused_from_the_header(self, client: TestClient, camera: dict[str, Any]) -> None:
+    def test_bomb_is_refused_from_the_header(
+        self, client: TestClient, camera: dict[str, Any]
+    ) -> None:
         r = client.post("/cameras/cam-1/frames", content=bomb_jpeg(), headers=cam_headers(camera))
         assert r.status_code == 422
         assert "3600000000 pixels" in r.json()["detail"]
@@ -191,7 +214,9 @@ class TestBadInput:
     def test_unknown_camera(self, client: TestClient, admin: dict[str, str], snapshot: Any) -> None:
         before = snapshot()
         r = client.post(
-            "/cameras/nope/frames", content=make_jpeg(), headers={**admin, "Content-Type": "image/jpeg"}
+            "/cameras/nope/frames",
+            content=make_jpeg(),
+            headers={**admin, "Content-Type": "image/jpeg"},
         )
         assert r.status_code == 404
         assert r.headers["content-type"] == "application/problem+json"
@@ -236,7 +261,9 @@ class TestBadInput:
         assert r.headers["content-type"] == "application/problem+json"
         assert snapshot() == before
 
-    def test_roi_outside_frame(self, client: TestClient, admin: dict[str, str], engine: Engine) -> None:
+    def test_roi_outside_frame(
+        self, client: TestClient, admin: dict[str, str], engine: Engine
+    ) -> None:
         cam = client.post(
             "/cameras", json={"id": "c2", "kind": "rig", "roi": [600, 400, 100, 100]}, headers=admin
         ).json()
@@ -246,7 +273,9 @@ class TestBadInput:
         assert "does not lie inside" in r.json()["detail"]
         assert table_counts(engine) == before
 
-    def test_multipart_without_file_field(self, client: TestClient, camera: dict[str, Any], snapshot: Any) -> None:
+    def test_multipart_without_file_field(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any
+    ) -> None:
         before = snapshot()
         r = client.post(
             "/cameras/cam-1/frames",

@@ -1,0 +1,17 @@
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 \
+    VANTAGE_DATA_DIR=/data
+WORKDIR /srv/vantage
+
+COPY pyproject.toml README.md ./
+COPY app ./app
+RUN pip install --no-cache-dir .
+
+COPY alembic.ini ./
+COPY migrations ./migrations
+
+VOLUME /data
+EXPOSE 8000
+# migrations first, then the service (several processes may share /data and one PostgreSQL)
+CMD ["sh", "-c", "alembic upgrade head && exec uvicorn app.main:create_app --factory --host 0.0.0.0 --port 8000 --workers ${VANTAGE_WORKERS:-2}"]

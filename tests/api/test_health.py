@@ -1,0 +1,55 @@
+"""Health, request ids, metrics, and problem+json for routing errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app import __version__
+from app.main import create_app
+from app.settings import Settings
+
+
+def test_health_reports_database_and_version(client: TestClient) -> None:
+    r = client.get("/health")
+    assert r.status_code == 200
+    assert r.json() == {"status": "ok", "database": "ok", "version": __version__}
+
+
+def test_health_is_503_when_the_database_is_unreachable(settings: Settings) -> None:
+    broken = settings.model_copy(
+        update={"database_url": "postgresql+psycopg://nobody@127.0.0.1:1/none?connect_timeout=1"}
+    )
+    with TestClient(create_app(broken)) as c:
+        r = c.get("/health")
+    assert r.status_code == 503
+    assert r.json()["database"] == "unreachable"
+
+
+def test_request_id_is_echoed_and_logged(
+    client: TestClient, capsys: pytest.CaptureFixture[str]
+) -> None:
+    r = client.get("/health", headers={"X-Request-ID": "abc-123"})
+    assert r.headers["x-request-id"] == "abc-123"
+    generated = client.get("/health").headers["x-request-id"]
+    assert len(generated) == 32
+    lines = [
+        json.loads(line) for line in capsys.readouterr().err.splitlines() if line.startswith("{")
+    ]
+    access = [line for line in lines if line["logger"] == "vantage.access"]
+    assert {"request_id": "abc-123", "path": "/health", "status": 200}.items() <= access[0].items()
+
+
+def test_metrics_exposes_ingest_counters(client: TestClient) -> None:
+    text = client.get("/metrics").text
+    assert "vantage_frames_received_total" in text
+    assert "vantage_ingest_seconds_bucket" in text
+
+
+def test_unknown_route_is_problem_json(client: TestClient) -> None:
+    r = client.get("/nowhere")
+    assert r.status_code == 404
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["status"] == 404

@@ -1,0 +1,99 @@
+"""Registering cameras, panels and robots."""
+
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+
+
+class TestCreateCamera:
+    def test_created_and_listed(self, client: TestClient, admin: dict[str, str]) -> None:
+        body = {
+            "id": "sky.north-1",
+            "kind": "sky",
+            "name": "North",
+            "lat": 45.46,
+            "lon": 9.19,
+            "roi": [0, 60, 640, 300],
+        }
+        r = client.post("/cameras", json=body, headers=admin)
+        assert r.status_code == 201, r.text
+        out = r.json()
+        assert out["token"].startswith("vc_")
+        assert {k: out[k] for k in body} == body
+        assert client.get("/cameras/sky.north-1", headers=admin).json()["roi"] == [0, 60, 640, 300]
+        assert [c["id"] for c in client.get("/cameras", headers=admin).json()] == ["sky.north-1"]
+
+    def test_duplicate_id_is_409(self, client: TestClient, admin: dict[str, str]) -> None:
+        assert (
+            client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).status_code
+            == 201
+        )
+        r = client.post("/cameras", json={"id": "c", "kind": "sky"}, headers=admin)
+        assert r.status_code == 409
+        assert r.headers["content-type"] == "application/problem+json"
+
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {"id": "a/b", "kind": "rig"},
+            {"id": "x" * 65, "kind": "rig"},
+            {"id": "", "kind": "rig"},
+            {"id": "c", "kind": "toaster"},
+            {"id": "c", "kind": "sky", "lat": 91},
+            {"id": "c", "kind": "sky", "roi": [0, 0, 10]},
+            {"id": "c", "kind": "sky", "roi": [0, 0, 0, 10]},
+            {"id": "c", "kind": "sky", "roi": [-1, 0, 5, 10]},
+            {"id": "c", "kind": "sky", "extra": 1},
+            {"id": "c", "kind": "sky", "panel_id": "p"},
+            {"id": "c", "kind": "panel", "panel_id": "missing"},
+        ],
+    )
+    def test_invalid_bodies_are_422(
+        self, client: TestClient, admin: dict[str, str], body: dict[str, object]
+    ) -> None:
+        r = client.post("/cameras", json=body, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert r.json()["detail"]
+        assert client.get("/cameras", headers=admin).json() == []
+
+    def test_nan_coordinates_are_422(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = client.post(
+            "/cameras",
+            content=b'{"id": "c", "kind": "sky", "lat": NaN, "lon": 9.0}',
+            headers={**admin, "Content-Type": "application/json"},
+        )
+        assert r.status_code == 422
+
+    def test_unknown_camera_is_404(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = client.get("/cameras/none", headers=admin)
+        assert r.status_code == 404
+        assert r.headers["content-type"] == "application/problem+json"
+
+
+class TestPanelsAndRobots:
+    def test_panel_roundtrip(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = client.post(
+            "/panels", json={"id": "p-1", "name": "Row 1", "lat": 1.0, "lon": 2.0}, headers=admin
+        )
+        assert r.status_code == 201
+        assert client.get("/panels/p-1", headers=admin).json()["name"] == "Row 1"
+        assert client.post("/panels", json={"id": "p-1"}, headers=admin).status_code == 409
+        assert client.get("/panels/p-2", headers=admin).status_code == 404
+
+    def test_panel_camera_attaches_to_existing_panel(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        client.post("/panels", json={"id": "p-1"}, headers=admin)
+        r = client.post(
+            "/cameras", json={"id": "c", "kind": "panel", "panel_id": "p-1"}, headers=admin
+        )
+        assert r.status_code == 201
+        assert r.json()["panel_id"] == "p-1"
+
+    def test_robot_token_is_shown_once(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = client.post("/robots", json={"id": "r1"}, headers=admin)
+        assert r.status_code == 201
+        assert r.json()["token"].startswith("vr_")
+        assert "token" not in client.get("/robots", headers=admin).json()[0]

@@ -1,0 +1,60 @@
+"""Per-channel statistics against images with known histograms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.core.stats import channel_stats, crop
+
+
+def image_with_histogram(counts: dict[int, int], width: int = 10) -> np.ndarray:
+    """A single-channel column laid out from {level: count}, repeated into R, G, B."""
+    values = np.concatenate([np.full(n, level, np.uint8) for level, n in counts.items()])
+    assert values.size % width == 0
+    channel = values.reshape(-1, width)
+    return np.repeat(channel[:, :, None], 3, axis=2)
+
+
+def test_mode_and_mean_known_answer() -> None:
+    # 60 × level 100, 30 × level 200, 10 × level 0: mode 100, mean (6000 + 6000) / 100 = 120
+    image = image_with_histogram({100: 60, 200: 30, 0: 10})
+    stats = channel_stats(image)
+    assert stats.pixels == 100
+    np.testing.assert_array_equal(stats.modes, [100, 100, 100])
+    np.testing.assert_allclose(stats.means, [120.0, 120.0, 120.0], rtol=0, atol=1e-12)
+    assert stats.histograms.shape == (3, 256)
+    assert stats.histograms[0, 200] == 30
+
+
+def test_ties_go_to_the_lowest_level() -> None:
+    image = image_with_histogram({180: 50, 40: 50})
+    np.testing.assert_array_equal(channel_stats(image).modes, [40, 40, 40])
+
+
+def test_channels_are_independent() -> None:
+    image = np.zeros((4, 5, 3), np.uint8)
+    image[..., 0], image[..., 1], image[..., 2] = 10, 20, 30
+    stats = channel_stats(image)
+    np.testing.assert_array_equal(stats.modes, [10, 20, 30])
+
+
+def test_random_image_matches_numpy() -> None:
+    rng = np.random.default_rng(42)
+    image = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    stats = channel_stats(image)
+    for c in range(3):
+        counts = np.bincount(image[..., c].ravel(), minlength=256)
+        np.testing.assert_array_equal(stats.histograms[c], counts)
+        assert stats.modes[c] == counts.argmax()
+        assert stats.means[c] == pytest.approx(image[..., c].mean(), abs=1e-9)
+
+
+def test_roi() -> None:
+    image = np.zeros((10, 10, 3), np.uint8)
+    image[2:5, 3:8] = 255
+    stats = channel_stats(image, (3, 2, 5, 3))
+    assert stats.pixels == 15
+    np.testing.assert_array_equal(stats.modes, [255, 255, 255])
+    with pytest.raises(ValueError, match="does not lie inside the 10×10 frame"):
+        crop(image, (8, 8, 5, 5))
