@@ -5,18 +5,22 @@ from __future__ import annotations
 import base64
 import binascii
 import hmac
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 from fastapi import Depends, Path, Request
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import Camera, Robot
 from app.errors import Forbidden, NotFound, Unauthorized
 from app.security import hash_token
+from app.services.camera_info import CameraInfo, TokenCache
 from app.settings import Settings
+
+T = TypeVar("T")
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
 
@@ -26,26 +30,53 @@ def get_sessionmaker(request: Request) -> sessionmaker[Session]:
     return sm
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_session(request: Request) -> Iterator[Session]:
+async def get_session(request: Request) -> AsyncIterator[Session]:
     """The request's unit of work: commits once on success, rolls back on any error.
 
-    Services only ``flush()``; nothing else commits.
+    Services only ``flush()``; nothing else commits. Database work, the commit included, runs
+    in worker threads: the session is created here (no I/O) and closed in a thread only when a
+    transaction is still open.
     """
-    with get_sessionmaker(request)() as session:
-        try:
-            yield session
-            session.commit()
-        except BaseException:
-            session.rollback()
-            raise
+    session = get_sessionmaker(request)()
+    try:
+        yield session
+        if session.in_transaction():
+            await run_in_threadpool(session.commit)
+    except BaseException:
+        if session.in_transaction():
+            await run_in_threadpool(session.rollback)
+        raise
+    finally:
+        if session.in_transaction():
+            await run_in_threadpool(session.close)
+        else:
+            session.close()
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
+
+
+async def run_in_unit_of_work(
+    session: Session, fn: Callable[..., T], /, *args: Any, **kwargs: Any
+) -> T:
+    """Run a sync service call in a worker thread and commit the request's session there.
+
+    For async routes whose work is CPU-bound: committing in the same thread releases the
+    connection (and SQLite's write lock) as soon as the work is done, instead of after the
+    response has been built. On error nothing is committed and ``get_session`` rolls back.
+    """
+
+    def work() -> T:
+        result = fn(session, *args, **kwargs)
+        session.commit()
+        return result
+
+    return await run_in_threadpool(work)
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 
@@ -75,12 +106,7 @@ def _credentials(header: str) -> tuple[str, str | None]:
     raise Unauthorized("expected 'Authorization: Bearer <token>' or Basic credentials")
 
 
-def get_principal(request: Request) -> Principal:
-    """Authenticate the caller: admin, camera or robot. Missing or unknown token → 401.
-
-    The lookup uses its own short read-only session, so the request's unit of work does not hold
-    a transaction open while the request body is read and decoded.
-    """
+def _identify(request: Request, session: Session) -> Principal:
     header = request.headers.get("authorization")
     if not header:
         raise Unauthorized("missing Authorization header")
@@ -88,16 +114,25 @@ def get_principal(request: Request) -> Principal:
     digest = hash_token(token)
     if hmac.compare_digest(digest, request.app.state.admin_token_hash):
         return Principal("admin")
-    with get_sessionmaker(request)() as session:
-        camera_id = session.scalar(select(Camera.id).where(Camera.token_hash == digest))
-        if camera_id is not None:
-            if basic_user is not None and basic_user != camera_id:
-                raise Unauthorized("the Basic user name is not the camera this token belongs to")
-            return Principal("camera", camera_id)
-        robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
-        if robot_id is not None:
-            return Principal("robot", robot_id)
+    camera_id = session.scalar(select(Camera.id).where(Camera.token_hash == digest))
+    if camera_id is not None:
+        if basic_user is not None and basic_user != camera_id:
+            raise Unauthorized("the Basic user name is not the camera this token belongs to")
+        return Principal("camera", camera_id)
+    robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
+    if robot_id is not None:
+        return Principal("robot", robot_id)
     raise Unauthorized("unknown token")
+
+
+def get_principal(request: Request) -> Principal:
+    """Authenticate the caller: admin, camera or robot. Missing or unknown token → 401.
+
+    The lookup uses its own short read-only session, so the request's unit of work does not hold
+    a transaction open while the request body is read and decoded.
+    """
+    with get_sessionmaker(request)() as session:
+        return _identify(request, session)
 
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
@@ -129,35 +164,53 @@ CameraId = Annotated[str, Path(pattern=ID_PATTERN, description="Camera id.")]
 PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]
 
 
-def camera_auth(camera_id: CameraId, principal: PrincipalDep) -> Principal:
-    """The camera's own token (Bearer or Basic) or the admin token; another camera's → 403."""
-    if principal.role == "admin":
-        return principal
-    if principal.role == "camera" and principal.id == camera_id:
-        return principal
-    if principal.role == "camera":
-        raise Forbidden("this camera's token may only post frames for its own camera")
-    raise Forbidden(f"a {principal.role} token may not post frames")
-
-
-CameraAuth = Annotated[Principal, Depends(camera_auth)]
-
-
-@dataclass(frozen=True, slots=True)
-class UploadTarget:
-    """The camera a frame is posted for, checked before its body is read."""
-
-    id: str
-    roi: tuple[int, int, int, int] | None
-
-
-def get_upload_target(camera_id: CameraId, principal: CameraAuth, request: Request) -> UploadTarget:
+def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | None:
     with get_sessionmaker(request)() as session:
-        row = session.execute(select(Camera.id, Camera.roi).where(Camera.id == camera_id)).first()
-    if row is None:
-        raise NotFound(f"no camera {camera_id!r}")
-    roi = (row.roi[0], row.roi[1], row.roi[2], row.roi[3]) if row.roi else None
-    return UploadTarget(row.id, roi)
+        camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
+        if camera is not None:
+            return CameraInfo.of(camera)
+        robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
+    return Principal("robot", robot_id) if robot_id is not None else None
 
 
-UploadTargetDep = Annotated[UploadTarget, Depends(get_upload_target)]
+def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
+    with get_sessionmaker(request)() as session:
+        camera = session.get(Camera, camera_id)
+        return CameraInfo.of(camera) if camera is not None else None
+
+
+async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
+    """Authenticate and authorise a frame upload and find its camera, before the body is read.
+
+    The camera's own token (Bearer, or Basic with the camera id as user name) or the admin
+    token; another camera's or a robot's → 403. Camera tokens are cached briefly
+    (``TokenCache``), so a steady stream of frames costs no lookup here.
+    """
+    header = request.headers.get("authorization")
+    if not header:
+        raise Unauthorized("missing Authorization header")
+    token, basic_user = _credentials(header)
+    digest = hash_token(token)
+    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
+        info = await run_in_threadpool(_camera_by_id, request, camera_id)
+        if info is None:
+            raise NotFound(f"no camera {camera_id!r}")
+        return info
+    cache: TokenCache = request.app.state.camera_tokens
+    found: CameraInfo | Principal | None = cache.get(digest)
+    if found is None:
+        found = await run_in_threadpool(_camera_by_token, request, digest)
+        if isinstance(found, CameraInfo):
+            cache.put(digest, found)
+    if found is None:
+        raise Unauthorized("unknown token")
+    if isinstance(found, Principal):
+        raise Forbidden(f"a {found.role} token may not post frames")
+    if basic_user is not None and basic_user != found.id:
+        raise Unauthorized("the Basic user name is not the camera this token belongs to")
+    if found.id != camera_id:
+        raise Forbidden("this camera's token may only post frames for its own camera")
+    return found
+
+
+UploadTargetDep = Annotated[CameraInfo, Depends(get_upload_target)]

@@ -14,6 +14,7 @@ from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
 from app.routers import cameras, health, panels, robots
 from app.security import admin_token_hash
+from app.services.camera_info import TokenCache
 from app.services.storage import FrameStore
 from app.settings import Settings, get_settings
 
@@ -43,7 +44,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
     app.state.admin_token_hash = admin_token_hash(settings)
-    app.state.frame_store = FrameStore(settings.data_dir)
+    app.state.camera_tokens = TokenCache()
+    app.state.frame_store = FrameStore(settings.data_dir, fsync=settings.fsync_frames)
 
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)

@@ -32,6 +32,10 @@ class Settings(BaseSettings):
         default=30.0, gt=0, description="Keep frames this long [d]."
     )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
+    fsync_frames: bool = Field(
+        default=False,
+        description="fsync each stored frame: survives power loss, not only a process crash.",
+    )
     log_level: str = "INFO"
     log_json: bool = True
 

@@ -7,7 +7,6 @@ from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 from sqlalchemy.orm import selectinload
@@ -19,6 +18,7 @@ from app.deps import (
     SessionDep,
     SettingsDep,
     UploadTargetDep,
+    run_in_unit_of_work,
 )
 from app.errors import NotFound, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
@@ -119,12 +119,11 @@ async def post_frame(
     start = time.perf_counter()
     when = _captured_at(captured_at)
     data = await read_jpeg(request, settings.max_body_bytes)
-    frame, verdict = await run_in_threadpool(
-        ingest.ingest,
+    frame, verdict = await run_in_unit_of_work(
         session,
+        ingest.ingest,
         request.app.state.frame_store if settings.store_frames else None,
-        camera_id=target.id,
-        roi=target.roi,
+        camera=target,
         data=data,
         captured_at=when,
         max_pixels=settings.max_pixels,

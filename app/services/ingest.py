@@ -11,8 +11,9 @@ from sqlalchemy.orm import Session
 from app.core.jpeg import SOI, JpegError, JpegHeader, TooManyPixelsError, decode_rgb
 from app.core.stats import ChannelStats, Roi, channel_stats
 from app.db.base import utcnow
-from app.db.models import Camera, Frame, Verdict
-from app.errors import NotFound, Unprocessable, UnsupportedMediaType
+from app.db.models import Frame, Verdict
+from app.errors import Unprocessable, UnsupportedMediaType
+from app.services.camera_info import CameraInfo
 from app.services.storage import FrameStore
 from app.services.verdicts import conclude
 
@@ -52,20 +53,21 @@ def store(
     session: Session,
     frames: FrameStore | None,
     *,
-    camera_id: str,
+    camera: CameraInfo,
     data: bytes,
     decoded: Decoded,
     captured_at: datetime | None,
 ) -> tuple[Frame, Verdict]:
-    """Write the frame and its verdict in the request's transaction, and the bytes to the store.
+    """Write the bytes to the store, then the frame and its verdict in the request's transaction.
 
-    The file is written after the rows are flushed, so a refused row leaves no file behind.
+    The file goes first and outside the transaction (its fsync must not hold the database's write
+    lock), so a committed row always has its file. A transaction that then fails leaves at most an
+    unreferenced file, which the retention sweep removes; it is never deleted here, because an
+    identical frame committed concurrently may share it.
     """
-    camera = session.get(Camera, camera_id)
-    if camera is None:
-        raise NotFound(f"no camera {camera_id!r}")
-    now = utcnow()
     sha256 = FrameStore.digest(data)
+    stored_path = frames.put(data, sha256)[0] if frames is not None else None
+    now = utcnow()
     frame = Frame(
         id=str(uuid.uuid4()),
         camera_id=camera.id,
@@ -75,30 +77,24 @@ def store(
         height=decoded.header.height,
         size_bytes=len(data),
         sha256=sha256,
+        stored_path=stored_path,
     )
     session.add(frame)
     verdict = conclude(session, camera, frame, decoded.stats)
     session.add(verdict)
-    if frames is not None:
-        frame.stored_path = FrameStore.relative_path(sha256)
     session.flush()
-    if frames is not None:
-        frames.put(data, sha256)
     return frame, verdict
-
-
 def ingest(
     session: Session,
     frames: FrameStore | None,
     *,
-    camera_id: str,
-    roi: Roi | None,
+    camera: CameraInfo,
     data: bytes,
     captured_at: datetime | None,
     max_pixels: int,
 ) -> tuple[Frame, Verdict]:
     """Decode first (no transaction open), then store."""
-    decoded = analyse(data, roi=roi, max_pixels=max_pixels)
+    decoded = analyse(data, roi=camera.roi, max_pixels=max_pixels)
     return store(
-        session, frames, camera_id=camera_id, data=data, decoded=decoded, captured_at=captured_at
+        session, frames, camera=camera, data=data, decoded=decoded, captured_at=captured_at
     )

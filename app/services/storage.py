@@ -11,8 +11,9 @@ from pathlib import Path
 class FrameStore:
     """JPEG bytes kept under ``root/ab/cd/<sha256>.jpg``; identical frames share one file."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, *, fsync: bool = False) -> None:
         self.root = root
+        self.fsync = fsync
 
     @staticmethod
     def digest(data: bytes) -> str:
@@ -26,7 +27,11 @@ class FrameStore:
         return self.root / relative
 
     def put(self, data: bytes, sha256: str) -> tuple[str, bool]:
-        """Write the bytes atomically (temp file, fsync, rename); return (path, created)."""
+        """Write the bytes atomically (temp file, rename); return (path, created).
+
+        The rename makes a file appear whole or not at all, which is what a process crash needs;
+        ``fsync`` (off by default: it costs more than decoding the frame) adds power-loss safety.
+        """
         relative = self.relative_path(sha256)
         target = self.path(relative)
         if target.exists():
@@ -35,8 +40,9 @@ class FrameStore:
         tmp = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
         with open(tmp, "wb") as f:
             f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+            if self.fsync:
+                f.flush()
+                os.fsync(f.fileno())
         os.replace(tmp, target)
         return relative, True
 

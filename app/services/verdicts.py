@@ -11,9 +11,10 @@ from collections.abc import Callable
 from sqlalchemy.orm import Session
 
 from app.core.stats import ChannelStats
-from app.db.models import Camera, CameraKind, Frame, PanelVerdict, SkyVerdict, Verdict
+from app.db.models import CameraKind, Frame, PanelVerdict, SkyVerdict, Verdict
+from app.services.camera_info import CameraInfo
 
-Classifier = Callable[[Session, Camera, Frame, ChannelStats], Verdict]
+Classifier = Callable[[Session, CameraInfo, Frame, ChannelStats], Verdict]
 
 
 def stats_columns(stats: ChannelStats) -> dict[str, float | int]:
@@ -28,7 +29,7 @@ def stats_columns(stats: ChannelStats) -> dict[str, float | int]:
     }
 
 
-def _panel(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) -> Verdict:
+def _panel(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
     reason = "camera is not attached to a panel" if camera.panel_id is None else "no baseline"
     return PanelVerdict(
         frame_id=frame.id,
@@ -41,7 +42,7 @@ def _panel(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) 
     )
 
 
-def _sky(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) -> Verdict:
+def _sky(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
     return SkyVerdict(
         frame_id=frame.id,
         camera_id=camera.id,
@@ -52,7 +53,7 @@ def _sky(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) ->
     )
 
 
-def _rig(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) -> Verdict:
+def _rig(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
     return Verdict(frame_id=frame.id, camera_id=camera.id, **stats_columns(stats))
 
 
@@ -63,6 +64,6 @@ CLASSIFIERS: dict[CameraKind, Classifier] = {
 }
 
 
-def conclude(session: Session, camera: Camera, frame: Frame, stats: ChannelStats) -> Verdict:
+def conclude(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
     """The verdict on ``frame`` from its statistics, by ``camera.kind``."""
     return CLASSIFIERS[camera.kind](session, camera, frame, stats)

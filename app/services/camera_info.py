@@ -1,0 +1,50 @@
+"""An immutable snapshot of a camera's configuration, as the ingest path needs it."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from app.core.stats import Roi
+from app.db.models import Camera, CameraKind
+
+
+@dataclass(frozen=True, slots=True)
+class CameraInfo:
+    id: str
+    kind: CameraKind
+    panel_id: str | None
+    roi: Roi | None
+
+    @classmethod
+    def of(cls, camera: Camera) -> CameraInfo:
+        r = camera.roi
+        roi = (r[0], r[1], r[2], r[3]) if r else None
+        return cls(camera.id, camera.kind, camera.panel_id, roi)
+
+
+class TokenCache:
+    """Camera token hash → CameraInfo for a few seconds, saving a database round trip per frame.
+
+    Only positive answers are kept, so a new camera is usable at once; a camera's configuration
+    reaches every process within ``ttl`` seconds.
+    """
+
+    def __init__(self, ttl: float = 10.0, max_entries: int = 100_000) -> None:
+        self.ttl = ttl
+        self.max_entries = max_entries
+        self._items: dict[str, tuple[float, CameraInfo]] = {}
+        self._lock = threading.Lock()
+
+    def get(self, digest: str) -> CameraInfo | None:
+        item = self._items.get(digest)
+        if item is None or item[0] < time.monotonic():
+            return None
+        return item[1]
+
+    def put(self, digest: str, info: CameraInfo) -> None:
+        with self._lock:
+            if len(self._items) >= self.max_entries:
+                self._items.clear()
+            self._items[digest] = (time.monotonic() + self.ttl, info)

@@ -1,0 +1,227 @@
+"""Ingest throughput against the bare decode-and-histogram ceiling, side by side in one run.
+
+Starts one uvicorn process serving the real service plus ``POST /bare`` (decode + histograms
+only, nothing stored), then drives both with the same 640×480 JPEGs from 16 client threads over
+keep-alive connections, alternating rounds so that machine noise hits both alike. Every request
+carries distinct bytes (a counter in a JPEG comment segment), so every ingested frame is a new
+file. Finally posts 10,000 frames and samples the server's RSS.
+
+    python bench/ingest.py                 # SQLite, and PostgreSQL if reachable
+    python bench/ingest.py --backends sqlite --rounds 3 --requests 1500
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+PG_ADMIN_URL = "postgresql://postgres@127.0.0.1:5432/postgres"
+PG_BENCH_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_bench"
+ADMIN = "bench-admin-token-0123456789abcdef"
+
+
+def jpeg_640x480(seed: int = 1) -> bytes:
+    """A natural-looking frame: smooth gradients plus noise, quality 90."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:480, 0:640]
+    base = np.stack([80 + 60 * np.sin(x / 90), 120 + 50 * np.cos(y / 70), 170 + 0.05 * x], axis=2)
+    image = np.clip(base + rng.normal(0, 12, base.shape), 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    return buf.tobytes()
+
+
+def unique(jpeg: bytes, n: int) -> bytes:
+    """The same image with a COM segment holding ``n``: distinct bytes, same pixels."""
+    return jpeg[:2] + b"\xff\xfe\x00\x0a" + n.to_bytes(8, "big") + jpeg[2:]
+
+
+def pg_reachable() -> bool:
+    try:
+        import psycopg
+
+        psycopg.connect(PG_ADMIN_URL, connect_timeout=3).close()
+        return True
+    except Exception:
+        return False
+
+
+def prepare_pg() -> None:
+    import psycopg
+
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute("DROP DATABASE IF EXISTS vantage_bench WITH (FORCE)")
+        conn.execute("CREATE DATABASE vantage_bench")
+
+
+class Server:
+    def __init__(self, backend: str, port: int, data_dir: Path) -> None:
+        env = {**os.environ, "VANTAGE_DATA_DIR": str(data_dir), "VANTAGE_ADMIN_TOKEN": ADMIN}
+        env["VANTAGE_LOG_LEVEL"] = "WARNING"
+        if backend == "postgresql":
+            prepare_pg()
+            env["VANTAGE_DATABASE_URL"] = PG_BENCH_URL
+        else:
+            env.pop("VANTAGE_DATABASE_URL", None)
+        py = sys.executable
+        subprocess.run([py, "-m", "alembic", "upgrade", "head"], cwd=ROOT, env=env, check=True,
+                       capture_output=True)
+        self.proc = subprocess.Popen(
+            [py, "-m", "uvicorn", "bench.ingest_app:create_bench_app", "--factory",
+             "--port", str(port), "--log-level", "warning", "--no-access-log"],
+            cwd=ROOT, env=env,
+        )
+        self.port = port
+        for _ in range(100):
+            try:
+                self.request("GET", "/health", b"", {})
+                return
+            except OSError:
+                time.sleep(0.1)
+        raise RuntimeError("server did not start")
+
+    def request(self, method: str, path: str, body: bytes, headers: dict[str, str]) -> tuple[int, bytes]:
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
+        conn.request(method, path, body=body, headers=headers)
+        r = conn.getresponse()
+        return r.status, r.read()
+
+    def rss_mb(self) -> float:
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+        return float("nan")
+
+    def cpu_seconds(self) -> float:
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(10)
+
+
+def drive(port: int, path: str, headers: dict[str, str], jpeg: bytes, start: int, total: int,
+          clients: int) -> tuple[float, list[float], int]:
+    """Post ``total`` frames from ``clients`` threads; return (seconds, latencies, errors)."""
+    counter = iter(range(start, start + total))
+    lock = threading.Lock()
+    latencies: list[float] = []
+    errors = 0
+
+    def worker() -> None:
+        nonlocal errors
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+        mine: list[float] = []
+        bad = 0
+        while True:
+            with lock:
+                n = next(counter, None)
+            if n is None:
+                break
+            body = unique(jpeg, n)
+            t0 = time.perf_counter()
+            conn.request("POST", path, body=body, headers=headers)
+            r = conn.getresponse()
+            r.read()
+            mine.append(time.perf_counter() - t0)
+            if r.status not in (200, 201):
+                bad += 1
+        conn.close()
+        with lock:
+            latencies.extend(mine)
+            errors += bad
+
+    threads = [threading.Thread(target=worker) for _ in range(clients)]
+    t0 = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return time.perf_counter() - t0, latencies, errors
+
+
+def pct(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q))
+
+
+def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str, object]:
+    jpeg = jpeg_640x480()
+    with tempfile.TemporaryDirectory() as tmp:
+        server = Server(backend, port, Path(tmp))
+        try:
+            admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
+            status, body = server.request("POST", "/cameras",
+                                          json.dumps({"id": "bench", "kind": "rig"}).encode(), admin)
+            assert status == 201, body
+            token = json.loads(body)["token"]
+            cam = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+            # warm-up
+            drive(port, "/bare", cam, jpeg, 0, 200, args.clients)
+            drive(port, "/cameras/bench/frames", cam, jpeg, 10**9, 200, args.clients)
+            rows: dict[str, dict[str, list[float]]] = {"bare": {}, "ingest": {}}
+            n = 10**6
+            for _ in range(args.rounds):
+                for name, path in (("bare", "/bare"), ("ingest", "/cameras/bench/frames")):
+                    cpu0 = server.cpu_seconds()
+                    secs, lat, err = drive(port, path, cam, jpeg, n, args.requests, args.clients)
+                    cpu = (server.cpu_seconds() - cpu0) / args.requests * 1000
+                    n += args.requests
+                    assert err == 0, f"{err} errors on {path}"
+                    r = rows[name]
+                    r.setdefault("fps", []).append(args.requests / secs)
+                    r.setdefault("p50", []).append(pct(lat, 50) * 1000)
+                    r.setdefault("p99", []).append(pct(lat, 99) * 1000)
+                    r.setdefault("server_cpu_ms_per_frame", []).append(cpu)
+            result: dict[str, object] = {"backend": backend}
+            for name, r in rows.items():
+                result[name] = {k: round(statistics.median(v), 2) for k, v in r.items()}
+            bare_fps = statistics.median(rows["bare"]["fps"])
+            ingest_fps = statistics.median(rows["ingest"]["fps"])
+            result["ratio"] = round(ingest_fps / bare_fps, 3)
+            result["p99_over_p50"] = round(
+                statistics.median(rows["ingest"]["p99"]) / statistics.median(rows["ingest"]["p50"]), 2
+            )
+            # memory over a long run
+            rss = [round(server.rss_mb(), 1)]
+            step = args.long // 10
+            for i in range(10):
+                drive(port, "/cameras/bench/frames", cam, jpeg, 10**8 + i * step, step, args.clients)
+                rss.append(round(server.rss_mb(), 1))
+            result["rss_mb_every_10pct"] = rss
+            return result
+        finally:
+            server.stop()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--backends", default="sqlite,postgresql")
+    parser.add_argument("--clients", type=int, default=16)
+    parser.add_argument("--requests", type=int, default=2000, help="frames per round")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
+    parser.add_argument("--port", type=int, default=8911)
+    args = parser.parse_args()
+    for backend in args.backends.split(","):
+        if backend == "postgresql" and not pg_reachable():
+            print("postgresql: not reachable, skipped")
+            continue
+        print(json.dumps(bench_backend(backend, args, args.port)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
