@@ -5,9 +5,9 @@ from __future__ import annotations
 import base64
 import binascii
 import hmac
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Literal
 
 from fastapi import Depends, Path, Request
 from fastapi.concurrency import run_in_threadpool
@@ -19,8 +19,6 @@ from app.errors import Forbidden, NotFound, Unauthorized
 from app.security import hash_token
 from app.services.camera_info import CameraInfo, TokenCache
 from app.settings import Settings
-
-T = TypeVar("T")
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
 
@@ -59,24 +57,6 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
-
-
-async def run_in_unit_of_work(
-    session: Session, fn: Callable[..., T], /, *args: Any, **kwargs: Any
-) -> T:
-    """Run a sync service call in a worker thread and commit the request's session there.
-
-    For async routes whose work is CPU-bound: committing in the same thread releases the
-    connection (and SQLite's write lock) as soon as the work is done, instead of after the
-    response has been built. On error nothing is committed and ``get_session`` rolls back.
-    """
-
-    def work() -> T:
-        result = fn(session, *args, **kwargs)
-        session.commit()
-        return result
-
-    return await run_in_threadpool(work)
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 

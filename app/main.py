@@ -16,6 +16,7 @@ from app.routers import cameras, health, panels, robots
 from app.security import admin_token_hash
 from app.services.camera_info import TokenCache
 from app.services.storage import FrameStore
+from app.services.writer import GroupCommitWriter
 from app.settings import Settings, get_settings
 
 log = logging.getLogger("vantage")
@@ -29,7 +30,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
+        app.state.writer.start()
         yield
+        app.state.writer.stop()
         engine.dispose()
 
     app = FastAPI(
@@ -43,6 +46,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
+    app.state.writer = GroupCommitWriter(app.state.sessionmaker)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
     app.state.frame_store = FrameStore(settings.data_dir, fsync=settings.fsync_frames)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import time
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 from sqlalchemy.orm import selectinload
@@ -18,7 +20,6 @@ from app.deps import (
     SessionDep,
     SettingsDep,
     UploadTargetDep,
-    run_in_unit_of_work,
 )
 from app.errors import NotFound, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
@@ -108,7 +109,6 @@ def _captured_at(value: datetime | None) -> datetime | None:
 async def post_frame(
     request: Request,
     target: UploadTargetDep,
-    session: SessionDep,
     settings: SettingsDep,
     captured_at: Annotated[
         datetime | None,
@@ -119,14 +119,18 @@ async def post_frame(
     start = time.perf_counter()
     when = _captured_at(captured_at)
     data = await read_jpeg(request, settings.max_body_bytes)
-    frame, verdict = await run_in_unit_of_work(
-        session,
-        ingest.ingest,
-        request.app.state.frame_store if settings.store_frames else None,
-        camera=target,
-        data=data,
-        captured_at=when,
-        max_pixels=settings.max_pixels,
+    prepared = await run_in_threadpool(
+        partial(
+            ingest.prepare,
+            request.app.state.frame_store if settings.store_frames else None,
+            camera=target,
+            data=data,
+            captured_at=when,
+            max_pixels=settings.max_pixels,
+        )
+    )
+    frame, verdict = await request.app.state.writer.submit(
+        partial(ingest.record, prepared=prepared)
     )
     FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

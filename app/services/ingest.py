@@ -12,6 +12,7 @@ from app.core.jpeg import SOI, JpegError, JpegHeader, TooManyPixelsError, decode
 from app.core.stats import ChannelStats, Roi, channel_stats
 from app.db.base import utcnow
 from app.db.models import Frame, Verdict
+from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.services.camera_info import CameraInfo
 from app.services.storage import FrameStore
@@ -49,22 +50,30 @@ def analyse(data: bytes, *, roi: Roi | None, max_pixels: int) -> Decoded:
     return Decoded(header, stats)
 
 
-def store(
-    session: Session,
+@dataclass(frozen=True, slots=True)
+class Prepared:
+    """A frame checked, decoded, measured and written to the store; not yet in the database."""
+
+    camera: CameraInfo
+    frame: Frame
+    stats: ChannelStats
+
+
+def prepare(
     frames: FrameStore | None,
     *,
     camera: CameraInfo,
     data: bytes,
-    decoded: Decoded,
     captured_at: datetime | None,
-) -> tuple[Frame, Verdict]:
-    """Write the bytes to the store, then the frame and its verdict in the request's transaction.
+    max_pixels: int,
+) -> Prepared:
+    """Everything about a frame that needs no database, run in a worker thread.
 
-    The file goes first and outside the transaction (its fsync must not hold the database's write
-    lock), so a committed row always has its file. A transaction that then fails leaves at most an
-    unreferenced file, which the retention sweep removes; it is never deleted here, because an
-    identical frame committed concurrently may share it.
+    The file is written here, before any transaction, so a committed row always has its file.
+    A transaction that then fails leaves at most an unreferenced file, which the retention sweep
+    removes; it is never deleted here, because an identical frame may share it.
     """
+    decoded = analyse(data, roi=camera.roi, max_pixels=max_pixels)
     sha256 = FrameStore.digest(data)
     stored_path = frames.put(data, sha256)[0] if frames is not None else None
     now = utcnow()
@@ -79,22 +88,14 @@ def store(
         sha256=sha256,
         stored_path=stored_path,
     )
-    session.add(frame)
-    verdict = conclude(session, camera, frame, decoded.stats)
-    session.add(verdict)
-    session.flush()
-    return frame, verdict
-def ingest(
-    session: Session,
-    frames: FrameStore | None,
-    *,
-    camera: CameraInfo,
-    data: bytes,
-    captured_at: datetime | None,
-    max_pixels: int,
-) -> tuple[Frame, Verdict]:
-    """Decode first (no transaction open), then store."""
-    decoded = analyse(data, roi=camera.roi, max_pixels=max_pixels)
-    return store(
-        session, frames, camera=camera, data=data, decoded=decoded, captured_at=captured_at
-    )
+    return Prepared(camera, frame, decoded.stats)
+
+
+def record(session: Session, prepared: Prepared) -> tuple[Frame, Verdict]:
+    """The database part: conclude the verdict and insert the frame and verdict rows.
+
+    Runs on the group-commit writer (``app.services.writer``), inside the batch's transaction.
+    """
+    verdict = conclude(session, prepared.camera, prepared.frame, prepared.stats)
+    insert_rows(session, prepared.frame, verdict)
+    return prepared.frame, verdict

@@ -9,11 +9,16 @@ from pathlib import Path
 
 
 class FrameStore:
-    """JPEG bytes kept under ``root/ab/cd/<sha256>.jpg``; identical frames share one file."""
+    """JPEG bytes kept under ``root/frames/ab/<sha256>.jpg``; identical frames share one file.
+
+    One level of 256 directories: a second level would mean a new directory for most of the
+    first 65,536 frames, which costs more than writing the frame.
+    """
 
     def __init__(self, root: Path, *, fsync: bool = False) -> None:
         self.root = root
         self.fsync = fsync
+        self._made: set[Path] = set()  # directories known to exist
 
     @staticmethod
     def digest(data: bytes) -> str:
@@ -21,7 +26,7 @@ class FrameStore:
 
     @staticmethod
     def relative_path(sha256: str) -> str:
-        return f"frames/{sha256[:2]}/{sha256[2:4]}/{sha256}.jpg"
+        return f"frames/{sha256[:2]}/{sha256}.jpg"
 
     def path(self, relative: str) -> Path:
         return self.root / relative
@@ -36,7 +41,9 @@ class FrameStore:
         target = self.path(relative)
         if target.exists():
             return relative, False
-        target.parent.mkdir(parents=True, exist_ok=True)
+        if target.parent not in self._made:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            self._made.add(target.parent)
         tmp = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
         with open(tmp, "wb") as f:
             f.write(data)
@@ -54,4 +61,4 @@ class FrameStore:
         base = self.root / "frames"
         if not base.exists():
             return []
-        return sorted(str(p.relative_to(self.root)) for p in base.glob("*/*/*.jpg"))
+        return sorted(str(p.relative_to(self.root)) for p in base.glob("*/*.jpg"))

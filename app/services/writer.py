@@ -1,0 +1,112 @@
+"""Group commit for the ingest path: one thread writes, many requests wait.
+
+Every frame needs a short write transaction. Run from many request threads at once, those
+transactions queue for the database's write lock (SQLite has one writer; PostgreSQL pays an
+fsync per commit), and each one's few statements wait behind the CPU-bound decoding of other
+frames, so the lock is held for far longer than the work takes. Here a single thread owns the
+writes instead: it takes every job that is waiting, runs them in one transaction and commits
+once for the whole batch. When a job raises, the batch is rolled back and its jobs are run again
+one transaction each, so only the failing job fails; jobs must therefore depend on nothing but
+the database they see. A caller's result (its 201) comes only after the commit holding its rows.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from sqlalchemy.orm import Session, sessionmaker
+
+log = logging.getLogger("vantage.writer")
+
+T = TypeVar("T")
+
+
+@dataclass(slots=True)
+class _Job:
+    fn: Callable[[Session], Any]
+    loop: asyncio.AbstractEventLoop
+    future: asyncio.Future[Any]
+
+
+def _settle(future: asyncio.Future[Any], result: Any, error: BaseException | None) -> None:
+    if future.done():  # the caller went away (cancelled)
+        return
+    if error is not None:
+        future.set_exception(error)
+    else:
+        future.set_result(result)
+
+
+class GroupCommitWriter:
+    """Runs write jobs ``fn(session)`` on one thread, committing each batch once."""
+
+    def __init__(self, sessions: sessionmaker[Session], *, max_batch: int = 64) -> None:
+        self._sessions = sessions
+        self._max_batch = max_batch
+        self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(
+                    target=self._run, name="vantage-writer", daemon=True
+                )
+                self._thread.start()
+
+    def stop(self) -> None:
+        with self._lock:
+            thread, self._thread = self._thread, None
+        if thread is not None:
+            self._queue.put(None)
+            thread.join(timeout=30)
+
+    async def submit(self, fn: Callable[[Session], T]) -> T:
+        """Run ``fn(session)`` in the next batch; return its result once the batch committed."""
+        if self._thread is None:
+            self.start()
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+        self._queue.put(_Job(fn, loop, future))
+        return await future
+
+    def _take_batch(self) -> list[_Job] | None:
+        first = self._queue.get()
+        if first is None:
+            return None
+        batch = [first]
+        while len(batch) < self._max_batch:
+            try:
+                job = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if job is None:
+                self._queue.put(None)  # stop after this batch
+                break
+            batch.append(job)
+        return batch
+
+    def _run(self) -> None:
+        while (batch := self._take_batch()) is not None:
+            outcomes = self._write(batch)
+            for job, (result, error) in zip(batch, outcomes, strict=True):
+                job.loop.call_soon_threadsafe(_settle, job.future, result, error)
+
+    def _write(self, batch: list[_Job]) -> list[tuple[Any, BaseException | None]]:
+        try:
+            with self._sessions() as session:
+                results = [job.fn(session) for job in batch]
+                session.commit()
+            return [(r, None) for r in results]
+        except Exception as exc:
+            if len(batch) == 1:
+                return [(None, exc)]
+        # isolate the failure: one transaction per job
+        return [outcome for job in batch for outcome in self._write([job])]
