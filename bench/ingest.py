@@ -77,12 +77,28 @@ class Server:
         else:
             env.pop("VANTAGE_DATABASE_URL", None)
         py = sys.executable
-        subprocess.run([py, "-m", "alembic", "upgrade", "head"], cwd=ROOT, env=env, check=True,
-                       capture_output=True)
+        subprocess.run(
+            [py, "-m", "alembic", "upgrade", "head"],
+            cwd=ROOT,
+            env=env,
+            check=True,
+            capture_output=True,
+        )
         self.proc = subprocess.Popen(
-            [py, "-m", "uvicorn", "bench.ingest_app:create_bench_app", "--factory",
-             "--port", str(port), "--log-level", "warning", "--no-access-log"],
-            cwd=ROOT, env=env,
+            [
+                py,
+                "-m",
+                "uvicorn",
+                "bench.ingest_app:create_bench_app",
+                "--factory",
+                "--port",
+                str(port),
+                "--log-level",
+                "warning",
+                "--no-access-log",
+            ],
+            cwd=ROOT,
+            env=env,
         )
         self.port = port
         for _ in range(100):
@@ -93,7 +109,9 @@ class Server:
                 time.sleep(0.1)
         raise RuntimeError("server did not start")
 
-    def request(self, method: str, path: str, body: bytes, headers: dict[str, str]) -> tuple[int, bytes]:
+    def request(
+        self, method: str, path: str, body: bytes, headers: dict[str, str]
+    ) -> tuple[int, bytes]:
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
         conn.request(method, path, body=body, headers=headers)
         r = conn.getresponse()
@@ -114,8 +132,9 @@ class Server:
         self.proc.wait(10)
 
 
-def drive(port: int, path: str, headers: dict[str, str], jpeg: bytes, start: int, total: int,
-          clients: int) -> tuple[float, list[float], int]:
+def drive(
+    port: int, path: str, headers: dict[str, str], jpeg: bytes, start: int, total: int, clients: int
+) -> tuple[float, list[float], int]:
     """Post ``total`` frames from ``clients`` threads; return (seconds, latencies, errors)."""
     counter = iter(range(start, start + total))
     lock = threading.Lock()
@@ -160,12 +179,16 @@ def pct(values: list[float], q: float) -> float:
 
 def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str, object]:
     jpeg = jpeg_640x480()
-    with tempfile.TemporaryDirectory() as tmp:
+    # the service's own default place for data (./data), not /tmp: file creation costs differ
+    # by an order of magnitude between the two on some machines
+    args.data_root.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
         server = Server(backend, port, Path(tmp))
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
-            status, body = server.request("POST", "/cameras",
-                                          json.dumps({"id": "bench", "kind": "rig"}).encode(), admin)
+            status, body = server.request(
+                "POST", "/cameras", json.dumps({"id": "bench", "kind": "rig"}).encode(), admin
+            )
             assert status == 201, body
             token = json.loads(body)["token"]
             cam = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
@@ -193,13 +216,16 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
             ingest_fps = statistics.median(rows["ingest"]["fps"])
             result["ratio"] = round(ingest_fps / bare_fps, 3)
             result["p99_over_p50"] = round(
-                statistics.median(rows["ingest"]["p99"]) / statistics.median(rows["ingest"]["p50"]), 2
+                statistics.median(rows["ingest"]["p99"]) / statistics.median(rows["ingest"]["p50"]),
+                2,
             )
             # memory over a long run
             rss = [round(server.rss_mb(), 1)]
             step = args.long // 10
             for i in range(10):
-                drive(port, "/cameras/bench/frames", cam, jpeg, 10**8 + i * step, step, args.clients)
+                drive(
+                    port, "/cameras/bench/frames", cam, jpeg, 10**8 + i * step, step, args.clients
+                )
                 rss.append(round(server.rss_mb(), 1))
             result["rss_mb_every_10pct"] = rss
             return result
@@ -215,6 +241,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
+    parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()
     for backend in args.backends.split(","):
         if backend == "postgresql" and not pg_reachable():
