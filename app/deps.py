@@ -18,6 +18,7 @@ from app.db.models import Camera, Robot
 from app.errors import Forbidden, NotFound, Unauthorized
 from app.security import hash_token
 from app.services.camera_info import CameraInfo, TokenCache
+from app.services.policy import Policy
 from app.settings import Settings
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
@@ -56,7 +57,13 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
             session.close()
 
 
+async def get_policy(request: Request) -> Policy:
+    policy: Policy = request.app.state.policy
+    return policy
+
+
 SessionDep = Annotated[Session, Depends(get_session)]
+PolicyDep = Annotated[Policy, Depends(get_policy)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from datetime import timedelta
 
 from fastapi import FastAPI
 
@@ -12,9 +13,10 @@ from app import __version__
 from app.db.session import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
-from app.routers import cameras, health, panels, robots
+from app.routers import cameras, cleaning, fleet, health, panels, robots
 from app.security import admin_token_hash
 from app.services.camera_info import TokenCache
+from app.services.policy import Policy
 from app.services.storage import FrameStore
 from app.services.writer import GroupCommitWriter
 from app.settings import Settings, get_settings
@@ -49,10 +51,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.writer = GroupCommitWriter(app.state.sessionmaker)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
+    app.state.policy = Policy(
+        debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
+    )
     app.state.frame_store = FrameStore(settings.data_dir, fsync=settings.fsync_frames)
 
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)
-    for module in (health, cameras, panels, robots):
+    for module in (health, cameras, panels, fleet, robots, cleaning):
         app.include_router(module.router)
     return app

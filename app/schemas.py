@@ -104,12 +104,16 @@ class VerdictBase(Out):
 class PanelVerdictOut(VerdictBase):
     kind: Literal["panel"] = "panel"
     panel_id: str | None
-    clean: bool | None
-    t2: float | None
-    f_stat: float | None
+    clean: bool | None = Field(description="None with a reason: no baseline, or unusable frame.")
+    t2: float | None = Field(description="Hotelling's t², eq. 5.19.")
+    f_stat: float | None = Field(description="(n − 3)/(3(n − 1)) t² ~ F(3, n − 3), eq. 5.20.")
     p_value: float | None
-    threshold: float | None
-    state: str | None
+    threshold: float | None = Field(
+        description="F₍₃,ₙ₋₃,ς₎ (eq. 5.21); for the fleet model, the p_dirty cut-off."
+    )
+    state: str | None = Field(description="The panel's state after this verdict.")
+    method: str | None = Field(default=None, description="baseline (T²) or fleet.")
+    p_dirty: float | None = Field(default=None, description="Fleet model: p(needs cleaning).")
 
 
 class SkyVerdictOut(VerdictBase):
@@ -142,3 +146,107 @@ class Health(Out):
     status: Literal["ok", "degraded"]
     database: Literal["ok", "unreachable"]
     version: str
+
+
+class BaselineFromFrames(Schema):
+    frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
+
+
+class BaselineOut(Out):
+    id: str
+    panel_id: str
+    created_at: datetime
+    n: int = Field(description="Clean images used.")
+    mean_modes: list[float] = Field(description="x̄ₘ, eq. 5.12 [level].")
+    covariance: list[list[float]] = Field(description="Σ̂ with n − 1, eq. 5.13 [level²].")
+    significance: float = Field(description="ς.")
+    f_critical: float = Field(description="F₍₃,ₙ₋₃,ς₎, eq. 5.21.")
+    condition_number: float
+    shrinkage: float = Field(description="Variance added to Σ̂'s diagonal [level²].")
+    frame_ids: list[str] | None
+
+
+class TaskOut(Out):
+    task_id: str
+    panel_id: str
+    status: str = Field(description="pending, claimed, completed, closed, failed or cancelled.")
+    robot_id: str | None
+    created_at: datetime
+    claimed_at: datetime | None
+    lease_expires_at: datetime | None
+    completed_at: datetime | None
+    closed_at: datetime | None
+    outcome: str | None = Field(description="effective, ineffective, not_needed or failed.")
+    attempts: int
+    fail_reason: str | None
+
+
+class ClaimOut(Out):
+    task_id: str
+    panel_id: str
+    lease_expires_at: datetime
+
+
+class FailIn(Schema):
+    reason: Annotated[str, Field(max_length=500)] | None = None
+
+
+class TrendOut(Out):
+    points: int = Field(description="Verdicts since the panel was last known clean.")
+    slope_per_day: float | None = Field(description="Theil–Sen slope of F [1/day].")
+    f_now: float | None = Field(description="Fitted F now.")
+    threshold: float | None = Field(description="F₍₃,ₙ₋₃,ς₎.")
+    crossing_at: datetime | None = Field(description="Forecast: fitted F reaches the threshold.")
+
+
+class PanelVerdictSummary(PanelVerdictOut):
+    frame_id: str
+    captured_at: datetime
+
+
+class PanelStatus(Out):
+    panel_id: str
+    state: Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
+    last_verdict: PanelVerdictSummary | None
+    open_task: TaskOut | None
+    ineffective: bool = Field(description="The last cleaning did not make the panel clean.")
+    dirty_streak: int
+    baseline_id: str | None
+    trend: TrendOut
+
+
+class Trigger(Out):
+    panel_id: str
+    clean_now: bool
+    task_id: str | None
+
+
+class TwoSampleOut(Out):
+    t2: float
+    f_stat: float
+    df1: int
+    df2: int
+    p_value: float
+    mean_difference: list[float] = Field(description="Dirty mean modes minus clean [level].")
+
+
+class EvaluationOut(Out):
+    n_clean: int
+    n_dirty: int
+    hotelling: TwoSampleOut
+    dirty_called_clean: float = Field(description="Dirty images the clean baseline accepts.")
+    clean_called_dirty: float = Field(
+        description="Clean images refused by a baseline fitted without them (leave-one-out)."
+    )
+    clean_modes: list[list[float]]
+    dirty_modes: list[list[float]]
+
+
+class FleetModelOut(Out):
+    id: str
+    created_at: datetime
+    feature_names: list[str]
+    n_clean: int
+    n_dirty: int
+    cv_balanced_accuracy: float | None = Field(description="5-fold balanced accuracy.")
+    threshold: float

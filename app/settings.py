@@ -36,6 +36,13 @@ class Settings(BaseSettings):
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",
     )
+    cleaning_debounce: int = Field(
+        default=3, ge=1, description="Consecutive dirty verdicts that open a cleaning task."
+    )
+    lease_seconds: float = Field(default=600.0, gt=0, description="A claimed task's lease [s].")
+    max_upload_bytes: int = Field(
+        default=200 * 1024 * 1024, gt=0, description="Cap for multi-image training uploads [B]."
+    )
     log_level: str = "INFO"
     log_json: bool = True
 

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import AsyncGenerator
+from dataclasses import dataclass
+from typing import TypeVar
 
 from fastapi import Request
+from pydantic import BaseModel, ValidationError
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
@@ -39,13 +42,22 @@ async def _once(data: bytes) -> AsyncGenerator[bytes, None]:
     yield data
 
 
-async def read_files(
-    request: Request, field: str, limit: int, *, max_files: int = 1
-) -> list[tuple[str | None, bytes]]:
-    """The files of a multipart body's repeated ``field``: [(filename, bytes), ...]."""
+@dataclass(frozen=True, slots=True)
+class Form:
+    files: list[tuple[str, str | None, bytes]]
+    """(field, filename, bytes) in the order sent."""
+    fields: dict[str, list[str]]
+    """Text fields, each with its values in the order sent."""
+
+    def files_of(self, field: str) -> list[tuple[str | None, bytes]]:
+        return [(name, data) for f, name, data in self.files if f == field]
+
+
+async def read_form(request: Request, limit: int, *, max_files: int) -> Form:
+    """A multipart body of at most ``limit`` bytes, parsed."""
     body = await read_capped(request, limit)
     parser = MultiPartParser(
-        request.headers, _once(body), max_files=max_files, max_fields=100, max_part_size=limit
+        request.headers, _once(body), max_files=max_files, max_fields=10_000, max_part_size=limit
     )
     try:
         form = await parser.parse()
@@ -54,13 +66,23 @@ async def read_files(
             f"malformed multipart body: {exc.message}", code="bad_multipart"
         ) from None
     try:
-        files = []
-        for item in form.getlist(field):
-            if not isinstance(item, UploadFile):
-                raise Unprocessable(f"multipart field {field!r} must be a file, not text")
-            files.append((item.filename, await item.read()))
+        files: list[tuple[str, str | None, bytes]] = []
+        fields: dict[str, list[str]] = {}
+        for key, item in form.multi_items():
+            if isinstance(item, UploadFile):
+                files.append((key, item.filename, await item.read()))
+            else:
+                fields.setdefault(key, []).append(item)
     finally:
         await form.close()
+    return Form(files, fields)
+
+
+async def read_files(
+    request: Request, field: str, limit: int, *, max_files: int = 1
+) -> list[tuple[str | None, bytes]]:
+    """The files of a multipart body's (repeated) ``field``: [(filename, bytes), ...]."""
+    files = (await read_form(request, limit, max_files=max_files)).files_of(field)
     if not files:
         raise Unprocessable(f"multipart body has no file in field {field!r}", code="no_file")
     return files
@@ -78,3 +100,21 @@ async def read_jpeg(request: Request, limit: int) -> bytes:
         f"expected Content-Type image/jpeg or multipart/form-data; got {content_type or 'none'!r}",
         code="not_jpeg",
     )
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+async def read_json(request: Request, model: type[M], limit: int) -> M:
+    """A JSON body of at most ``limit`` bytes, validated as ``model`` (422 when it is not)."""
+    body = await read_capped(request, limit)
+    try:
+        return model.model_validate_json(body)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise Unprocessable(f"{where}: {first['msg']}" if where else first["msg"]) from None
+
+
+def content_type(request: Request) -> str:
+    return request.headers.get("content-type", "").split(";")[0].strip().lower()

@@ -17,6 +17,7 @@ from sqlalchemy import (
     Integer,
     SmallInteger,
     String,
+    false,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
@@ -37,6 +38,9 @@ class TimestampMixin:
 
 
 class Panel(TimestampMixin, Base):
+    """A solar panel. Its public state is derived (``app.core.panel_state``) from these columns
+    and its open cleaning task, so robots claiming tasks never write the panel row."""
+
     __tablename__ = "panels"
 
     id: Mapped[str] = mapped_column(String(ID_LENGTH), primary_key=True)
@@ -45,6 +49,89 @@ class Panel(TimestampMixin, Base):
     """Latitude [°], WGS 84."""
     lon: Mapped[float | None] = mapped_column(Float)
     """Longitude [°], WGS 84."""
+    baseline_id: Mapped[str | None] = mapped_column(
+        ForeignKey("baselines.id", use_alter=True), default=None
+    )
+    """The baseline verdicts use (the latest trained)."""
+    dirty_streak: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    """Consecutive usable verdicts that said dirty (the debounce counter)."""
+    last_clean: Mapped[bool | None] = mapped_column(Boolean, default=None)
+    """The last usable verdict, or None before the first."""
+    ineffective: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    """The last cleaning did not make the panel clean."""
+
+
+class Baseline(Base):
+    """A panel's clean baseline (eqs. 5.12–5.13)."""
+
+    __tablename__ = "baselines"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    panel_id: Mapped[str] = mapped_column(ForeignKey("panels.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    n: Mapped[int] = mapped_column(Integer)
+    mean_modes: Mapped[list[float]] = mapped_column(JSON)
+    covariance: Mapped[list[list[float]]] = mapped_column(JSON)
+    significance: Mapped[float] = mapped_column(Float)
+    f_critical: Mapped[float] = mapped_column(Float)
+    condition_number: Mapped[float] = mapped_column(Float)
+    shrinkage: Mapped[float] = mapped_column(Float)
+    frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
+    """Stored frames it was trained from (kept by the retention sweep), or none for uploads."""
+
+
+class TaskStatus(enum.StrEnum):
+    pending = "pending"
+    claimed = "claimed"
+    completed = "completed"
+    """Done by the robot; the panel's next usable verdict confirms it."""
+    closed = "closed"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+OPEN_TASK_STATUSES = (TaskStatus.pending, TaskStatus.claimed, TaskStatus.completed)
+
+
+class CleaningTask(Base):
+    __tablename__ = "cleaning_tasks"
+    __table_args__ = (Index("ix_cleaning_tasks_status_created_at", "status", "created_at"),)
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    panel_id: Mapped[str] = mapped_column(ForeignKey("panels.id"), index=True)
+    open_panel_id: Mapped[str | None] = mapped_column(ForeignKey("panels.id"), unique=True)
+    """The panel id while the task is open, else NULL: at most one open task per panel."""
+    status: Mapped[TaskStatus] = mapped_column(
+        Enum(TaskStatus, native_enum=False, length=16, validate_strings=True)
+    )
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    robot_id: Mapped[str | None] = mapped_column(ForeignKey("robots.id"))
+    claimed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    completed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    outcome: Mapped[str | None] = mapped_column(String(16))
+    """effective, ineffective, not_needed or failed."""
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    fail_reason: Mapped[str | None] = mapped_column(String(500))
+
+
+class FleetModel(Base):
+    """A clean/dirty model trained on labelled photos of many panels (``app.core.fleet``)."""
+
+    __tablename__ = "fleet_models"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    feature_names: Mapped[list[str]] = mapped_column(JSON)
+    mean: Mapped[list[float]] = mapped_column(JSON)
+    scale: Mapped[list[float]] = mapped_column(JSON)
+    coef: Mapped[list[float]] = mapped_column(JSON)
+    intercept: Mapped[float] = mapped_column(Float)
+    threshold: Mapped[float] = mapped_column(Float)
+    n_clean: Mapped[int] = mapped_column(Integer)
+    n_dirty: Mapped[int] = mapped_column(Integer)
+    cv_balanced_accuracy: Mapped[float | None] = mapped_column(Float)
 
 
 class Camera(TimestampMixin, Base):
@@ -142,6 +229,11 @@ class PanelVerdict(Verdict):
     p_value: Mapped[float | None] = mapped_column(Float)
     threshold: Mapped[float | None] = mapped_column(Float)
     state: Mapped[str | None] = mapped_column(String(32))
+    method: Mapped[str | None] = mapped_column(String(16))
+    """baseline (the panel's T² test) or fleet (the fleet model)."""
+    baseline_id: Mapped[str | None] = mapped_column(ForeignKey("baselines.id"))
+    p_dirty: Mapped[float | None] = mapped_column(Float)
+    """The fleet model's probability that the panel needs cleaning."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}
 

@@ -17,6 +17,7 @@ from app.db.models import Frame
 from app.deps import (
     Admin,
     CameraId,
+    PolicyDep,
     SessionDep,
     SettingsDep,
     UploadTargetDep,
@@ -110,6 +111,7 @@ async def post_frame(
     request: Request,
     target: UploadTargetDep,
     settings: SettingsDep,
+    policy: PolicyDep,
     captured_at: Annotated[
         datetime | None,
         Query(description="When the frame was taken (RFC 3339; default: when received)."),
@@ -126,11 +128,12 @@ async def post_frame(
             camera=target,
             data=data,
             captured_at=when,
+            received_at=policy.now(),
             max_pixels=settings.max_pixels,
         )
     )
     frame, verdict = await request.app.state.writer.submit(
-        partial(ingest.record, prepared=prepared)
+        partial(ingest.record, prepared=prepared, policy=policy)
     )
     FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

@@ -1,17 +1,65 @@
-"""Solar panels."""
+"""Solar panels: registry, baselines, status, the cleaning trigger, evaluation."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from functools import partial
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy.orm import Session
 
-from app.deps import Admin, PanelId, SessionDep
-from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
-from app.schemas import PanelCreate, PanelOut
-from app.services import registry
+from app.db.models import Baseline, CameraKind
+from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep
+from app.errors import NotFound, UnsupportedMediaType
+from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, verdict_out
+from app.schemas import (
+    BaselineFromFrames,
+    BaselineOut,
+    EvaluationOut,
+    PanelCreate,
+    PanelOut,
+    PanelStatus,
+    PanelVerdictSummary,
+    TaskOut,
+    TrendOut,
+    Trigger,
+    TwoSampleOut,
+)
+from app.services import panels, registry, training
+from app.services.camera_info import CameraInfo
+from app.services.policy import Policy
+from app.uploads import content_type, read_files, read_form, read_json
 
 router = APIRouter(tags=["panels"])
+
+Significance = Annotated[
+    float, Query(gt=0, le=0.05, description="ς, the level of significance (eq. 5.21).")
+]
+Shrinkage = Annotated[
+    float,
+    Query(
+        ge=0,
+        le=100,
+        description="Variance added to Σ̂'s diagonal [level²]. 0 refuses a singular covariance; "
+        "1/12 (integer rounding of modes) admits a channel whose mode never changes.",
+    ),
+]
+_FILES_BODY = {
+    "requestBody": {
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "properties": {
+                        "files": {"type": "array", "items": {"type": "string", "format": "binary"}}
+                    },
+                }
+            },
+            "application/json": {"schema": BaselineFromFrames.model_json_schema()},
+        }
+    }
+}
 
 
 @router.post(
@@ -33,13 +81,245 @@ def list_panels(
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[PanelOut]:
     """List panels, ordered by id."""
-    return [
-        PanelOut.model_validate(p)
-        for p in registry.list_panels(session, limit=limit, offset=offset)
-    ]
+    rows = registry.list_panels(session, limit=limit, offset=offset)
+    return [PanelOut.model_validate(p) for p in rows]
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_panel(panel_id: PanelId, session: SessionDep, _: Admin) -> PanelOut:
     """One panel."""
     return PanelOut.model_validate(registry.get_panel(session, panel_id))
+
+
+def _train_from_files(
+    session: Session,
+    panel_id: str,
+    camera_id: str | None,
+    files: list[tuple[str | None, bytes]],
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+    policy: Policy,
+) -> BaselineOut:
+    registry.get_panel(session, panel_id)
+    camera = training.panel_camera(session, panel_id, camera_id)
+    modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
+    row = training.train_baseline(
+        session,
+        panel_id,
+        modes,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=None,
+        now=policy.now(),
+    )
+    return BaselineOut.model_validate(row)
+
+
+def _train_from_frames(
+    session: Session,
+    panel_id: str,
+    frame_ids: list[str],
+    significance: float,
+    shrinkage: float,
+    policy: Policy,
+) -> BaselineOut:
+    registry.get_panel(session, panel_id)
+    modes = training.modes_of_frames(session, panel_id, frame_ids)
+    row = training.train_baseline(
+        session,
+        panel_id,
+        modes,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=frame_ids,
+        now=policy.now(),
+    )
+    return BaselineOut.model_validate(row)
+
+
+@router.post(
+    "/panels/{panel_id}/baseline",
+    status_code=201,
+    response_model=BaselineOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    openapi_extra=_FILES_BODY,
+)
+async def train_baseline(
+    panel_id: PanelId,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+    camera_id: Annotated[
+        str | None, Query(description="Whose ROI applies to uploaded images.")
+    ] = None,
+) -> BaselineOut:
+    """Train the panel's clean baseline (eqs. 5.12–5.13) from ≥ 4 clean images or frames.
+
+    Multipart with repeated field ``files``, or JSON ``{"frame_ids": [...]}`` of stored frames.
+    """
+    kind = content_type(request)
+    if kind == "multipart/form-data":
+        files = await read_files(request, "files", settings.max_upload_bytes, max_files=1000)
+        return await run_in_threadpool(
+            _train_from_files,
+            session,
+            panel_id,
+            camera_id,
+            files,
+            significance,
+            shrinkage,
+            settings.max_pixels,
+            policy,
+        )
+    if kind == "application/json":
+        body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
+        return await run_in_threadpool(
+            _train_from_frames, session, panel_id, body.frame_ids, significance, shrinkage, policy
+        )
+    raise UnsupportedMediaType("send multipart/form-data (files) or application/json (frame_ids)")
+
+
+@router.get(
+    "/panels/{panel_id}/baseline",
+    response_model=BaselineOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def get_baseline(panel_id: PanelId, session: SessionDep, _: RobotOrAdmin) -> BaselineOut:
+    """The baseline the panel's verdicts use."""
+    panel = registry.get_panel(session, panel_id)
+    if panel.baseline_id is None:
+        raise NotFound(f"panel {panel_id!r} has no baseline")
+    return BaselineOut.model_validate(session.get(Baseline, panel.baseline_id))
+
+
+def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
+    last = None
+    if status.last is not None:
+        frame, verdict = status.last
+        base: dict[str, Any] = verdict_out(verdict).model_dump()
+        last = PanelVerdictSummary(**base, frame_id=frame.id, captured_at=frame.captured_at)
+    now = policy.now()
+    trend = status.trend
+    return PanelStatus(
+        panel_id=status.panel.id,
+        state=status.state.value,
+        last_verdict=last,
+        open_task=TaskOut(**panels.task_view(status.task, now)) if status.task else None,
+        ineffective=status.panel.ineffective,
+        dirty_streak=status.panel.dirty_streak,
+        baseline_id=status.panel.baseline_id,
+        trend=TrendOut(
+            points=trend.points,
+            slope_per_day=trend.slope_per_day,
+            f_now=trend.f_now,
+            threshold=trend.threshold,
+            crossing_at=trend.crossing_at,
+        ),
+    )
+
+
+@router.get(
+    "/panels/{panel_id}/status",
+    response_model=PanelStatus,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def panel_status(
+    panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin
+) -> PanelStatus:
+    """The panel's state, last verdict, open task and soiling trend."""
+    return status_out(panels.panel_status(session, panel_id, policy), policy)
+
+
+@router.get(
+    "/panels/{panel_id}/trigger",
+    response_model=Trigger,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def trigger(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> Trigger:
+    """Polled by the panel's cleaning mechanism: should it clean now? Read only."""
+    registry.get_panel(session, panel_id)
+    task = panels.open_task(session, panel_id)
+    if task is None:
+        return Trigger(panel_id=panel_id, clean_now=False, task_id=None)
+    phase = panels.task_view(task, policy.now())["status"]
+    return Trigger(panel_id=panel_id, clean_now=phase in ("pending", "claimed"), task_id=task.id)
+
+
+def _evaluate(
+    clean_files: list[tuple[str | None, bytes]],
+    dirty_files: list[tuple[str | None, bytes]],
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+) -> EvaluationOut:
+    camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
+    clean = training.modes_of(training.decode_all(clean_files, camera, max_pixels=max_pixels))
+    dirty = training.modes_of(training.decode_all(dirty_files, camera, max_pixels=max_pixels))
+    ev = training.evaluate(clean, dirty, significance=significance, shrinkage=shrinkage)
+    return EvaluationOut(
+        n_clean=ev.rates.n_clean,
+        n_dirty=ev.rates.n_dirty,
+        hotelling=TwoSampleOut(
+            t2=ev.test.t2,
+            f_stat=ev.test.f_stat,
+            df1=ev.test.df1,
+            df2=ev.test.df2,
+            p_value=ev.test.p_value,
+            mean_difference=ev.test.mean_difference.tolist(),
+        ),
+        dirty_called_clean=ev.rates.dirty_called_clean,
+        clean_called_dirty=ev.rates.clean_called_dirty,
+        clean_modes=ev.clean_modes.tolist(),
+        dirty_modes=ev.dirty_modes.tolist(),
+    )
+
+
+@router.post(
+    "/panels/evaluate",
+    response_model=EvaluationOut,
+    responses={**AUTH_ERRORS, **UNPROCESSABLE},
+    openapi_extra={
+        "requestBody": {
+            "content": {
+                "multipart/form-data": {
+                    "schema": {
+                        "type": "object",
+                        "properties": {
+                            "clean": {
+                                "type": "array",
+                                "items": {"type": "string", "format": "binary"},
+                            },
+                            "dirty": {
+                                "type": "array",
+                                "items": {"type": "string", "format": "binary"},
+                            },
+                        },
+                    }
+                }
+            }
+        }
+    },
+)
+async def evaluate(
+    request: Request,
+    settings: SettingsDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+) -> EvaluationOut:
+    """Do clean and dirty images differ (two-sample T²), and how often does T² err?
+
+    Multipart with repeated fields ``clean`` (≥ 5) and ``dirty`` (≥ 1) images.
+    """
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send multipart/form-data with fields clean and dirty")
+    form = await read_form(request, settings.max_upload_bytes, max_files=2000)
+    clean, dirty = form.files_of("clean"), form.files_of("dirty")
+    return await run_in_threadpool(
+        partial(_evaluate, clean, dirty, significance, shrinkage, settings.max_pixels)
+    )

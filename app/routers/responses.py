@@ -59,6 +59,8 @@ def verdict_out(verdict: Verdict) -> VerdictOut:
             p_value=verdict.p_value,
             threshold=verdict.threshold,
             state=verdict.state,
+            method=verdict.method,
+            p_dirty=verdict.p_dirty,
             **common,
         )
     if isinstance(verdict, SkyVerdict):

@@ -6,15 +6,26 @@ import uuid
 from dataclasses import dataclass
 from datetime import datetime
 
+import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
-from app.core.jpeg import SOI, JpegError, JpegHeader, TooManyPixelsError, decode_rgb
-from app.core.stats import ChannelStats, Roi, channel_stats
-from app.db.base import utcnow
-from app.db.models import Frame, Verdict
+from app.core import fleet
+from app.core.jpeg import (
+    SOI,
+    JpegError,
+    JpegHeader,
+    TooManyPixelsError,
+    decode_rgb,
+    read_header,
+)
+from app.core.quality import unusable_reason
+from app.core.stats import ChannelStats, Roi, channel_stats, crop
+from app.db.models import CameraKind, Frame, Verdict
 from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.services.camera_info import CameraInfo
+from app.services.policy import Policy
 from app.services.storage import FrameStore
 from app.services.verdicts import conclude
 
@@ -23,10 +34,39 @@ from app.services.verdicts import conclude
 class Decoded:
     header: JpegHeader
     stats: ChannelStats
+    """Channel statistics inside the camera's ROI (of the image decoded at ``reduction``)."""
+    quality: str | None
+    """Why the frame cannot be judged (night, glare, blank, occluded), or None."""
+    features: NDArray[np.float64] | None
+    """Fleet-model features (panel cameras only)."""
+    reduction: int
+    """The frame was decoded at 1/reduction of its size (libjpeg DCT scaling)."""
 
 
-def analyse(data: bytes, *, roi: Roi | None, max_pixels: int) -> Decoded:
-    """Validate and decode the JPEG and compute the channel statistics inside ``roi``.
+MIN_REDUCED_SIDE = 240
+"""Panel frames are decoded at the largest of 1/2, 1/4, 1/8 that keeps this many pixels on the
+short side [px]: the panel statistics do not need more, and decoding costs less."""
+
+
+def decode_reduction(header: JpegHeader, kind: CameraKind) -> int:
+    """The DCT reduction for a frame of this camera kind (1 = full size)."""
+    if kind != CameraKind.panel:
+        return 1
+    short = min(header.width, header.height)
+    return next((r for r in (8, 4, 2) if short // r >= MIN_REDUCED_SIDE), 1)
+
+
+def scale_roi(roi: Roi, width: int, height: int, reduction: int) -> Roi:
+    """The ROI of the full frame, checked against it, in the pixels of the reduced image."""
+    x, y, w, h = roi
+    if x + w > width or y + h > height:
+        raise ValueError(f"ROI {list(roi)} does not lie inside the {width}×{height} frame")
+    r = reduction
+    return (x // r, y // r, max(1, w // r), max(1, h // r))
+
+
+def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
+    """Validate and decode the JPEG; channel statistics inside the ROI; quality; features.
 
     Raises UnsupportedMediaType (not a JPEG) or Unprocessable (truncated, undecodable,
     over the pixel limit, ROI outside the frame). Touches no database.
@@ -38,16 +78,22 @@ def analyse(data: bytes, *, roi: Roi | None, max_pixels: int) -> Decoded:
             "the body is not a JPEG (no FF D8 start marker)", code="not_jpeg"
         )
     try:
-        header, image = decode_rgb(data, max_pixels=max_pixels)
+        header = read_header(data)
+        reduction = decode_reduction(header, camera.kind)
+        header, image = decode_rgb(data, max_pixels=max_pixels, reduce=reduction)
     except TooManyPixelsError as exc:
         raise Unprocessable(str(exc), code="too_many_pixels") from None
     except JpegError as exc:
         raise Unprocessable(str(exc), code="corrupt_jpeg") from None
     try:
-        stats = channel_stats(image, roi)
+        roi = camera.roi and scale_roi(camera.roi, header.width, header.height, reduction)
+        region = crop(image, roi)
     except ValueError as exc:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
-    return Decoded(header, stats)
+    stats = channel_stats(region)
+    quality = unusable_reason(stats)
+    features = fleet.features(region) if camera.kind == CameraKind.panel else None
+    return Decoded(header, stats, quality, features, reduction)
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,7 +102,7 @@ class Prepared:
 
     camera: CameraInfo
     frame: Frame
-    stats: ChannelStats
+    decoded: Decoded
 
 
 def prepare(
@@ -65,6 +111,7 @@ def prepare(
     camera: CameraInfo,
     data: bytes,
     captured_at: datetime | None,
+    received_at: datetime,
     max_pixels: int,
 ) -> Prepared:
     """Everything about a frame that needs no database, run in a worker thread.
@@ -73,29 +120,28 @@ def prepare(
     A transaction that then fails leaves at most an unreferenced file, which the retention sweep
     removes; it is never deleted here, because an identical frame may share it.
     """
-    decoded = analyse(data, roi=camera.roi, max_pixels=max_pixels)
+    decoded = analyse(data, camera=camera, max_pixels=max_pixels)
     sha256 = FrameStore.digest(data)
     stored_path = frames.put(data, sha256)[0] if frames is not None else None
-    now = utcnow()
     frame = Frame(
         id=str(uuid.uuid4()),
         camera_id=camera.id,
-        captured_at=captured_at or now,
-        received_at=now,
+        captured_at=captured_at or received_at,
+        received_at=received_at,
         width=decoded.header.width,
         height=decoded.header.height,
         size_bytes=len(data),
         sha256=sha256,
         stored_path=stored_path,
     )
-    return Prepared(camera, frame, decoded.stats)
+    return Prepared(camera, frame, decoded)
 
 
-def record(session: Session, prepared: Prepared) -> tuple[Frame, Verdict]:
+def record(session: Session, prepared: Prepared, policy: Policy) -> tuple[Frame, Verdict]:
     """The database part: conclude the verdict and insert the frame and verdict rows.
 
     Runs on the group-commit writer (``app.services.writer``), inside the batch's transaction.
     """
-    verdict = conclude(session, prepared.camera, prepared.frame, prepared.stats)
+    verdict = conclude(session, prepared, policy)
     insert_rows(session, prepared.frame, verdict)
     return prepared.frame, verdict

@@ -1,20 +1,25 @@
-"""The one dispatch point from a frame's statistics to a verdict, by camera kind.
+"""The one dispatch point from a prepared frame to its verdict, by camera kind.
 
-Each kind's classifier receives the session (for its baseline or calibration), the camera, the
-new frame row and the frame's channel statistics, and returns an unsaved verdict row.
+Runs on the group-commit writer (inside the batch's transaction): a classifier may read its
+baseline or calibration and update state rows, and returns an unsaved verdict row. Anything
+CPU-heavy belongs in ``ingest.analyse``, which runs in parallel before.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from sqlalchemy.orm import Session
 
 from app.core.stats import ChannelStats
-from app.db.models import CameraKind, Frame, PanelVerdict, SkyVerdict, Verdict
-from app.services.camera_info import CameraInfo
+from app.db.models import CameraKind, SkyVerdict, Verdict
+from app.services.policy import Policy
 
-Classifier = Callable[[Session, CameraInfo, Frame, ChannelStats], Verdict]
+if TYPE_CHECKING:
+    from app.services.ingest import Prepared
+
+Classifier = Callable[[Session, "Prepared", Policy], Verdict]
 
 
 def stats_columns(stats: ChannelStats) -> dict[str, float | int]:
@@ -29,32 +34,29 @@ def stats_columns(stats: ChannelStats) -> dict[str, float | int]:
     }
 
 
-def _panel(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
-    reason = "camera is not attached to a panel" if camera.panel_id is None else "no baseline"
-    return PanelVerdict(
-        frame_id=frame.id,
-        camera_id=camera.id,
-        panel_id=camera.panel_id,
-        clean=None,
-        reason=reason,
-        state="no_baseline",
-        **stats_columns(stats),
-    )
+def _panel(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+    from app.services.panels import classify_frame
+
+    return classify_frame(session, prepared, policy)
 
 
-def _sky(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
+def _sky(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
     return SkyVerdict(
-        frame_id=frame.id,
-        camera_id=camera.id,
+        frame_id=prepared.frame.id,
+        camera_id=prepared.camera.id,
         level=None,
         category=None,
-        reason="air-quality model not calibrated",
-        **stats_columns(stats),
+        reason=prepared.decoded.quality or "air-quality model not calibrated",
+        **stats_columns(prepared.decoded.stats),
     )
 
 
-def _rig(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
-    return Verdict(frame_id=frame.id, camera_id=camera.id, **stats_columns(stats))
+def _rig(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+    return Verdict(
+        frame_id=prepared.frame.id,
+        camera_id=prepared.camera.id,
+        **stats_columns(prepared.decoded.stats),
+    )
 
 
 CLASSIFIERS: dict[CameraKind, Classifier] = {
@@ -64,6 +66,6 @@ CLASSIFIERS: dict[CameraKind, Classifier] = {
 }
 
 
-def conclude(session: Session, camera: CameraInfo, frame: Frame, stats: ChannelStats) -> Verdict:
-    """The verdict on ``frame`` from its statistics, by ``camera.kind``."""
-    return CLASSIFIERS[camera.kind](session, camera, frame, stats)
+def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+    """The verdict on a prepared frame, by its camera's kind."""
+    return CLASSIFIERS[prepared.camera.kind](session, prepared, policy)

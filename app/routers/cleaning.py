@@ -1,0 +1,97 @@
+"""Cleaning robots: claim a task, then complete it or report failure."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Path, Query, Response
+
+from app.deps import PolicyDep, RobotAuth, RobotOrAdmin, SessionDep
+from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
+from app.schemas import ClaimOut, FailIn, TaskOut
+from app.services import cleaning
+from app.services.panels import task_view
+
+router = APIRouter(prefix="/cleaning", tags=["cleaning"])
+
+TaskId = Annotated[str, Path(max_length=64, description="Cleaning task id.")]
+
+
+@router.post(
+    "/claim",
+    response_model=ClaimOut,
+    responses={204: {"description": "Nothing to clean"}, **AUTH_ERRORS},
+)
+def claim_next(session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> ClaimOut | Response:
+    """Take the oldest waiting task, under a lease; 204 when there is none."""
+    assert robot.id is not None
+    task = cleaning.claim_next(session, robot.id, policy)
+    if task is None:
+        return Response(status_code=204)
+    assert task.lease_expires_at is not None
+    return ClaimOut(task_id=task.id, panel_id=task.panel_id, lease_expires_at=task.lease_expires_at)
+
+
+@router.post(
+    "/tasks/{task_id}/claim",
+    response_model=ClaimOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CONFLICT},
+)
+def claim(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> ClaimOut:
+    """Claim this task (or renew one's own lease on it); 409 when another robot holds it."""
+    assert robot.id is not None
+    task = cleaning.claim(session, task_id, robot.id, policy)
+    assert task.lease_expires_at is not None
+    return ClaimOut(task_id=task.id, panel_id=task.panel_id, lease_expires_at=task.lease_expires_at)
+
+
+@router.post(
+    "/tasks/{task_id}/complete",
+    response_model=TaskOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CONFLICT},
+)
+def complete(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> TaskOut:
+    """The panel is cleaned; its next frames confirm it. Idempotent."""
+    assert robot.id is not None
+    task = cleaning.complete(session, task_id, robot.id, policy)
+    return TaskOut(**task_view(task, policy.now()))
+
+
+@router.post(
+    "/tasks/{task_id}/fail",
+    response_model=TaskOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CONFLICT},
+)
+def fail(
+    task_id: TaskId,
+    session: SessionDep,
+    policy: PolicyDep,
+    robot: RobotAuth,
+    body: Annotated[FailIn | None, Body()] = None,
+) -> TaskOut:
+    """The robot could not clean the panel. Idempotent."""
+    assert robot.id is not None
+    reason = body.reason if body else None
+    task = cleaning.fail(session, task_id, robot.id, policy, reason)
+    return TaskOut(**task_view(task, policy.now()))
+
+
+@router.get("/tasks", response_model=list[TaskOut], responses=AUTH_ERRORS)
+def list_tasks(
+    session: SessionDep,
+    policy: PolicyDep,
+    _: RobotOrAdmin,
+    panel_id: Annotated[str | None, Query(max_length=64)] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> list[TaskOut]:
+    """Cleaning tasks, newest first."""
+    now = policy.now()
+    rows = cleaning.list_tasks(session, panel_id=panel_id, limit=limit, offset=offset)
+    return [TaskOut(**task_view(t, now)) for t in rows]
+
+
+@router.get("/tasks/{task_id}", response_model=TaskOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_task(task_id: TaskId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> TaskOut:
+    """One cleaning task."""
+    return TaskOut(**task_view(cleaning.get_task(session, task_id), policy.now()))

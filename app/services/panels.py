@@ -1,0 +1,315 @@
+"""Panels: verdicts by baseline or fleet model, the state machine's effects, status, trend."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import stats as sstats
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.core import soiling
+from app.core.fleet import LogisticModel
+from app.core.panel_state import (
+    PanelFacts,
+    PanelState,
+    TaskAction,
+    on_verdict,
+    state_of,
+    task_phase,
+)
+from app.db.models import (
+    OPEN_TASK_STATUSES,
+    Baseline,
+    CleaningTask,
+    FleetModel,
+    Frame,
+    Panel,
+    PanelVerdict,
+    TaskStatus,
+)
+from app.errors import NotFound
+from app.services.policy import Policy
+from app.services.verdicts import stats_columns
+
+if TYPE_CHECKING:
+    from app.services.ingest import Prepared
+
+
+def lock_panel(session: Session, panel_id: str) -> Panel:
+    """The panel row, locked for this transaction (PostgreSQL; SQLite's writer lock suffices)."""
+    panel = session.scalars(
+        select(Panel).where(Panel.id == panel_id).with_for_update()
+    ).one_or_none()
+    if panel is None:
+        raise NotFound(f"no panel {panel_id!r}")
+    return panel
+
+
+def open_task(session: Session, panel_id: str, *, lock: bool = False) -> CleaningTask | None:
+    q = select(CleaningTask).where(CleaningTask.open_panel_id == panel_id)
+    return session.scalars(q.with_for_update() if lock else q).one_or_none()
+
+
+def latest_fleet_model(session: Session) -> FleetModel | None:
+    return session.scalars(
+        select(FleetModel).order_by(FleetModel.created_at.desc(), FleetModel.id).limit(1)
+    ).first()
+
+
+def as_core_baseline(row: Baseline) -> soiling.Baseline:
+    return soiling.Baseline(
+        n=row.n,
+        mean_modes=np.asarray(row.mean_modes, dtype=np.float64),
+        covariance=np.asarray(row.covariance, dtype=np.float64),
+        significance=row.significance,
+        f_critical=row.f_critical,
+        condition_number=row.condition_number,
+        shrinkage=row.shrinkage,
+    )
+
+
+def as_core_model(row: FleetModel) -> LogisticModel:
+    return LogisticModel(
+        feature_names=tuple(row.feature_names),
+        mean=np.asarray(row.mean),
+        scale=np.asarray(row.scale),
+        coef=np.asarray(row.coef),
+        intercept=row.intercept,
+        threshold=row.threshold,
+    )
+
+
+def facts(
+    panel: Panel, task: CleaningTask | None, now: datetime, *, fleet_available: bool
+) -> PanelFacts:
+    return PanelFacts(
+        has_model=panel.baseline_id is not None or fleet_available,
+        has_baseline=panel.baseline_id is not None,
+        dirty_streak=panel.dirty_streak,
+        last_clean=panel.last_clean,
+        ineffective=panel.ineffective,
+        task=task_phase(task.status, task.lease_expires_at, now) if task else None,
+    )
+
+
+def _close(task: CleaningTask, status: TaskStatus, outcome: str, now: datetime) -> None:
+    task.status = status
+    task.outcome = outcome
+    task.closed_at = now
+    task.open_panel_id = None
+
+
+def apply_verdict(
+    session: Session,
+    panel: Panel,
+    task: CleaningTask | None,
+    clean: bool,
+    now: datetime,
+    policy: Policy,
+    *,
+    fleet_available: bool,
+) -> CleaningTask | None:
+    """Run the state machine for one usable verdict; returns the panel's open task after it."""
+    before = facts(panel, task, now, fleet_available=fleet_available)
+    t = on_verdict(before, clean, debounce=policy.debounce)
+    panel.dirty_streak, panel.last_clean, panel.ineffective = (
+        t.dirty_streak,
+        t.last_clean,
+        t.ineffective,
+    )
+    if t.action is TaskAction.open:
+        task = CleaningTask(
+            id=str(uuid.uuid4()),
+            panel_id=panel.id,
+            open_panel_id=panel.id,
+            status=TaskStatus.pending,
+            created_at=now,
+            attempts=0,
+        )
+        session.add(task)
+    elif task is not None and t.action is not TaskAction.none:
+        if t.action is TaskAction.cancel:
+            # a stale claim (expired lease) is cancelled too: the panel is clean
+            _close(task, TaskStatus.cancelled, "not_needed", now)
+        elif t.action is TaskAction.close_effective:
+            _close(task, TaskStatus.closed, "effective", now)
+        else:
+            _close(task, TaskStatus.closed, "ineffective", now)
+        task = None
+    return task
+
+
+def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
+    """A panel camera's verdict: the panel's own T² baseline, else the fleet model.
+
+    Also advances the panel's state machine (debounce, tasks). Runs in the writer's transaction.
+    """
+    camera, frame, decoded = prepared.camera, prepared.frame, prepared.decoded
+    verdict = PanelVerdict(
+        frame_id=frame.id,
+        camera_id=camera.id,
+        panel_id=camera.panel_id,
+        clean=None,
+        **stats_columns(decoded.stats),
+    )
+    if camera.panel_id is None:
+        verdict.reason = "camera is not attached to a panel"
+        return verdict
+    now = frame.received_at
+    panel = lock_panel(session, camera.panel_id)
+    task = open_task(session, panel.id, lock=True)
+    model_row = None if panel.baseline_id else latest_fleet_model(session)
+    fleet_available = model_row is not None
+    if decoded.quality is not None:
+        verdict.reason = decoded.quality
+    elif panel.baseline_id is not None:
+        row = session.get(Baseline, panel.baseline_id)
+        assert row is not None
+        result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
+        verdict.method, verdict.baseline_id = "baseline", row.id
+        verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
+        verdict.p_value, verdict.threshold = result.p_value, result.threshold
+    elif model_row is not None and decoded.features is not None:
+        model = as_core_model(model_row)
+        p_dirty = float(model.probability(decoded.features))
+        verdict.method, verdict.p_dirty = "fleet", p_dirty
+        verdict.threshold = model.threshold
+        verdict.clean = p_dirty < model.threshold
+    else:
+        verdict.reason = "no baseline: train one (POST /panels/{id}/baseline) or a fleet model"
+    if verdict.clean is not None:
+        task = apply_verdict(
+            session, panel, task, verdict.clean, now, policy, fleet_available=fleet_available
+        )
+    after = facts(panel, task, now, fleet_available=fleet_available)
+    verdict.state = state_of(after, debounce=policy.debounce).value
+    return verdict
+
+
+@dataclass(frozen=True, slots=True)
+class Trend:
+    points: int
+    slope_per_day: float | None
+    """Theil–Sen slope of F against time [1/day]."""
+    f_now: float | None
+    """The fitted F at the time of the status [–]."""
+    threshold: float | None
+    crossing_at: datetime | None
+    """When the fitted F reaches the threshold (None: flat or falling, or too few points)."""
+
+
+MIN_TREND_POINTS = 3
+
+
+def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
+    """F over time since the panel was last clean by decree (baseline or cleaning), and when
+    its fitted line (Theil–Sen, robust to a few glare-struck frames) will cross the threshold."""
+    if panel.baseline_id is None:
+        return Trend(0, None, None, None, None)
+    baseline = session.get(Baseline, panel.baseline_id)
+    assert baseline is not None
+    since = baseline.created_at
+    last_clean = session.scalar(
+        select(CleaningTask.closed_at)
+        .where(CleaningTask.panel_id == panel.id, CleaningTask.outcome == "effective")
+        .order_by(CleaningTask.closed_at.desc())
+        .limit(1)
+    )
+    if last_clean is not None and last_clean > since:
+        since = last_clean
+    rows = session.execute(
+        select(Frame.captured_at, PanelVerdict.f_stat)
+        .join(PanelVerdict, PanelVerdict.frame_id == Frame.id)
+        .where(
+            PanelVerdict.panel_id == panel.id,
+            PanelVerdict.baseline_id == baseline.id,
+            PanelVerdict.f_stat.is_not(None),
+            Frame.received_at >= since,
+        )
+        .order_by(Frame.captured_at)
+    ).all()
+    threshold = baseline.f_critical
+    if len(rows) < MIN_TREND_POINTS:
+        return Trend(len(rows), None, None, threshold, None)
+    t0 = rows[0][0]
+    days = np.array([(r[0] - t0) / timedelta(days=1) for r in rows])
+    f = np.array([r[1] for r in rows], dtype=np.float64)
+    if np.ptp(days) == 0:
+        return Trend(len(rows), None, None, threshold, None)
+    res = sstats.theilslopes(f, days)
+    slope, intercept = float(res.slope), float(res.intercept)
+    now_days = (now - t0) / timedelta(days=1)
+    f_now = intercept + slope * now_days
+    crossing = None
+    if slope > 0:
+        cross_days = (threshold - intercept) / slope
+        crossing = t0 + timedelta(days=max(cross_days, now_days))
+    return Trend(len(rows), slope, f_now, threshold, crossing)
+
+
+def latest_verdict(session: Session, panel_id: str) -> tuple[Frame, PanelVerdict] | None:
+    row = session.execute(
+        select(Frame, PanelVerdict)
+        .join(PanelVerdict, PanelVerdict.frame_id == Frame.id)
+        .where(PanelVerdict.panel_id == panel_id)
+        .order_by(Frame.received_at.desc(), Frame.captured_at.desc())
+        .limit(1)
+    ).first()
+    return (row[0], row[1]) if row else None
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    panel: Panel
+    state: PanelState
+    task: CleaningTask | None
+    last: tuple[Frame, PanelVerdict] | None
+    trend: Trend
+
+
+def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
+    panel = session.get(Panel, panel_id)
+    if panel is None:
+        raise NotFound(f"no panel {panel_id!r}")
+    now = policy.now()
+    task = open_task(session, panel_id)
+    fleet_available = panel.baseline_id is None and latest_fleet_model(session) is not None
+    state = state_of(
+        facts(panel, task, now, fleet_available=fleet_available), debounce=policy.debounce
+    )
+    return Status(
+        panel, state, task, latest_verdict(session, panel_id), soiling_trend(session, panel, now)
+    )
+
+
+def task_view(task: CleaningTask, now: datetime) -> dict[str, Any]:
+    phase = task_phase(task.status, task.lease_expires_at, now)
+    return {
+        "task_id": task.id,
+        "panel_id": task.panel_id,
+        "status": (phase.value if phase else task.status.value),
+        "robot_id": task.robot_id,
+        "created_at": task.created_at,
+        "claimed_at": task.claimed_at,
+        "lease_expires_at": task.lease_expires_at,
+        "completed_at": task.completed_at,
+        "closed_at": task.closed_at,
+        "outcome": task.outcome,
+        "attempts": task.attempts,
+        "fail_reason": task.fail_reason,
+    }
+
+
+def open_tasks(session: Session, *, limit: int) -> Sequence[CleaningTask]:
+    return session.scalars(
+        select(CleaningTask)
+        .where(CleaningTask.status.in_(OPEN_TASK_STATUSES))
+        .order_by(CleaningTask.created_at, CleaningTask.id)
+        .limit(limit)
+    ).all()

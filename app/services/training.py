@@ -1,0 +1,186 @@
+"""Training from labelled images: a panel's baseline, the fleet model, the T² evaluation."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.core import soiling
+from app.core.fleet import FEATURES
+from app.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
+from app.errors import Unprocessable, VantageError
+from app.services.camera_info import CameraInfo
+from app.services.ingest import Decoded, analyse
+from app.services.panels import lock_panel
+
+MIN_FLEET_PER_CLASS = 5
+
+
+def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> CameraInfo:
+    """The camera whose ROI and decoding apply to uploaded images of a panel.
+
+    The named camera, else the panel's only camera, else the whole frame.
+    """
+    if camera_id is not None:
+        camera = session.get(Camera, camera_id)
+        if camera is None or camera.panel_id != panel_id:
+            raise Unprocessable(f"camera {camera_id!r} does not watch panel {panel_id!r}")
+        return CameraInfo.of(camera)
+    cameras = session.scalars(select(Camera).where(Camera.panel_id == panel_id)).all()
+    if len(cameras) == 1:
+        return CameraInfo.of(cameras[0])
+    return CameraInfo(id="upload", kind=CameraKind.panel, panel_id=panel_id, roi=None)
+
+
+def decode_all(
+    files: Sequence[tuple[str | None, bytes]], camera: CameraInfo, *, max_pixels: int
+) -> list[Decoded]:
+    """Decode every uploaded image; refuse (422) naming each one that is unusable."""
+    decoded, problems = [], []
+    for i, (name, data) in enumerate(files):
+        label = name or f"file {i + 1}"
+        try:
+            d = analyse(data, camera=camera, max_pixels=max_pixels)
+        except VantageError as exc:
+            problems.append(f"{label}: {exc.detail}")
+            continue
+        if d.quality is not None:
+            problems.append(f"{label}: {d.quality}")
+        decoded.append(d)
+    if problems:
+        raise Unprocessable("unusable images: " + "; ".join(problems), problems=problems)
+    return decoded
+
+
+def modes_of(decoded: Sequence[Decoded]) -> NDArray[np.float64]:
+    return np.array([d.stats.modes for d in decoded], dtype=np.float64).reshape(-1, 3)
+
+
+def modes_of_frames(
+    session: Session, panel_id: str, frame_ids: Sequence[str]
+) -> NDArray[np.float64]:
+    """Mode vectors of stored frames of this panel's cameras, in the order given."""
+    rows = session.execute(
+        select(PanelVerdict.frame_id, PanelVerdict.mode_r, PanelVerdict.mode_g, PanelVerdict.mode_b)
+        .join(Frame, Frame.id == PanelVerdict.frame_id)
+        .where(PanelVerdict.frame_id.in_(frame_ids), PanelVerdict.panel_id == panel_id)
+    ).all()
+    found = {r[0]: (r[1], r[2], r[3]) for r in rows}
+    missing = [f for f in frame_ids if f not in found]
+    if missing:
+        raise Unprocessable(
+            f"frames not found for panel {panel_id!r}: {', '.join(missing[:10])}",
+            missing=missing,
+        )
+    return np.array([found[f] for f in frame_ids], dtype=np.float64)
+
+
+def train_baseline(
+    session: Session,
+    panel_id: str,
+    modes: NDArray[np.float64],
+    *,
+    significance: float,
+    shrinkage: float,
+    frame_ids: list[str] | None,
+    now: datetime,
+) -> Baseline:
+    """Fit and store the panel's baseline; verdicts use it from the next frame on."""
+    panel = lock_panel(session, panel_id)
+    try:
+        fit = soiling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
+    except soiling.BaselineError as exc:
+        raise Unprocessable(str(exc), code="bad_baseline") from None
+    row = Baseline(
+        id=str(uuid.uuid4()),
+        panel_id=panel.id,
+        created_at=now,
+        n=fit.n,
+        mean_modes=fit.mean_modes.tolist(),
+        covariance=fit.covariance.tolist(),
+        significance=fit.significance,
+        f_critical=fit.f_critical,
+        condition_number=fit.condition_number,
+        shrinkage=fit.shrinkage,
+        frame_ids=frame_ids,
+    )
+    session.add(row)
+    session.flush()
+    # trained on clean images: the panel is clean now, and its debounce starts afresh
+    panel.baseline_id = row.id
+    panel.dirty_streak, panel.last_clean, panel.ineffective = 0, None, False
+    return row
+
+
+@dataclass(frozen=True, slots=True)
+class Evaluation:
+    test: soiling.TwoSampleT2
+    rates: soiling.Misclassification
+    clean_modes: NDArray[np.float64]
+    dirty_modes: NDArray[np.float64]
+
+
+def evaluate(
+    clean: NDArray[np.float64], dirty: NDArray[np.float64], *, significance: float, shrinkage: float
+) -> Evaluation:
+    """Two-sample T² between the sets and the classifier's two error rates."""
+    try:
+        test = soiling.two_sample_t2(clean, dirty)
+        rates = soiling.misclassification(
+            clean, dirty, significance=significance, shrinkage=shrinkage
+        )
+    except soiling.BaselineError as exc:
+        raise Unprocessable(str(exc), code="bad_baseline") from None
+    return Evaluation(test, rates, clean, dirty)
+
+
+def fit_fleet(
+    features: NDArray[np.float64], dirty: NDArray[np.bool_], *, now: datetime, c: float = 0.3
+) -> FleetModel:
+    """Standardised logistic regression (scikit-learn), with 5-fold balanced accuracy."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import StratifiedKFold, cross_val_score
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    n_dirty, n_clean = int(dirty.sum()), int((~dirty).sum())
+    if min(n_dirty, n_clean) < MIN_FLEET_PER_CLASS:
+        raise Unprocessable(
+            f"need at least {MIN_FLEET_PER_CLASS} clean and {MIN_FLEET_PER_CLASS} dirty images; "
+            f"got {n_clean} clean, {n_dirty} dirty"
+        )
+    if not np.isfinite(features).all():
+        raise Unprocessable("some images gave non-finite features")
+
+    def pipeline() -> object:
+        return make_pipeline(
+            StandardScaler(),
+            LogisticRegression(C=c, class_weight="balanced", max_iter=5000),
+        )
+
+    folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
+    cv = cross_val_score(pipeline(), features, dirty, cv=folds, scoring="balanced_accuracy")
+    model = pipeline()
+    model.fit(features, dirty)  # type: ignore[attr-defined]
+    scaler, logistic = model.steps[0][1], model.steps[1][1]  # type: ignore[attr-defined]
+    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    return FleetModel(
+        id=str(uuid.uuid4()),
+        created_at=now,
+        feature_names=list(FEATURES),
+        mean=scaler.mean_.tolist(),
+        scale=scale.tolist(),
+        coef=logistic.coef_[0].tolist(),
+        intercept=float(logistic.intercept_[0]),
+        threshold=0.5,
+        n_clean=n_clean,
+        n_dirty=n_dirty,
+        cv_balanced_accuracy=float(np.mean(cv)),
+    )
