@@ -26,8 +26,8 @@ class QualityLimits:
     grey_mean_diff: float = 0.75
     """Channel means closer than this: a greyscale (night-mode) frame [level]."""
     occluded_dark_fraction: float = 0.45
-    """More than this fraction near black (< 12) in every channel, beside a bright rest:
-    something is in front of the lens."""
+    """More than this fraction near black (< 12) in every channel, in a frame that is not dark
+    overall (night is tested first): something is in front of the lens."""
 
 
 DEFAULT_LIMITS = QualityLimits()
@@ -59,6 +59,6 @@ def unusable_reason(stats: ChannelStats, limits: QualityLimits = DEFAULT_LIMITS)
     if spread < limits.grey_mean_diff and np.abs(hist[0] - hist[1]).sum() < 0.02 * total[0]:
         return "greyscale frame (camera in night mode?)"
     dark = hist[:, :12].sum(axis=1) / total
-    if dark.min() > limits.occluded_dark_fraction and (p95 > 120).any():
+    if dark.min() > limits.occluded_dark_fraction:
         return f"occluded: {100 * dark.min():.0f}% of the region is black"
     return None

@@ -1,0 +1,418 @@
+"""Panels and cleaning over HTTP: baselines, verdicts, the robot loop, leases, fleet model."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from scipy import stats
+
+CLEAN_RGB = np.array([56.0, 60.0, 84.0])  # the dissertation's clean panel modes (Figure 5.3a)
+DUST = np.array([24.0, 22.0, 21.0])  # its dusty panel is ~ (79, 82, 105)
+
+
+def panel_jpeg(
+    rgb: np.ndarray, *, seed: int = 0, size: tuple[int, int] = (160, 120), gain: float = 1.0
+) -> bytes:
+    """A panel photo whose cells have colour ``rgb``: grid lines, mild noise, JPEG q95;
+    ``gain`` scales the whole scene (0.1: dusk)."""
+    w, h = size
+    rng = np.random.default_rng(seed)
+    image = np.empty((h, w, 3), np.float64)
+    image[:] = rgb
+    image[::16, :] = (175, 175, 180)
+    image[:, ::16] = (175, 175, 180)
+    image += rng.normal(0, 5, image.shape)
+    image *= gain
+    bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return buf.tobytes()
+
+
+def clean_set(n: int, seed: int = 0) -> list[bytes]:
+    """n clean photos whose cell colour wanders a little in every channel."""
+    rng = np.random.default_rng(seed)
+    return [panel_jpeg(CLEAN_RGB + rng.normal(0, 2.0, 3).round(), seed=i) for i in range(n)]
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = datetime(2026, 6, 1, 8, 0, tzinfo=UTC)
+
+    def __call__(self) -> datetime:
+        return self.now
+
+    def advance(self, **kw: float) -> None:
+        self.now += timedelta(**kw)
+
+
+@pytest.fixture
+def clock(app: Any) -> Clock:
+    c = Clock()
+    app.state.policy = replace(app.state.policy, clock=c)
+    return c
+
+
+@pytest.fixture
+def farm(client: TestClient, admin: dict[str, str], clock: Clock) -> dict[str, Any]:
+    assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
+    cam = client.post(
+        "/cameras", json={"id": "c1", "kind": "panel", "panel_id": "p1"}, headers=admin
+    ).json()
+    robots = {
+        rid: client.post("/robots", json={"id": rid}, headers=admin).json()["token"]
+        for rid in ("r1", "r2")
+    }
+    return {"camera": cam["token"], "robots": robots, "clock": clock}
+
+
+def bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def post_frame(
+    client: TestClient, farm: dict[str, Any], rgb: np.ndarray, seed: int = 0, gain: float = 1.0
+) -> Any:
+    farm["clock"].advance(minutes=10)
+    r = client.post(
+        "/cameras/c1/frames",
+        content=panel_jpeg(rgb, seed=seed, gain=gain),
+        headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]
+
+
+def train(client: TestClient, admin: dict[str, str], files: list[bytes], **params: Any) -> Any:
+    return client.post(
+        "/panels/p1/baseline",
+        files=[("files", (f"clean{i}.jpg", f, "image/jpeg")) for i, f in enumerate(files)],
+        headers=admin,
+        params=params,
+    )
+
+
+def status(client: TestClient, admin: dict[str, str]) -> Any:
+    r = client.get("/panels/p1/status", headers=admin)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+class TestBaseline:
+    def test_from_files(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        r = train(client, admin, clean_set(8), significance=0.01)
+        assert r.status_code == 201, r.text
+        b = r.json()
+        assert b["n"] == 8
+        np.testing.assert_allclose(b["mean_modes"], CLEAN_RGB, atol=4)
+        assert b["f_critical"] == pytest.approx(stats.f.ppf(0.99, 3, 5), rel=1e-12)
+        assert status(client, admin)["state"] == "clean"
+        assert client.get("/panels/p1/baseline", headers=admin).json()["id"] == b["id"]
+
+    def test_too_few_images(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        r = train(client, admin, clean_set(3))
+        assert r.status_code == 422
+        assert "at least 4" in r.json()["detail"]
+        assert status(client, admin)["state"] == "no_baseline"
+
+    def test_identical_images_then_shrinkage(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        same = [panel_jpeg(CLEAN_RGB, seed=1)] * 5
+        r = train(client, admin, same)
+        assert r.status_code == 422
+        assert "singular" in r.json()["detail"]
+        r = train(client, admin, same, shrinkage=1 / 12)
+        assert r.status_code == 201
+
+    def test_unusable_image_is_named(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        files = [*clean_set(4), panel_jpeg(CLEAN_RGB, gain=0.1)]
+        r = train(client, admin, files)
+        assert r.status_code == 422
+        assert "clean4.jpg" in r.json()["detail"]
+
+    def test_from_stored_frames(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        ids = []
+        for i, f in enumerate(clean_set(6)):
+            r = client.post(
+                "/cameras/c1/frames",
+                content=f,
+                headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+                params={"captured_at": f"2026-05-0{i + 1}T12:00:00Z"},
+            )
+            assert r.json()["verdict"]["reason"].startswith("no baseline")
+            ids.append(r.json()["frame_id"])
+        r = client.post("/panels/p1/baseline", json={"frame_ids": ids}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["frame_ids"] == ids
+        r = client.post("/panels/p1/baseline", json={"frame_ids": ["nope"]}, headers=admin)
+        assert r.status_code == 422
+
+
+class TestVerdicts:
+    def test_clean_and_dirty(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        train(client, admin, clean_set(10))
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert v["clean"] is True
+        assert v["method"] == "baseline"
+        assert v["f_stat"] < v["threshold"]
+        assert v["p_value"] > 0.05
+        d = post_frame(client, farm, CLEAN_RGB + DUST)
+        assert d["clean"] is False
+        assert d["f_stat"] > d["threshold"]
+        assert d["t2"] > 0
+        assert d["state"] == "clean"  # one dirty frame: debounce
+
+    def test_no_baseline(self, client: TestClient, farm: Any) -> None:
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert v["clean"] is None
+        assert "no baseline" in v["reason"]
+        assert v["state"] == "no_baseline"
+
+    def test_night_frame_is_not_judged(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        train(client, admin, clean_set(10))
+        post_frame(client, farm, CLEAN_RGB + DUST)
+        v = post_frame(client, farm, CLEAN_RGB, gain=0.1)
+        assert v["clean"] is None
+        assert "dark" in v["reason"]
+        assert status(client, admin)["dirty_streak"] == 1
+
+
+class TestRobotLoop:
+    def test_end_to_end(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        robot = bearer(farm["robots"]["r1"])
+        assert train(client, admin, clean_set(10)).status_code == 201
+        assert client.post("/cleaning/claim", headers=robot).status_code == 204
+        for _ in range(2):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        assert client.get("/panels/p1/trigger", headers=robot).json()["clean_now"] is False
+        v = post_frame(client, farm, CLEAN_RGB + DUST)
+        assert v["state"] == "needs_cleaning"
+        trig = client.get("/panels/p1/trigger", headers=robot).json()
+        assert trig["clean_now"] is True
+        task_id = trig["task_id"]
+        # more dirty frames never open a second task
+        post_frame(client, farm, CLEAN_RGB + DUST)
+        assert len(client.get("/cleaning/tasks", headers=admin).json()) == 1
+
+        claim = client.post("/cleaning/claim", headers=robot)
+        assert claim.status_code == 200
+        assert claim.json()["task_id"] == task_id
+        assert status(client, admin)["state"] == "cleaning"
+        done = client.post(f"/cleaning/tasks/{task_id}/complete", headers=robot)
+        assert done.status_code == 200
+        assert done.json()["status"] == "completed"
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=robot).status_code == 200
+        assert status(client, admin)["state"] == "cleaning"
+
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert v["clean"] is True
+        assert v["state"] == "clean"
+        s = status(client, admin)
+        assert s["open_task"] is None
+        assert s["ineffective"] is False
+        task = client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()
+        assert (task["status"], task["outcome"]) == ("closed", "effective")
+        assert client.get("/panels/p1/trigger", headers=robot).json() == {
+            "panel_id": "p1",
+            "clean_now": False,
+            "task_id": None,
+        }
+
+    def test_ineffective_cleaning(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        robot = bearer(farm["robots"]["r1"])
+        train(client, admin, clean_set(10))
+        for _ in range(3):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        task_id = client.post("/cleaning/claim", headers=robot).json()["task_id"]
+        client.post(f"/cleaning/tasks/{task_id}/complete", headers=robot)
+        v = post_frame(client, farm, CLEAN_RGB + DUST)
+        assert v["state"] == "needs_cleaning"
+        s = status(client, admin)
+        assert s["ineffective"] is True
+        assert s["open_task"] is None
+        assert (
+            client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()["outcome"]
+            == "ineffective"
+        )
+        post_frame(client, farm, CLEAN_RGB + DUST)
+        assert status(client, admin)["open_task"] is None
+        post_frame(client, farm, CLEAN_RGB + DUST)  # the debounce again: a new task
+        assert status(client, admin)["open_task"]["status"] == "pending"
+
+    def test_lease_expiry_and_ownership(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        r1, r2 = bearer(farm["robots"]["r1"]), bearer(farm["robots"]["r2"])
+        train(client, admin, clean_set(10))
+        for _ in range(3):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        first = client.post("/cleaning/claim", headers=r1).json()
+        assert client.post("/cleaning/claim", headers=r2).status_code == 204
+        task_id = first["task_id"]
+        assert client.post(f"/cleaning/tasks/{task_id}/claim", headers=r2).status_code == 409
+        farm["clock"].advance(minutes=11)  # the 10-minute lease runs out
+        assert status(client, admin)["state"] == "needs_cleaning"
+        second = client.post("/cleaning/claim", headers=r2)
+        assert second.status_code == 200
+        assert second.json()["task_id"] == task_id
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r1).status_code == 409
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r2).status_code == 200
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r1).status_code == 409
+        assert client.post(f"/cleaning/tasks/{task_id}/fail", headers=r2).status_code == 409
+
+    def test_fail_is_idempotent_and_a_new_task_follows(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        robot = bearer(farm["robots"]["r1"])
+        train(client, admin, clean_set(10))
+        for _ in range(3):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        task_id = client.post("/cleaning/claim", headers=robot).json()["task_id"]
+        for _ in range(2):
+            r = client.post(
+                f"/cleaning/tasks/{task_id}/fail", json={"reason": "brush"}, headers=robot
+            )
+            assert r.status_code == 200
+            assert r.json()["status"] == "failed"
+        assert status(client, admin)["state"] == "needs_cleaning"
+        post_frame(client, farm, CLEAN_RGB + DUST)
+        new = status(client, admin)["open_task"]
+        assert new["status"] == "pending"
+        assert new["task_id"] != task_id
+
+    def test_panel_comes_clean_on_its_own(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        train(client, admin, clean_set(10))
+        for _ in range(3):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        task_id = status(client, admin)["open_task"]["task_id"]
+        post_frame(client, farm, CLEAN_RGB)
+        assert status(client, admin)["state"] == "clean"
+        task = client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()
+        assert (task["status"], task["outcome"]) == ("cancelled", "not_needed")
+
+    def test_roles(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
+        camera = bearer(farm["camera"])
+        assert client.post("/cleaning/claim", headers=camera).status_code == 403
+        assert client.post("/cleaning/claim", headers=admin).status_code == 403
+        assert client.get("/panels/p1/status", headers=camera).status_code == 403
+        assert (
+            client.get("/panels/p1/status", headers=bearer(farm["robots"]["r1"])).status_code == 200
+        )
+        assert client.post("/cleaning/claim").status_code == 401
+        assert (
+            client.post(
+                "/cleaning/tasks/nope/complete", headers=bearer(farm["robots"]["r1"])
+            ).status_code
+            == 404
+        )
+
+
+def test_twenty_robots_twenty_tasks(
+    client: TestClient, admin: dict[str, str], clock: Clock
+) -> None:
+    """Concurrent claims in one process: each task to exactly one robot."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    tokens = []
+    for i in range(20):
+        client.post("/panels", json={"id": f"p{i}"}, headers=admin)
+        cam = client.post(
+            "/cameras", json={"id": f"c{i}", "kind": "panel", "panel_id": f"p{i}"}, headers=admin
+        ).json()
+        files = [
+            ("files", (f"{j}.jpg", f, "image/jpeg")) for j, f in enumerate(clean_set(5, seed=i))
+        ]
+        assert client.post(f"/panels/p{i}/baseline", files=files, headers=admin).status_code == 201
+        for k in range(3):
+            clock.advance(minutes=1)
+            client.post(
+                f"/cameras/c{i}/frames",
+                content=panel_jpeg(CLEAN_RGB + DUST, seed=k),
+                headers={**bearer(cam["token"]), "Content-Type": "image/jpeg"},
+            )
+        tokens.append(client.post("/robots", json={"id": f"r{i}"}, headers=admin).json()["token"])
+    with ThreadPoolExecutor(20) as pool:
+        results = list(
+            pool.map(lambda t: client.post("/cleaning/claim", headers=bearer(t)), tokens)
+        )
+    assert all(r.status_code == 200 for r in results)
+    assert len({r.json()["task_id"] for r in results}) == 20
+
+
+class TestTrend:
+    def test_rising_dust_forecasts_the_crossing(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        train(client, admin, clean_set(12))
+        for day in range(8):
+            farm["clock"].advance(days=1)
+            post_frame(client, farm, CLEAN_RGB + DUST * day / 40, seed=day)
+        trend = status(client, admin)["trend"]
+        assert trend["points"] == 8
+        assert trend["slope_per_day"] > 0
+        assert trend["crossing_at"] is not None
+        assert trend["threshold"] > 0
+
+
+class TestEvaluate:
+    def test_two_sample_and_rates(self, client: TestClient, admin: dict[str, str]) -> None:
+        clean = clean_set(12, seed=1)
+        rng = np.random.default_rng(2)
+        dirty = [
+            panel_jpeg(CLEAN_RGB + DUST + rng.normal(0, 2, 3).round(), seed=i) for i in range(6)
+        ]
+        files = [("clean", (f"c{i}.jpg", f, "image/jpeg")) for i, f in enumerate(clean)]
+        files += [("dirty", (f"d{i}.jpg", f, "image/jpeg")) for i, f in enumerate(dirty)]
+        r = client.post("/panels/evaluate", files=files, headers=admin)
+        assert r.status_code == 200, r.text
+        out = r.json()
+        assert out["hotelling"]["p_value"] < 1e-6
+        assert (out["hotelling"]["df1"], out["hotelling"]["df2"]) == (3, 14)
+        assert out["dirty_called_clean"] == 0.0
+        assert out["n_clean"] == 12
+
+
+class TestFleetModel:
+    def test_train_and_judge_a_panel_without_baseline(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        rng = np.random.default_rng(5)
+        sand = np.array([190.0, 180.0, 160.0])
+        files, labels = [], []
+        for i in range(8):
+            c = CLEAN_RGB + rng.normal(0, 6, 3)
+            files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
+            labels.append("clean")
+            d = 0.5 * c + 0.5 * sand
+            files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
+            labels.append("dirty")
+        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["cv_balanced_accuracy"] == 1.0
+        assert status(client, admin)["state"] == "unknown"
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert (v["method"], v["clean"]) == ("fleet", True)
+        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * sand)
+        assert (v["method"], v["clean"]) == ("fleet", False)
+        assert v["p_dirty"] > 0.5
+
+    def test_labels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
+        files = [("files", ("a.jpg", panel_jpeg(CLEAN_RGB), "image/jpeg"))]
+        r = client.post("/fleet/model", files=files, data={"labels": "shiny"}, headers=admin)
+        assert r.status_code == 422
+        assert client.get("/fleet/model", headers=admin).status_code == 404
