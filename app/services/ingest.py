@@ -43,7 +43,7 @@ class Decoded:
     """The frame was decoded at 1/reduction of its size (libjpeg DCT scaling)."""
 
 
-MIN_REDUCED_SIDE = 240
+MIN_REDUCED_SIDE = 120
 """Panel frames are decoded at the largest of 1/2, 1/4, 1/8 that keeps this many pixels on the
 short side [px]: the panel statistics do not need more, and decoding costs less."""
 

@@ -1,0 +1,111 @@
+"""What classifying a panel frame costs next to decoding it, side by side in one run.
+
+For 640×480 and 1920×1080 frames, the median time of
+- decode: ``cv2.imdecode`` of the full frame, nothing else (the reference);
+- the service's panel path: header check, decode at the reduced scale it chooses for panel
+  cameras, channel statistics, quality gate, fleet features, then the T² verdict against a
+  baseline (per-panel path) or the fleet model (fleet path);
+- the same without the reduced decode (full-size decode + everything else).
+Rounds alternate between the variants so that machine noise hits them alike.
+
+    python bench/classify.py [--rounds 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+
+import cv2
+import numpy as np
+
+from app.core import fleet, soiling
+from app.core.jpeg import decode_rgb
+from app.core.quality import unusable_reason
+from app.core.stats import channel_stats
+from app.db.models import CameraKind
+from app.services.camera_info import CameraInfo
+from app.services.ingest import analyse
+
+CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
+
+
+def panel_frame(width: int, height: int, seed: int = 0) -> bytes:
+    """A panel under daylight: blue cells, frame lines, a sky strip, gradients, noise."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:height, 0:width]
+    image = np.empty((height, width, 3), np.float64)
+    image[:] = (56, 60, 84)
+    image += (x / width * 20)[..., None]
+    image[(y % (height // 12)) < 3] = (170, 172, 178)
+    image[(x % (width // 16)) < 3] = (170, 172, 178)
+    image[: height // 8] = (150, 180, 230)
+    image += rng.normal(0, 6, image.shape)
+    bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    return buf.tobytes()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=200)
+    args = parser.parse_args()
+    rng = np.random.default_rng(1)
+    baseline = soiling.fit_baseline(rng.multivariate_normal([56, 60, 84], np.eye(3) * 4, 20))
+    model = fleet.LogisticModel(
+        feature_names=fleet.FEATURES,
+        mean=np.zeros(len(fleet.FEATURES)),
+        scale=np.ones(len(fleet.FEATURES)),
+        coef=rng.normal(0, 0.1, len(fleet.FEATURES)),
+        intercept=0.0,
+    )
+    _ = datetime.now(UTC)
+
+    for width, height in ((640, 480), (1920, 1080)):
+        data = panel_frame(width, height)
+        arr = np.frombuffer(data, np.uint8)
+
+        def decode() -> None:
+            cv2.imdecode(arr, cv2.IMREAD_COLOR)
+
+        def service_baseline() -> None:
+            d = analyse(data, camera=CAMERA, max_pixels=10**9)
+            soiling.classify(baseline, d.stats.modes)
+
+        def service_fleet() -> None:
+            d = analyse(data, camera=CAMERA, max_pixels=10**9)
+            model.probability(d.features)
+
+        def full_size() -> None:
+            _, image = decode_rgb(data, max_pixels=10**9)
+            s = channel_stats(image)
+            unusable_reason(s)
+            fleet.features(image)
+            soiling.classify(baseline, s.modes)
+
+        variants: dict[str, Callable[[], None]] = {
+            "decode only": decode,
+            "service, baseline path": service_baseline,
+            "service, fleet path": service_fleet,
+            "full-size decode + classify": full_size,
+        }
+        times: dict[str, list[float]] = {k: [] for k in variants}
+        for _ in range(args.rounds):
+            for name, fn in variants.items():
+                t = time.perf_counter()
+                fn()
+                times[name].append(time.perf_counter() - t)
+        ref = statistics.median(times["decode only"])
+        reduction = analyse(data, camera=CAMERA, max_pixels=10**9).reduction
+        print(f"{width}×{height} (service decodes at 1/{reduction}):")
+        for name, ts in times.items():
+            m = statistics.median(ts)
+            print(f"  {name:30s} {m * 1000:7.2f} ms   {m / ref:5.2f} × decode")
+
+
+if __name__ == "__main__":
+    main()

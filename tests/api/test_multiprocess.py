@@ -1,0 +1,123 @@
+"""Several server processes against one PostgreSQL: each cleaning task goes to exactly one robot.
+
+Runs only when ``VANTAGE_TEST_DATABASE_URL`` names a PostgreSQL database (``.ci/run`` sets it).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx2 as httpx
+import pytest
+from sqlalchemy import Engine
+
+from tests.api.test_solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
+from tests.conftest import ADMIN_TOKEN, ROOT, _empty_tables
+
+URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
+pytestmark = [
+    pytest.mark.postgres,
+    pytest.mark.skipif(not URL.startswith("postgresql"), reason="needs PostgreSQL"),
+]
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def servers(engine: Engine, tmp_path: Path) -> Iterator[list[str]]:
+    _empty_tables(engine)
+    env = {
+        **os.environ,
+        "VANTAGE_DATABASE_URL": URL,
+        "VANTAGE_DATA_DIR": str(tmp_path),
+        "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
+        "VANTAGE_LOG_LEVEL": "WARNING",
+    }
+    procs, urls = [], []
+    for _ in range(2):
+        port = free_port()
+        procs.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "uvicorn",
+                    "app.main:create_app",
+                    "--factory",
+                    "--port",
+                    str(port),
+                    "--log-level",
+                    "warning",
+                ],
+                cwd=ROOT,
+                env=env,
+            )
+        )
+        urls.append(f"http://127.0.0.1:{port}")
+    try:
+        for url in urls:
+            for _ in range(100):
+                try:
+                    if httpx.get(f"{url}/health").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    time.sleep(0.1)
+            else:
+                pytest.fail(f"server {url} did not start")
+        yield urls
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(10)
+
+
+def test_twenty_robots_across_two_processes_get_twenty_distinct_tasks(servers: list[str]) -> None:
+    a, b = servers
+    with httpx.Client(base_url=a, headers=ADMIN, timeout=30) as c:
+        for i in range(20):
+            assert c.post("/panels", json={"id": f"p{i}"}).status_code == 201
+            cam = c.post("/cameras", json={"id": f"c{i}", "kind": "panel", "panel_id": f"p{i}"})
+            files = [
+                ("files", (f"{j}.jpg", f, "image/jpeg")) for j, f in enumerate(clean_set(5, i))
+            ]
+            assert c.post(f"/panels/p{i}/baseline", files=files).status_code == 201
+            for k in range(3):  # alternate processes: the debounce state lives in the database
+                r = httpx.post(
+                    f"{(a, b)[k % 2]}/cameras/c{i}/frames",
+                    content=panel_jpeg(CLEAN_RGB + DUST, seed=k),
+                    headers={
+                        "Authorization": f"Bearer {cam.json()['token']}",
+                        "Content-Type": "image/jpeg",
+                    },
+                )
+                assert r.status_code == 201, r.text
+        tokens = [c.post("/robots", json={"id": f"r{i}"}).json()["token"] for i in range(20)]
+        assert len(c.get("/cleaning/tasks").json()) == 20
+
+    def claim(i: int) -> httpx.Response:
+        return httpx.post(
+            f"{servers[i % 2]}/cleaning/claim",
+            headers={"Authorization": f"Bearer {tokens[i]}"},
+            timeout=30,
+        )
+
+    with ThreadPoolExecutor(20) as pool:
+        results = list(pool.map(claim, range(20)))
+    assert [r.status_code for r in results] == [200] * 20
+    assert len({r.json()["task_id"] for r in results}) == 20
+    # and nothing is left to claim, on either process
+    for url in servers:
+        r = httpx.post(f"{url}/cleaning/claim", headers={"Authorization": f"Bearer {tokens[0]}"})
+        assert r.status_code == 204
