@@ -17,7 +17,6 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
-from datetime import UTC, datetime
 
 import cv2
 import numpy as np
@@ -50,6 +49,37 @@ def panel_frame(width: int, height: int, seed: int = 0) -> bytes:
     return buf.tobytes()
 
 
+def make_variants(
+    data: bytes, baseline: soiling.Baseline, model: fleet.LogisticModel
+) -> dict[str, Callable[[], None]]:
+    arr = np.frombuffer(data, np.uint8)
+
+    def decode() -> None:
+        cv2.imdecode(arr, cv2.IMREAD_COLOR)
+
+    def service_baseline() -> None:
+        d = analyse(data, camera=CAMERA, max_pixels=10**9)
+        soiling.classify(baseline, d.stats.modes)
+
+    def service_fleet() -> None:
+        d = analyse(data, camera=CAMERA, max_pixels=10**9)
+        model.probability(d.features)
+
+    def full_size() -> None:
+        _, image = decode_rgb(data, max_pixels=10**9)
+        s = channel_stats(image)
+        unusable_reason(s)
+        fleet.features(image)
+        soiling.classify(baseline, s.modes)
+
+    return {
+        "decode only": decode,
+        "service, baseline path": service_baseline,
+        "service, fleet path": service_fleet,
+        "full-size decode + classify": full_size,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=200)
@@ -63,36 +93,10 @@ def main() -> None:
         coef=rng.normal(0, 0.1, len(fleet.FEATURES)),
         intercept=0.0,
     )
-    _ = datetime.now(UTC)
 
     for width, height in ((640, 480), (1920, 1080)):
         data = panel_frame(width, height)
-        arr = np.frombuffer(data, np.uint8)
-
-        def decode() -> None:
-            cv2.imdecode(arr, cv2.IMREAD_COLOR)
-
-        def service_baseline() -> None:
-            d = analyse(data, camera=CAMERA, max_pixels=10**9)
-            soiling.classify(baseline, d.stats.modes)
-
-        def service_fleet() -> None:
-            d = analyse(data, camera=CAMERA, max_pixels=10**9)
-            model.probability(d.features)
-
-        def full_size() -> None:
-            _, image = decode_rgb(data, max_pixels=10**9)
-            s = channel_stats(image)
-            unusable_reason(s)
-            fleet.features(image)
-            soiling.classify(baseline, s.modes)
-
-        variants: dict[str, Callable[[], None]] = {
-            "decode only": decode,
-            "service, baseline path": service_baseline,
-            "service, fleet path": service_fleet,
-            "full-size decode + classify": full_size,
-        }
+        variants = make_variants(data, baseline, model)
         times: dict[str, list[float]] = {k: [] for k in variants}
         for _ in range(args.rounds):
             for name, fn in variants.items():
