@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import Camera, Robot
+from app.db.models import Camera, Panel, Robot
 from app.errors import Forbidden, NotFound, Unauthorized
 from app.security import hash_token
 from app.services.camera_info import CameraInfo, TokenCache
@@ -151,11 +151,18 @@ CameraId = Annotated[str, Path(pattern=ID_PATTERN, description="Camera id.")]
 PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]
 
 
+def _info(session: Session, camera: Camera) -> CameraInfo:
+    has_baseline = camera.panel_id is not None and (
+        session.scalar(select(Panel.baseline_id).where(Panel.id == camera.panel_id)) is not None
+    )
+    return CameraInfo.of(camera, panel_has_baseline=has_baseline)
+
+
 def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | None:
     with get_sessionmaker(request)() as session:
         camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
         if camera is not None:
-            return CameraInfo.of(camera)
+            return _info(session, camera)
         robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
     return Principal("robot", robot_id) if robot_id is not None else None
 
@@ -163,7 +170,7 @@ def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | 
 def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
     with get_sessionmaker(request)() as session:
         camera = session.get(Camera, camera_id)
-        return CameraInfo.of(camera) if camera is not None else None
+        return _info(session, camera) if camera is not None else None
 
 
 async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:

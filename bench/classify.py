@@ -30,6 +30,9 @@ from app.services.camera_info import CameraInfo
 from app.services.ingest import analyse
 
 CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
+WITH_BASELINE = CameraInfo(
+    id="bench", kind=CameraKind.panel, panel_id="p", roi=None, panel_has_baseline=True
+)
 
 
 def panel_frame(width: int, height: int, seed: int = 0) -> bytes:
@@ -58,7 +61,7 @@ def make_variants(
         cv2.imdecode(arr, cv2.IMREAD_COLOR)
 
     def service_baseline() -> None:
-        d = analyse(data, camera=CAMERA, max_pixels=10**9)
+        d = analyse(data, camera=WITH_BASELINE, max_pixels=10**9)
         soiling.classify(baseline, d.stats.modes)
 
     def service_fleet() -> None:

@@ -16,12 +16,15 @@ class CameraInfo:
     kind: CameraKind
     panel_id: str | None
     roi: Roi | None
+    panel_has_baseline: bool = False
+    """When true, the fleet-model features need not be computed (possibly stale: it only ever
+    turns from false to true, and a stale false costs a little work, never a wrong verdict)."""
 
     @classmethod
-    def of(cls, camera: Camera) -> CameraInfo:
+    def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
         r = camera.roi
         roi = (r[0], r[1], r[2], r[3]) if r else None
-        return cls(camera.id, camera.kind, camera.panel_id, roi)
+        return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline)
 
 
 class TokenCache:

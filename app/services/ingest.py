@@ -92,7 +92,8 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
     quality = unusable_reason(stats)
-    features = fleet.features(region) if camera.kind == CameraKind.panel else None
+    wants_features = camera.kind == CameraKind.panel and not camera.panel_has_baseline
+    features = fleet.features(region) if wants_features else None
     return Decoded(header, stats, quality, features, reduction)
 
 

@@ -32,7 +32,7 @@ def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> Came
         camera = session.get(Camera, camera_id)
         if camera is None or camera.panel_id != panel_id:
             raise Unprocessable(f"camera {camera_id!r} does not watch panel {panel_id!r}")
-        return CameraInfo.of(camera)
+        return CameraInfo.of(camera)  # features wanted: training may be for the fleet
     cameras = session.scalars(select(Camera).where(Camera.panel_id == panel_id)).all()
     if len(cameras) == 1:
         return CameraInfo.of(cameras[0])
