@@ -250,3 +250,22 @@ class FleetModelOut(Out):
     n_dirty: int
     cv_balanced_accuracy: float | None = Field(description="5-fold balanced accuracy.")
     threshold: float
+
+
+class EllipseOut(Out):
+    center: list[float] = Field(description="[x, y] [px].")
+    axes: list[float] = Field(description="Full lengths of the two axes [px].")
+    angle: float = Field(description="Rotation of the first axis [°].")
+
+
+class OutlineOut(Out):
+    shape: Literal["polygon", "curved"]
+    corners: list[list[float]] = Field(
+        description="[[x, y], ...] counter-clockwise as seen in the image (y down) [px]."
+    )
+    lines: list[list[float]] = Field(description="Sides [[x1, y1, x2, y2], ...] [px].")
+    contour: list[list[float]] = Field(description="Outer contour, simplified [px].")
+    ellipses: list[EllipseOut] = Field(description="Ellipses fitted to curved arcs.")
+    roi_offset: list[int] = Field(description="[x, y] of the ROI; coordinates include it.")
+    canny_thresholds: list[float] = Field(description="[low, high] in OpenCV's units.")
+    shadow_theta: float | None = Field(description="θ of the image shift (eq. 3.1), if used.")

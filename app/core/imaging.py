@@ -139,8 +139,11 @@ def part_level(image: Grey) -> int:
 
 def suppress_shadow(
     image: Grey, *, alpha: float = 1.0, theta: float | None = None
-) -> tuple[Grey, float]:
-    """Equalise → shift (3.1) → equalise (chapter 3 §IV); returns the image and the θ used.
+) -> tuple[Grey, float, int]:
+    """Equalise → shift (3.1) → equalise (chapter 3 §IV).
+
+    Returns the image, the θ used, and the darkest input level the shift saturates (less
+    one): the part is what lies at or below that level.
 
     The shift pushes the bright background and the lighter cast shadow to 255 together, so the
     shadow's border is no longer an edge; the darker part stays. The dissertation tunes θ by
@@ -154,7 +157,10 @@ def suppress_shadow(
         t = part_level(image)
         below = eq[image <= t]
         theta = 255.0 - alpha * float(below.max() if below.size else t) - 1.0
-    return equalize(shift(eq, alpha, theta)), theta
+    lut = np.cumsum(np.bincount(image.ravel(), minlength=256)) / image.size * 255.0
+    kept = np.nonzero(alpha * np.rint(lut) + theta < 254.5)[0]
+    level = int(kept.max()) if kept.size else 0
+    return equalize(shift(eq, alpha, theta)), theta, level
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,16 +413,20 @@ class OutlineParams:
     max_gap: float = 5.0
     max_angle: float = 5.0
     max_lateral: float = 2.0
-    polygon_tolerance: float = 2.0
+    polygon_tolerance: float = 3.0
     """A contour point further than this from every side is not explained by the polygon [px]."""
-    polygon_fraction: float = 0.92
+    polygon_fraction: float = 0.9
     """Fraction of contour points the sides must explain for the outline to be a polygon."""
 
 
-def _outer_contour(conditioned: Grey) -> NDArray[np.int32]:
-    """The largest dark region's outer contour (the part on its lighter background)."""
-    level = otsu_level(conditioned)
-    mask = (conditioned <= level).astype(np.uint8)
+def _outer_contour(base: Grey, level: int | None, sigma: float) -> NDArray[np.int32]:
+    """The outer contour of the largest region at or below ``level`` (Otsu's when None) in the
+    smoothed image: the part, without its shadow when ``level`` comes from the shadow step.
+    Found on the smoothed stretched image rather than the conditioned one, whose second
+    equalisation spreads a noisy face of the part over the whole range."""
+    smooth = cv2.GaussianBlur(base, (0, 0), sigma)
+    level = otsu_level(np.asarray(smooth, dtype=np.uint8)) if level is None else level
+    mask = (smooth <= level).astype(np.uint8)
     mask = np.asarray(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)), np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
@@ -454,11 +464,11 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
         raise ValueError(f"image too small to outline: {grey.shape[1]}×{grey.shape[0]}")
     base = stretch(grey) if params.stretch else grey
     work = base
-    theta = None
+    theta, level = None, None
     if params.shadow:
-        work, theta = suppress_shadow(work, alpha=params.alpha, theta=params.theta)
+        work, theta, level = suppress_shadow(work, alpha=params.alpha, theta=params.theta)
     edges, low, high = canny(work, params.canny)
-    contour_px = _outer_contour(work)
+    contour_px = _outer_contour(base, level, params.canny.sigma)
     contour = contour_px.reshape(-1, 2).astype(np.float64)
     perimeter = cv2.arcLength(contour_px, True)
     band = np.zeros_like(edges)
@@ -480,7 +490,6 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     edge_points = np.column_stack([xs, ys]).astype(np.float64)
     sides = [refine(s, edge_points) for s in sides]
     simplified = cv2.approxPolyDP(contour_px, 1.0, True).reshape(-1, 2).astype(np.float64)
-    explained = _explained(contour, sides, params.polygon_tolerance)
     common = dict(
         lines=sides,
         contour=simplified,
@@ -489,12 +498,14 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
         canny_thresholds=(low, high),
         shadow_theta=theta,
     )
-    if len(sides) >= 3 and explained.mean() >= params.polygon_fraction:
+    if len(sides) >= 3:
         try:
-            corners = corners_from_segments(sides)
+            corners: NDArray[np.float64] | None = corners_from_segments(sides)
         except ValueError:
             corners = None
-        if corners is not None:
+        ys, xs = np.nonzero(outer_edges)
+        outline_points = np.column_stack([xs, ys]).astype(np.float64)
+        if corners is not None and _is_polygon(corners, outline_points, params):
             return Outline(shape="polygon", corners=corners, **common)  # type: ignore[arg-type]
     # curved: the long straight sides stay, short chords along the arcs are not sides
     straight = [s for s in sides if _length(s) >= CURVED_MIN_SIDE * perimeter]
@@ -506,6 +517,26 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
         ellipses=_fit_arcs(contour, arcs),
         **common,  # type: ignore[arg-type]
     )
+
+
+MIN_TURN = 12.0
+"""A polygon turns by at least this much at each corner [°]; smaller turns are chords of a
+curve."""
+
+
+def _is_polygon(
+    corners: NDArray[np.float64], points: NDArray[np.float64], params: OutlineParams
+) -> bool:
+    """Do the completed sides explain the outline's edge points, with real corners between?"""
+    closed = np.vstack([corners, corners[:1]])
+    sides = [tuple(closed[i]) + tuple(closed[i + 1]) for i in range(len(corners))]
+    explained = _explained(points, sides, params.polygon_tolerance)
+    if explained.mean() < params.polygon_fraction:
+        return False
+    d = np.diff(closed, axis=0)
+    heading = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    turn = np.abs((np.diff(np.append(heading, heading[0])) + 180.0) % 360.0 - 180.0)
+    return bool(turn.min() >= MIN_TURN)
 
 
 CURVED_MIN_SIDE = 0.12

@@ -143,3 +143,30 @@ def decode_rgb(
     if reduce != 1:  # the reduced modes have no RGB variant
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return header, np.asarray(image, dtype=np.uint8)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def decode_image(data: bytes | memoryview, *, max_pixels: int) -> NDArray[np.uint8]:
+    """A JPEG or PNG decoded to RGB (H, W, 3), uint8, its size checked from the header first.
+
+    Raises NotJpegError for any other format, TooManyPixelsError, CorruptJpegError.
+    """
+    raw = bytes(data[:32])
+    if raw.startswith(PNG_SIGNATURE):
+        if len(raw) < 24 or raw[12:16] != b"IHDR":
+            raise CorruptJpegError("PNG without its IHDR header")
+        width, height = int.from_bytes(raw[16:20], "big"), int.from_bytes(raw[20:24], "big")
+        if width * height > max_pixels:
+            pixels = width * height
+            raise TooManyPixelsError(
+                f"PNG declares {width}×{height} = {pixels} pixels; the limit is {max_pixels}"
+            )
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB)
+        if image is None:
+            raise CorruptJpegError("PNG could not be decoded")
+        return np.asarray(image, dtype=np.uint8)
+    if raw.startswith(SOI):
+        return decode_rgb(data, max_pixels=max_pixels)[1]
+    raise NotJpegError("not a JPEG or PNG image")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Any
 
-from sqlalchemy import Insert, inspect, insert
+from sqlalchemy import Insert, insert, inspect
 from sqlalchemy.orm import Session
 
 from app.db.base import Base

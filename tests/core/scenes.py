@@ -60,13 +60,25 @@ def cylinder_scene(*, noise: float = 1.0, blur: float = 1.0, seed: int = 0) -> n
     c = CYLINDER
     image = np.full((480, 640), 235.0)
     body = np.array(
-        [[c["cx"] - c["a"], c["top"]], [c["cx"] - c["a"], c["bottom"]],
-         [c["cx"] + c["a"], c["bottom"]], [c["cx"] + c["a"], c["top"]]]
+        [
+            [c["cx"] - c["a"], c["top"]],
+            [c["cx"] - c["a"], c["bottom"]],
+            [c["cx"] + c["a"], c["bottom"]],
+            [c["cx"] + c["a"], c["top"]],
+        ]
     )
     _fill(image, body, 60.0)
     for y, level in ((c["bottom"], 60.0), (c["top"], 95.0)):
         cv2.ellipse(
-            image, (int(c["cx"] * 16), int(y * 16)), (int(c["a"] * 16), int(c["b"] * 16)),
-            0, 0, 360, level, -1, cv2.LINE_AA, 4,
+            image,
+            (int(c["cx"] * 16), int(y * 16)),
+            (int(c["a"] * 16), int(c["b"] * 16)),
+            0,
+            0,
+            360,
+            level,
+            -1,
+            cv2.LINE_AA,
+            4,
         )
     return finish(low_range(image), noise=noise, blur=blur, seed=seed)

@@ -1,0 +1,190 @@
+"""Part outlines and image conditioning for robot cells."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Annotated, Literal
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
+
+from app.core.imaging import CannyParams, OutlineParams
+from app.deps import PrincipalDep, SettingsDep
+from app.errors import Unprocessable
+from app.routers.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS
+from app.schemas import EllipseOut, OutlineOut
+from app.services import vision
+from app.uploads import read_files
+
+router = APIRouter(prefix="/vision", tags=["vision"])
+
+_FILE_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "properties": {"file": {"type": "string", "format": "binary"}},
+                    "required": ["file"],
+                }
+            }
+        },
+    }
+}
+
+RoiQuery = Annotated[
+    str | None,
+    Query(
+        pattern=r"^\d+,\d+,\d+,\d+$", description="x,y,w,h [px]; results stay in full-image pixels."
+    ),
+]
+Shadow = Annotated[
+    bool, Query(description="Equalise → shift → equalise before the edges (chapter 3 §IV).")
+]
+Alpha = Annotated[float, Query(gt=0, le=10, description="α of the shift (eq. 3.1).")]
+Theta = Annotated[
+    float | None, Query(ge=-255, le=255, description="θ of the shift; default: automatic.")
+]
+Sigma = Annotated[float, Query(gt=0, le=10, description="Canny's Gaussian σ [px].")]
+High = Annotated[
+    float | None,
+    Query(
+        gt=0,
+        le=1,
+        description="Canny high threshold, 0–1 of the largest gradient (the "
+        "dissertation: 0.5); omit for automatic (Otsu on the gradient magnitudes).",
+    ),
+]
+
+
+def _roi(value: str | None) -> tuple[int, int, int, int] | None:
+    if value is None:
+        return None
+    x, y, w, h = (int(v) for v in value.split(","))
+    if w == 0 or h == 0:
+        raise Unprocessable("roi needs w, h ≥ 1")
+    return (x, y, w, h)
+
+
+def _params(
+    shadow: bool,
+    alpha: float,
+    theta: float | None,
+    sigma: float,
+    high: float | None,
+    dissertation: bool,
+) -> OutlineParams:
+    canny = CannyParams(sigma=sigma, high=0.5 if dissertation else high)
+    return OutlineParams(shadow=shadow, alpha=alpha, theta=theta, canny=canny)
+
+
+@router.post(
+    "/outline",
+    response_model=OutlineOut,
+    responses={**AUTH_ERRORS, **UPLOAD_ERRORS, **UNPROCESSABLE},
+    openapi_extra=_FILE_BODY,
+)
+async def outline(
+    request: Request,
+    settings: SettingsDep,
+    _: PrincipalDep,
+    roi: RoiQuery = None,
+    shadow: Shadow = True,
+    alpha: Alpha = 1.0,
+    theta: Theta = None,
+    sigma: Sigma = 1.5,
+    canny_high: High = None,
+    dissertation: Annotated[
+        bool, Query(description="The dissertation's Canny threshold (0.5) instead of automatic.")
+    ] = False,
+) -> OutlineOut:
+    """The outline of the part in one image (multipart ``file``): corners counter-clockwise and
+    sides, or for curved parts the contour and fitted ellipses."""
+    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
+    params = _params(shadow, alpha, theta, sigma, canny_high, dissertation)
+    result = await run_in_threadpool(
+        partial(vision.find_outline, data, params, roi=_roi(roi), max_pixels=settings.max_pixels)
+    )
+    o, (dx, dy) = result.outline, result.offset
+    shift = np.array([dx, dy], dtype=np.float64)
+    return OutlineOut(
+        shape=o.shape,
+        corners=(o.corners + shift).tolist(),
+        lines=[[x1 + dx, y1 + dy, x2 + dx, y2 + dy] for x1, y1, x2, y2 in o.lines],
+        contour=(o.contour + shift).tolist(),
+        ellipses=[
+            EllipseOut(
+                center=[e.center[0] + dx, e.center[1] + dy], axes=list(e.axes), angle=e.angle
+            )
+            for e in o.ellipses
+        ],
+        roi_offset=[dx, dy],
+        canny_thresholds=list(o.canny_thresholds),
+        shadow_theta=o.shadow_theta,
+    )
+
+
+@router.post(
+    "/outline.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}, **AUTH_ERRORS, **UPLOAD_ERRORS},
+    openapi_extra=_FILE_BODY,
+)
+async def outline_png(
+    request: Request,
+    settings: SettingsDep,
+    _: PrincipalDep,
+    roi: RoiQuery = None,
+    shadow: Shadow = True,
+    alpha: Alpha = 1.0,
+    theta: Theta = None,
+    sigma: Sigma = 1.5,
+    canny_high: High = None,
+) -> Response:
+    """The outline drawn for debugging: edges, sides, numbered corners (of the ROI)."""
+    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
+    params = _params(shadow, alpha, theta, sigma, canny_high, False)
+    result = await run_in_threadpool(
+        partial(vision.find_outline, data, params, roi=_roi(roi), max_pixels=settings.max_pixels)
+    )
+    return Response(await run_in_threadpool(vision.debug_png, result), media_type="image/png")
+
+
+@router.post(
+    "/enhance",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}, **AUTH_ERRORS, **UPLOAD_ERRORS},
+    openapi_extra=_FILE_BODY,
+)
+async def enhance(
+    request: Request,
+    settings: SettingsDep,
+    _: PrincipalDep,
+    pipeline: Annotated[
+        list[Literal["stretch", "equalize", "shadow"]],
+        Query(
+            description="Steps in order, on the luma: stretch (4.1), equalize (4.3), shadow "
+            "(equalise → shift 3.1 → equalise)."
+        ),
+    ] = ["stretch"],  # noqa: B006
+    roi: RoiQuery = None,
+    alpha: Alpha = 1.0,
+    theta: Theta = None,
+) -> Response:
+    """The conditioned image (PNG) of one image (multipart ``file``)."""
+    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
+    body = await run_in_threadpool(
+        partial(
+            vision.enhance,
+            data,
+            list(pipeline),
+            roi=_roi(roi),
+            alpha=alpha,
+            theta=theta,
+            max_pixels=settings.max_pixels,
+        )
+    )
+    return Response(body, media_type="image/png")

@@ -1,0 +1,121 @@
+"""Outlines and conditioned images over HTTP."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from tests.core.scenes import PRISM_OUTLINE, cylinder_scene, prism_scene
+from tests.core.test_imaging import corner_error
+
+
+def encode(image: np.ndarray, ext: str = ".png") -> bytes:
+    ok, buf = cv2.imencode(ext, image, [cv2.IMWRITE_JPEG_QUALITY, 100] if ext == ".jpg" else [])
+    assert ok
+    return buf.tobytes()
+
+
+def post(client: TestClient, path: str, data: bytes, headers: dict[str, str], **params: object):  # type: ignore[no-untyped-def]
+    return client.post(
+        path,
+        files={"file": ("f", data, "application/octet-stream")},
+        headers=headers,
+        params=params,
+    )
+
+
+class TestOutline:
+    def test_prism_corners(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/outline", encode(prism_scene()), admin)
+        assert r.status_code == 200, r.text
+        out = r.json()
+        assert out["shape"] == "polygon"
+        assert corner_error(np.array(out["corners"]), PRISM_OUTLINE) <= 2.0
+        assert len(out["lines"]) == 6
+        assert out["shadow_theta"] is not None
+
+    def test_jpeg_and_roi_keep_full_image_coordinates(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        data = encode(cv2.cvtColor(prism_scene(), cv2.COLOR_GRAY2BGR), ".jpg")
+        r = post(client, "/vision/outline", data, admin, roi="150,60,450,380")
+        assert r.status_code == 200, r.text
+        out = r.json()
+        assert out["roi_offset"] == [150, 60]
+        assert corner_error(np.array(out["corners"]), PRISM_OUTLINE) <= 2.0
+
+    def test_cylinder_is_curved(self, client: TestClient, admin: dict[str, str]) -> None:
+        out = post(client, "/vision/outline", encode(cylinder_scene()), admin).json()
+        assert out["shape"] == "curved"
+        assert out["corners"] == []
+        assert len(out["ellipses"]) == 2
+
+    def test_dissertation_parameters(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/outline", encode(prism_scene()), admin, dissertation=True)
+        assert r.status_code == 200
+        low, high = r.json()["canny_thresholds"]
+        assert low == pytest.approx(0.4 * high)
+
+    def test_debug_png(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/outline.png", encode(prism_scene()), admin)
+        assert r.status_code == 200
+        assert r.headers["content-type"] == "image/png"
+        image = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape == (480, 640, 3)
+        assert (image[..., 2] > 200).any()  # red corners drawn
+
+
+class TestEnhance:
+    def test_stretch_spans_the_range(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/enhance", encode(prism_scene()), admin, pipeline="stretch")
+        assert r.status_code == 200
+        image = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_GRAYSCALE)
+        assert (image.min(), image.max()) == (0, 255)
+
+    def test_shadow_pipeline_whitens_the_shadow(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        r = client.post(
+            "/vision/enhance?pipeline=stretch&pipeline=shadow",
+            files={"file": ("f", encode(prism_scene()), "image/png")},
+            headers=admin,
+        )
+        image = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_GRAYSCALE)
+        assert image[300, 500] == 255  # in the shadow
+        assert image[250, 260] < 128  # on the part
+
+
+class TestBadInput:
+    @pytest.mark.parametrize(
+        ("data", "status"),
+        [
+            (b"hello, not an image", 415),
+            (b"", 422),
+            (encode(np.zeros((1, 1), np.uint8)), 422),
+            (encode(np.zeros((64, 64), np.uint8)), 422),
+        ],
+        ids=["text", "empty", "one-pixel", "all-black"],
+    )
+    def test_refused(
+        self, client: TestClient, admin: dict[str, str], data: bytes, status: int
+    ) -> None:
+        r = post(client, "/vision/outline", data, admin)
+        assert r.status_code == status, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+
+    def test_roi_outside(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/outline", encode(prism_scene()), admin, roi="600,400,100,100")
+        assert r.status_code == 422
+        assert "does not lie inside" in r.json()["detail"]
+
+    def test_png_bomb(self, client: TestClient, admin: dict[str, str]) -> None:
+        data = bytearray(encode(np.zeros((8, 8), np.uint8)))
+        data[16:24] = (60000).to_bytes(4, "big") * 2
+        r = post(client, "/vision/outline", bytes(data), admin)
+        assert r.status_code == 422
+        assert "pixels" in r.json()["detail"]
+
+    def test_needs_a_token(self, client: TestClient) -> None:
+        assert post(client, "/vision/outline", encode(prism_scene()), {}).status_code == 401
