@@ -68,9 +68,13 @@ def equalize(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     if image.ndim == 3:
         return np.dstack([equalize(np.ascontiguousarray(image[..., c])) for c in range(3)])
     _check_grey(image)
-    hist = np.bincount(image.ravel(), minlength=256).astype(np.float64)
-    cdf = np.cumsum(hist) / image.size
-    return _apply_lut(image, 255.0 * cdf)  # eq. 4.3
+    return _apply_lut(image, 255.0 * cdf_of(image))  # eq. 4.3
+
+
+def cdf_of(image: Grey) -> NDArray[np.float64]:
+    """Empirical CDF F(y) of a greyscale image, shape (256,)."""
+    hist = cv2.calcHist([image], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+    return np.asarray(np.cumsum(hist) / image.size, dtype=np.float64)
 
 
 def shift(image: NDArray[np.uint8], alpha: float, theta: float) -> NDArray[np.uint8]:
@@ -92,6 +96,8 @@ def otsu_level(image: Grey) -> int:
     return int(level)
 
 
+PART_LEVEL_STEP = 1
+"""Levels scanned by ``part_level``, every this many."""
 MIN_SOLIDITY = 0.96
 """A region whose area is at least this fraction of its convex hull's counts as convex."""
 
@@ -110,7 +116,7 @@ def part_level(image: Grey) -> int:
     small = image[::4, ::4]
     top = otsu_level(small)
     samples: list[tuple[int, float, float]] = []
-    for level in range(top, int(small.min()), -1):
+    for level in range(top, int(small.min()), -PART_LEVEL_STEP):
         mask = (small <= level).astype(np.uint8)
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if not contours:
@@ -157,7 +163,7 @@ def suppress_shadow(
         t = part_level(image)
         below = eq[image <= t]
         theta = 255.0 - alpha * float(below.max() if below.size else t) - 1.0
-    lut = np.cumsum(np.bincount(image.ravel(), minlength=256)) / image.size * 255.0
+    lut = cdf_of(image) * 255.0
     kept = np.nonzero(alpha * np.rint(lut) + theta < 254.5)[0]
     level = int(kept.max()) if kept.size else 0
     return equalize(shift(eq, alpha, theta)), theta, level
@@ -419,6 +425,12 @@ class OutlineParams:
     """Fraction of contour points the sides must explain for the outline to be a polygon."""
 
 
+def _points(mask: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """(x, y) of the non-zero pixels, shape (n, 2)."""
+    found = cv2.findNonZero(mask)
+    return np.empty((0, 2)) if found is None else found.reshape(-1, 2).astype(np.float64)
+
+
 def _outer_contour(base: Grey, level: int | None, sigma: float) -> NDArray[np.int32]:
     """The outer contour of the largest region at or below ``level`` (Otsu's when None) in the
     smoothed image: the part, without its shadow when ``level`` comes from the shadow step.
@@ -485,9 +497,14 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     sides = [s for s in sides if _length(s) >= min_length]
     # fit each side to the edges of the part itself (the stretched image, before the shadow
     # step remaps the levels around the boundary)
-    true_edges = canny(base, params.canny)[0] if params.shadow else edges
-    ys, xs = np.nonzero(true_edges)
-    edge_points = np.column_stack([xs, ys]).astype(np.float64)
+    if params.shadow:  # only around the part: a quarter of the work of the whole frame
+        x, y, w, h = cv2.boundingRect(contour_px)
+        m = 12
+        x0, y0 = max(0, x - m), max(0, y - m)
+        box = np.ascontiguousarray(base[y0 : y + h + m, x0 : x + w + m])
+        edge_points = _points(canny(box, params.canny)[0]) + np.array([x0, y0], dtype=np.float64)
+    else:
+        edge_points = _points(edges)
     sides = [refine(s, edge_points) for s in sides]
     simplified = cv2.approxPolyDP(contour_px, 1.0, True).reshape(-1, 2).astype(np.float64)
     common = dict(
@@ -503,8 +520,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
             corners: NDArray[np.float64] | None = corners_from_segments(sides)
         except ValueError:
             corners = None
-        ys, xs = np.nonzero(outer_edges)
-        outline_points = np.column_stack([xs, ys]).astype(np.float64)
+        outline_points = _points(outer_edges)
         if corners is not None and _is_polygon(corners, outline_points, params):
             return Outline(shape="polygon", corners=corners, **common)  # type: ignore[arg-type]
     # curved: the long straight sides stay, short chords along the arcs are not sides
