@@ -269,3 +269,69 @@ class OutlineOut(Out):
     roi_offset: list[int] = Field(description="[x, y] of the ROI; coordinates include it.")
     canny_thresholds: list[float] = Field(description="[low, high] in OpenCV's units.")
     shadow_theta: float | None = Field(description="θ of the image shift (eq. 3.1), if used.")
+
+
+class AirCalibrationFromFrames(Schema):
+    frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
+    levels: list[Annotated[int, Field(ge=1, le=10)]] = Field(min_length=1, max_length=10_000)
+
+
+class AirClusterOut(Out):
+    levels: list[int] = Field(description="Calibration levels pooled into this cluster.")
+    level: int = Field(description="The level it reports.")
+    n: int
+    mean_modes: list[float] = Field(description="x̄ₘ, eq. 6.12 [level].")
+    covariance: list[list[float]] = Field(description="Σ̂, eq. 6.13 [level²].")
+    f_critical: float = Field(description="F₍₃,ₙ₋₃,ς₎, eq. 6.21.")
+    significance: float
+
+
+class AirCalibrationOut(Out):
+    id: str
+    created_at: datetime
+    n_images: int
+    clusters: list[AirClusterOut]
+    warnings: list[str] = Field(description="Levels pooled for want of images, and the like.")
+
+
+class AirLatest(Out):
+    camera_id: str
+    level: int | None
+    category: str | None
+    message: str | None
+    captured_at: datetime | None
+    smoothed_level: float | None = Field(description="NowCast-style weighted recent level.")
+    smoothed_category: str | None
+    reason: str | None
+
+
+class AirReading(Out):
+    camera_id: str
+    frame_id: str
+    captured_at: datetime
+    level: int | None
+    category: str | None
+    smoothed_level: float | None
+    reason: str | None
+
+
+class AirAggregate(Out):
+    camera_id: str
+    start: datetime
+    end: datetime
+    n: int
+    mean_level: float
+    min_level: float
+    max_level: float
+    category: str
+
+
+class AirAlertOut(Out):
+    id: str
+    camera_id: str
+    frame_id: str
+    created_at: datetime
+    smoothed_level: float
+    category: str
+    delivered: bool
+    attempts: int

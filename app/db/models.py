@@ -244,5 +244,41 @@ class SkyVerdict(Verdict):
     frame_id: Mapped[str] = mapped_column(ForeignKey("verdicts.frame_id"), primary_key=True)
     level: Mapped[int | None] = mapped_column(SmallInteger)
     category: Mapped[str | None] = mapped_column(String(16))
+    statistic: Mapped[float | None] = mapped_column(Float)
+    """F of the accepting level's T² test (eq. 6.20)."""
+    p_value: Mapped[float | None] = mapped_column(Float)
+    calibration_id: Mapped[str | None] = mapped_column(ForeignKey("air_calibrations.id"))
+    smoothed_level: Mapped[float | None] = mapped_column(Float)
+    """The camera's NowCast-style level after this frame (``airquality.nowcast``)."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.sky, "polymorphic_load": "inline"}
+
+
+class AirCalibration(Base):
+    """Level clusters from labelled sky images (eqs. 6.12–6.13)."""
+
+    __tablename__ = "air_calibrations"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    clusters: Mapped[list[dict[str, Any]]] = mapped_column(JSON)
+    """[{levels, level, n, mean_modes, covariance, f_critical, significance, ...}]"""
+    warnings: Mapped[list[str]] = mapped_column(JSON)
+    n_images: Mapped[int] = mapped_column(Integer)
+    frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
+
+
+class AirAlert(Base):
+    """A camera's smoothed level entered Poor or Very Poor."""
+
+    __tablename__ = "air_alerts"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"), index=True)
+    frame_id: Mapped[str] = mapped_column(ForeignKey("frames.id"))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    smoothed_level: Mapped[float] = mapped_column(Float)
+    category: Mapped[str] = mapped_column(String(16))
+    delivered: Mapped[bool] = mapped_column(Boolean, default=False)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    last_error: Mapped[str | None] = mapped_column(String(500))

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from sqlalchemy.orm import Session
 
 from app.core.stats import ChannelStats
-from app.db.models import CameraKind, SkyVerdict, Verdict
+from app.db.models import CameraKind, Verdict
 from app.services.policy import Policy
 
 if TYPE_CHECKING:
@@ -41,14 +41,9 @@ def _panel(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
 
 
 def _sky(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
-    return SkyVerdict(
-        frame_id=prepared.frame.id,
-        camera_id=prepared.camera.id,
-        level=None,
-        category=None,
-        reason=prepared.decoded.quality or "air-quality model not calibrated",
-        **stats_columns(prepared.decoded.stats),
-    )
+    from app.services.air import classify_frame
+
+    return classify_frame(session, prepared, policy)
 
 
 def _rig(session: Session, prepared: Prepared, policy: Policy) -> Verdict:

@@ -1,0 +1,154 @@
+"""Air quality from the sky: dissertation chapter 6.
+
+Street cameras photograph the sky; haze raises the red and green modes of the sky region and
+lowers the blue one. Labelled images (levels 1–10 measured by reference instruments) make one
+cluster per level — its mean mode vector and covariance (eqs. 6.12–6.13) — and a new frame falls
+in the level whose T² test accepts it (6.19–6.22; as in chapter 5, eq. 6.23 is not equivalent
+to 6.22 and is not used). The statistics are ``app.core.soiling``'s: the same Theorem 2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from app.core import soiling
+
+LEVELS = range(1, 11)
+CATEGORIES = (
+    (9, "Very Good"),
+    (7, "Good"),
+    (5, "Fair"),
+    (3, "Poor"),
+    (1, "Very Poor"),
+)
+"""Lowest level of each category: 9–10 Very Good, 7–8 Good, 5–6 Fair, 3–4 Poor, 1–2 Very Poor."""
+POOR_LEVEL = 4
+"""Levels at or below this are Poor or Very Poor: alerts."""
+MIN_CLUSTER = 5
+"""A level needs this many images for its own cluster (F(3, n − 3) with n − 3 ≥ 2)."""
+
+
+def category(level: float) -> str:
+    """The category of a level 1–10 (fractional levels are rounded first)."""
+    if not np.isfinite(level) or not 0.5 <= level < 10.5:
+        raise ValueError(f"level must lie in 1–10; got {level}")
+    rounded = int(np.floor(level + 0.5))
+    return next(name for lowest, name in CATEGORIES if rounded >= lowest)
+
+
+def message(name: str) -> str:
+    return f"Today's Air Quality is {name}"
+
+
+@dataclass(frozen=True, slots=True)
+class Cluster:
+    levels: tuple[int, ...]
+    """The calibration levels pooled into this cluster (one, unless too few images)."""
+    level: int
+    """The level the cluster reports (the median of its images' levels)."""
+    baseline: soiling.Baseline
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    clusters: tuple[Cluster, ...]
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+
+def calibrate(
+    modes: ArrayLike, levels: ArrayLike, *, significance: float = 0.05, shrinkage: float = 0.0
+) -> Calibration:
+    """One cluster per level (eqs. 6.12–6.13); levels with fewer than ``MIN_CLUSTER`` images are
+    pooled with their nearest neighbour (a warning says which).
+
+    Raises soiling.BaselineError when a (pooled) cluster's covariance is singular.
+    """
+    x = np.asarray(modes, dtype=np.float64)
+    lv = np.asarray(levels, dtype=np.int64)
+    if x.ndim != 2 or x.shape[1] != 3 or len(lv) != len(x):
+        raise ValueError(f"need modes (n, 3) and n levels; got {x.shape} and {lv.shape}")
+    if not set(lv.tolist()) <= set(LEVELS):
+        raise ValueError("levels must be integers 1–10")
+    groups: list[list[int]] = [[int(v)] for v in sorted(set(lv.tolist()))]
+    warnings = []
+    while True:
+        sizes = [int(np.isin(lv, g).sum()) for g in groups]
+        small = [i for i, n in enumerate(sizes) if n < MIN_CLUSTER]
+        if not small or len(groups) == 1:
+            break
+        i = small[0]
+        # pool with the neighbour whose levels are closest (ties: the smaller group)
+        cands = [j for j in (i - 1, i + 1) if 0 <= j < len(groups)]
+        j = min(cands, key=lambda k: (abs(np.mean(groups[k]) - np.mean(groups[i])), sizes[k]))
+        warnings.append(
+            f"level(s) {groups[i]} had {sizes[i]} images (< {MIN_CLUSTER}); pooled with {groups[j]}"
+        )
+        a, b = sorted((i, j))
+        groups[a : b + 1] = [sorted(groups[a] + groups[b])]
+    clusters = []
+    for g in groups:
+        members = np.isin(lv, g)
+        baseline = soiling.fit_baseline(x[members], significance=significance, shrinkage=shrinkage)
+        clusters.append(Cluster(tuple(g), int(np.median(lv[members])), baseline))
+    return Calibration(tuple(clusters), tuple(warnings))
+
+
+@dataclass(frozen=True, slots=True)
+class Grade:
+    level: int | None
+    statistic: float | None
+    """F of the chosen cluster (eq. 6.20)."""
+    p_value: float | None
+    reason: str | None = None
+
+
+def grade(calibration: Calibration, modes: ArrayLike) -> Grade:
+    """The level whose cluster's T² test accepts the mode vector (eqs. 6.19–6.22); of several,
+    the smallest F; of none, no level ("outside calibration") rather than a guess."""
+    results = [(c, soiling.classify(c.baseline, modes)) for c in calibration.clusters]
+    accepted = [(c, r) for c, r in results if r.clean]  # F < F₍₃,ₙ₋₃,ς₎ (6.21–6.22)
+    if not accepted:
+        best = min(results, key=lambda cr: cr[1].f_stat)[1]
+        return Grade(
+            None, best.f_stat, best.p_value, "outside calibration: no level's test accepts"
+        )
+    c, r = min(accepted, key=lambda cr: cr[1].f_stat)
+    return Grade(c.level, r.f_stat, r.p_value)
+
+
+NOWCAST_HOURS = 12
+
+
+def nowcast(times: list[datetime], levels: list[float], now: datetime) -> float | None:
+    """A NowCast-style smoothed level: hourly means of the last 12 hours weighted wᵏ for the
+    hour k ago, w = max(min/max of the hourly means, 0.5) — steady air weighs history, changing
+    air weighs the latest hours (as the official NowCast for PM2.5). None without a reading in
+    the last 3 hours (the official rule wants two of the last three)."""
+    hourly: dict[int, list[float]] = {}
+    for t, v in zip(times, levels, strict=True):
+        k = int((now - t) / timedelta(hours=1))
+        if 0 <= k < NOWCAST_HOURS:
+            hourly.setdefault(k, []).append(v)
+    if not any(k < 3 for k in hourly):
+        return None
+    means = {k: float(np.mean(v)) for k, v in hourly.items()}
+    lo, hi = min(means.values()), max(means.values())
+    w = max(lo / hi if hi > 0 else 1.0, 0.5)
+    weights = {k: w**k for k in means}
+    return sum(weights[k] * means[k] for k in means) / sum(weights.values())
+
+
+def sky_features(rgb: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """Modes, means and blue-to-red ratio of a sky region (RGB, uint8) for the regression
+    model that improves on the clusters (``bench/airquality_eval.py``)."""
+    x = rgb.reshape(-1, 3).astype(np.float64)
+    modes = [np.bincount(rgb[..., c].ravel(), minlength=256).argmax() for c in range(3)]
+    means = x.mean(axis=0)
+    lo = x.min(axis=1)
+    return np.array(
+        [*modes, *means, (means[2] + 1) / (means[0] + 1), np.median(lo), x.std(axis=0).mean()]
+    )

@@ -1,0 +1,361 @@
+"""Air quality: calibration (admin); latest, readings, alerts and isopleths (public)."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+from functools import partial
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, Response
+from sqlalchemy.orm import Session
+
+from app.core import airquality, isopleths
+from app.db.models import CameraKind
+from app.deps import Admin, CameraId, PolicyDep, SessionDep, SettingsDep
+from app.errors import Unprocessable, UnsupportedMediaType
+from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.schemas import (
+    AirAggregate,
+    AirAlertOut,
+    AirCalibrationFromFrames,
+    AirCalibrationOut,
+    AirLatest,
+    AirReading,
+)
+from app.services import air, training
+from app.services.camera_info import CameraInfo
+from app.services.policy import Policy
+from app.uploads import content_type, read_form, read_json
+
+router = APIRouter(prefix="/air", tags=["air quality"])
+
+Significance = Annotated[float, Query(gt=0, le=0.05, description="ς (eq. 6.21).")]
+Shrinkage = Annotated[float, Query(ge=0, le=100, description="Variance added to each Σ̂ [level²].")]
+
+
+def _calibration_out(row: Any) -> AirCalibrationOut:
+    return AirCalibrationOut.model_validate(row)
+
+
+def _from_files(
+    session: Session,
+    files: list[tuple[str | None, bytes]],
+    levels: list[int],
+    camera_id: str | None,
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+    policy: Policy,
+) -> AirCalibrationOut:
+    camera = CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
+    if camera_id is not None:
+        camera = CameraInfo.of(air.sky_camera(session, camera_id))
+    modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
+    row = air.calibrate(
+        session,
+        modes,
+        levels,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=None,
+        now=policy.now(),
+    )
+    return _calibration_out(row)
+
+
+def _from_frames(
+    session: Session,
+    body: AirCalibrationFromFrames,
+    significance: float,
+    shrinkage: float,
+    policy: Policy,
+) -> AirCalibrationOut:
+    if len(body.frame_ids) != len(body.levels):
+        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
+    modes = air.modes_of_frames(session, body.frame_ids)
+    row = air.calibrate(
+        session,
+        modes,
+        body.levels,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=body.frame_ids,
+        now=policy.now(),
+    )
+    return _calibration_out(row)
+
+
+@router.post(
+    "/calibration",
+    status_code=201,
+    response_model=AirCalibrationOut,
+    responses={**AUTH_ERRORS, **UNPROCESSABLE},
+)
+async def calibrate(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+    camera_id: Annotated[str | None, Query(description="Whose ROI applies to uploads.")] = None,
+) -> AirCalibrationOut:
+    """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
+
+    Multipart: repeated ``files`` and ``levels`` (1–10, same order); or JSON
+    ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames.
+    """
+    kind = content_type(request)
+    if kind == "multipart/form-data":
+        form = await read_form(request, settings.max_upload_bytes, max_files=5000)
+        files, raw = form.files_of("files"), form.fields.get("levels", [])
+        if len(files) != len(raw):
+            raise Unprocessable(f"{len(files)} files but {len(raw)} levels; give one level each")
+        try:
+            levels = [int(v) for v in raw]
+        except ValueError:
+            raise Unprocessable("levels must be integers 1–10") from None
+        if any(not 1 <= v <= 10 for v in levels):
+            raise Unprocessable("levels must be integers 1–10")
+        return await run_in_threadpool(
+            partial(
+                _from_files,
+                session,
+                files,
+                levels,
+                camera_id,
+                significance,
+                shrinkage,
+                settings.max_pixels,
+                policy,
+            )
+        )
+    if kind == "application/json":
+        body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
+        return await run_in_threadpool(
+            partial(_from_frames, session, body, significance, shrinkage, policy)
+        )
+    raise UnsupportedMediaType(
+        "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"
+    )
+
+
+@router.get("/calibration", response_model=AirCalibrationOut, responses=NOT_FOUND)
+def current_calibration(session: SessionDep) -> AirCalibrationOut:
+    """The calibration in use."""
+    row = air.latest_calibration(session)
+    if row is None:
+        from app.errors import NotFound
+
+        raise NotFound("no air-quality calibration yet")
+    return _calibration_out(row)
+
+
+@router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
+def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
+    """A sky camera's latest reading: level, category, message, and the smoothed level."""
+    found = air.latest(session, camera_id)
+    if found is None:
+        return AirLatest(
+            camera_id=camera_id,
+            level=None,
+            category=None,
+            message=None,
+            captured_at=None,
+            smoothed_level=None,
+            smoothed_category=None,
+            reason="no frames yet",
+        )
+    frame, v = found
+    smoothed = v.smoothed_level
+    return AirLatest(
+        camera_id=camera_id,
+        level=v.level,
+        category=v.category,
+        message=airquality.message(v.category) if v.category else None,
+        captured_at=frame.captured_at,
+        smoothed_level=smoothed,
+        smoothed_category=airquality.category(smoothed) if smoothed is not None else None,
+        reason=v.reason,
+    )
+
+
+@router.get(
+    "/readings",
+    response_model=list[AirReading] | list[AirAggregate],
+    responses=UNPROCESSABLE,
+)
+def readings(
+    session: SessionDep,
+    camera_id: Annotated[str | None, Query(max_length=64)] = None,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> list[AirReading] | list[AirAggregate]:
+    """Readings newest first, paginated; or their hourly or daily means."""
+    if since and until and since >= until:
+        raise Unprocessable("since must be before until")
+    if aggregate == "none":
+        rows = air.readings(
+            session, camera_id=camera_id, since=since, until=until, limit=limit, offset=offset
+        )
+        return [
+            AirReading(
+                camera_id=r.camera_id,
+                frame_id=r.id,
+                captured_at=r.captured_at,
+                level=r.level,
+                category=r.category,
+                smoothed_level=r.smoothed_level,
+                reason=r.reason,
+            )
+            for r in rows
+        ]
+    rows = air.readings(
+        session, camera_id=camera_id, since=since, until=until, limit=100_000, offset=0
+    )
+    buckets = air.aggregate(rows, aggregate)[offset : offset + limit]
+    return [AirAggregate(**b) for b in buckets]
+
+
+@router.get("/alerts", response_model=list[AirAlertOut])
+def alerts(
+    session: SessionDep,
+    camera_id: Annotated[str | None, Query(max_length=64)] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> list[AirAlertOut]:
+    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first."""
+    rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)
+    return [AirAlertOut.model_validate(a) for a in rows]
+
+
+def _bbox(value: str | None) -> tuple[float, float, float, float] | None:
+    if value is None:
+        return None
+    try:
+        parts = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        raise Unprocessable("bbox must be minlon,minlat,maxlon,maxlat") from None
+    if len(parts) != 4 or not all(np.isfinite(parts)):
+        raise Unprocessable("bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
+    if parts[0] >= parts[2] or parts[1] >= parts[3]:
+        raise Unprocessable("bbox needs min < max in both longitude and latitude")
+    return parts
+
+
+Method = Annotated[Literal["idw", "kriging", "rbf"], Query(description="Interpolation.")]
+Bbox = Annotated[str | None, Query(description="minlon,minlat,maxlon,maxlat [°].")]
+Window = Annotated[int, Query(ge=60, le=30 * 86400, description="Readings of the last … [s].")]
+Resolution = Annotated[int, Query(ge=8, le=512, description="Grid cells per side.")]
+MaxDistance = Annotated[
+    float,
+    Query(
+        gt=0, le=200_000, description="Leave cells farther than this from every camera empty [m]."
+    ),
+]
+
+
+def _field(
+    session: Session,
+    policy: Policy,
+    bbox: str | None,
+    window: int,
+    method: str,
+    resolution: int,
+    max_distance: float,
+) -> tuple[
+    list[air.Station], isopleths.Field | None, tuple[float, float, float, float] | None, datetime
+]:
+    now = policy.now()
+    box = _bbox(bbox)
+    st = air.stations(session, since=now - timedelta(seconds=window))
+    if not st:
+        return st, None, box, now
+    lon = np.array([s.lon for s in st])
+    lat = np.array([s.lat for s in st])
+    box = box or isopleths.default_bbox(lon, lat)
+    try:
+        f = isopleths.interpolate(
+            lon,
+            lat,
+            np.array([s.level for s in st]),
+            bbox=box,
+            method=method,  # type: ignore[arg-type]
+            resolution=resolution,
+            max_distance=max_distance,
+        )
+    except isopleths.IsoplethError as exc:
+        raise Unprocessable(str(exc), code="bad_field") from None
+    return st, f, box, now
+
+
+@router.get(
+    "/isopleths", responses={**UNPROCESSABLE, 200: {"content": {"application/geo+json": {}}}}
+)
+def isopleths_geojson(
+    session: SessionDep,
+    policy: PolicyDep,
+    bbox: Bbox = None,
+    window: Window = 3600,
+    method: Method = "idw",
+    resolution: Resolution = 128,
+    max_distance: MaxDistance = 5000.0,
+) -> JSONResponse:
+    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present."""
+    st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
+    features = isopleths.bands(f) if f is not None else []
+    body = {
+        "type": "FeatureCollection",
+        "features": features,
+        "bbox": list(box) if box else None,
+        "method": method,
+        "computed_at": now.isoformat(),
+        "window_s": window,
+        "max_distance_m": max_distance,
+        "cameras": [
+            {
+                "camera_id": s.camera_id,
+                "lon": s.lon,
+                "lat": s.lat,
+                "level": s.level,
+                "captured_at": s.captured_at.isoformat(),
+            }
+            for s in st
+        ],
+        "uncertainty": None
+        if f is None
+        else {
+            "kind": f.uncertainty_kind,
+            "max": float(np.nanmax(f.uncertainty)),
+            "mean": float(np.nanmean(f.uncertainty)),
+        },
+    }
+    return JSONResponse(body, media_type="application/geo+json")
+
+
+@router.get(
+    "/isopleths.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}, **UNPROCESSABLE},
+)
+def isopleths_png(
+    session: SessionDep,
+    policy: PolicyDep,
+    bbox: Bbox = None,
+    window: Window = 3600,
+    method: Method = "idw",
+    resolution: Resolution = 128,
+    max_distance: MaxDistance = 5000.0,
+) -> Response:
+    """The bands drawn, with the camera positions and a legend."""
+    from app.services.airmap import render
+
+    st, f, box, _ = _field(session, policy, bbox, window, method, resolution, max_distance)
+    return Response(render(f, st, box), media_type="image/png")

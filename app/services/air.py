@@ -1,0 +1,292 @@
+"""Air quality: calibration, grading frames, smoothing, alerts, readings, isopleths."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.core import airquality, soiling
+from app.db.models import AirAlert, AirCalibration, Camera, CameraKind, Frame, SkyVerdict
+from app.errors import NotFound, Unprocessable
+from app.services.policy import Policy
+from app.services.verdicts import stats_columns
+
+if TYPE_CHECKING:
+    from app.services.ingest import Prepared
+
+
+def latest_calibration(session: Session) -> AirCalibration | None:
+    return session.scalars(
+        select(AirCalibration)
+        .order_by(AirCalibration.created_at.desc(), AirCalibration.id)
+        .limit(1)
+    ).first()
+
+
+def as_core(row: AirCalibration) -> airquality.Calibration:
+    clusters = tuple(
+        airquality.Cluster(
+            levels=tuple(c["levels"]),
+            level=int(c["level"]),
+            baseline=soiling.Baseline(
+                n=int(c["n"]),
+                mean_modes=np.asarray(c["mean_modes"], dtype=np.float64),
+                covariance=np.asarray(c["covariance"], dtype=np.float64),
+                significance=float(c["significance"]),
+                f_critical=float(c["f_critical"]),
+                condition_number=float(c["condition_number"]),
+                shrinkage=float(c["shrinkage"]),
+            ),
+        )
+        for c in row.clusters
+    )
+    return airquality.Calibration(clusters, tuple(row.warnings))
+
+
+def calibrate(
+    session: Session,
+    modes: NDArray[np.float64],
+    levels: Sequence[int],
+    *,
+    significance: float,
+    shrinkage: float,
+    frame_ids: list[str] | None,
+    now: datetime,
+) -> AirCalibration:
+    try:
+        cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
+    except soiling.BaselineError as exc:
+        raise Unprocessable(f"cannot calibrate: {exc}", code="bad_calibration") from None
+    except ValueError as exc:
+        raise Unprocessable(str(exc)) from None
+    row = AirCalibration(
+        id=str(uuid.uuid4()),
+        created_at=now,
+        clusters=[
+            {
+                "levels": list(c.levels),
+                "level": c.level,
+                "n": c.baseline.n,
+                "mean_modes": c.baseline.mean_modes.tolist(),
+                "covariance": c.baseline.covariance.tolist(),
+                "significance": c.baseline.significance,
+                "f_critical": c.baseline.f_critical,
+                "condition_number": c.baseline.condition_number,
+                "shrinkage": c.baseline.shrinkage,
+            }
+            for c in cal.clusters
+        ],
+        warnings=list(cal.warnings),
+        n_images=len(levels),
+        frame_ids=frame_ids,
+    )
+    session.add(row)
+    session.flush()
+    return row
+
+
+def modes_of_frames(session: Session, frame_ids: Sequence[str]) -> NDArray[np.float64]:
+    rows = session.execute(
+        select(SkyVerdict.frame_id, SkyVerdict.mode_r, SkyVerdict.mode_g, SkyVerdict.mode_b).where(
+            SkyVerdict.frame_id.in_(frame_ids)
+        )
+    ).all()
+    found = {r[0]: (r[1], r[2], r[3]) for r in rows}
+    missing = [f for f in frame_ids if f not in found]
+    if missing:
+        raise Unprocessable(f"no sky frames {', '.join(missing[:10])}", missing=missing)
+    return np.array([found[f] for f in frame_ids], dtype=np.float64)
+
+
+def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
+    """Grade a sky frame, smooth the camera's level, and raise an alert when it turns Poor."""
+    camera, frame, decoded = prepared.camera, prepared.frame, prepared.decoded
+    verdict = SkyVerdict(
+        frame_id=frame.id,
+        camera_id=camera.id,
+        level=None,
+        category=None,
+        **stats_columns(decoded.stats),
+    )
+    cal_row = latest_calibration(session)
+    if decoded.quality is not None:
+        verdict.reason = decoded.quality
+    elif cal_row is None:
+        verdict.reason = "air-quality model not calibrated (POST /air/calibration)"
+    else:
+        g = airquality.grade(as_core(cal_row), decoded.stats.modes)
+        verdict.calibration_id = cal_row.id
+        verdict.statistic, verdict.p_value, verdict.reason = g.statistic, g.p_value, g.reason
+        if g.level is not None:
+            verdict.level = g.level
+            verdict.category = airquality.category(g.level)
+    since = frame.captured_at - timedelta(hours=airquality.NOWCAST_HOURS)
+    history = session.execute(
+        select(Frame.captured_at, SkyVerdict.level, SkyVerdict.smoothed_level)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(
+            Frame.camera_id == camera.id, Frame.captured_at >= since, SkyVerdict.level.is_not(None)
+        )
+        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
+    ).all()
+    times = [r[0] for r in history]
+    levels = [float(r[1]) for r in history if r[1] is not None]
+    if verdict.level is not None:
+        times.append(frame.captured_at)
+        levels.append(float(verdict.level))
+    previous = next((r[2] for r in history if r[2] is not None), None)
+    smoothed = airquality.nowcast(times, levels, frame.captured_at)
+    verdict.smoothed_level = smoothed
+    if (
+        smoothed is not None
+        and round(smoothed) <= airquality.POOR_LEVEL
+        and (previous is None or round(previous) > airquality.POOR_LEVEL)
+    ):
+        session.add(
+            AirAlert(
+                id=str(uuid.uuid4()),
+                camera_id=camera.id,
+                frame_id=frame.id,
+                created_at=frame.received_at,
+                smoothed_level=smoothed,
+                category=airquality.category(smoothed),
+                delivered=False,
+                attempts=0,
+            )
+        )
+    return verdict
+
+
+def sky_camera(session: Session, camera_id: str) -> Camera:
+    camera = session.get(Camera, camera_id)
+    if camera is None or camera.kind != CameraKind.sky:
+        raise NotFound(f"no sky camera {camera_id!r}")
+    return camera
+
+
+def latest(session: Session, camera_id: str) -> tuple[Frame, SkyVerdict] | None:
+    sky_camera(session, camera_id)
+    row = session.execute(
+        select(Frame, SkyVerdict)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.camera_id == camera_id)
+        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
+        .limit(1)
+    ).first()
+    return (row[0], row[1]) if row else None
+
+
+def readings(
+    session: Session,
+    *,
+    camera_id: str | None,
+    since: datetime | None,
+    until: datetime | None,
+    limit: int,
+    offset: int,
+) -> Sequence[Any]:
+    q = select(
+        Frame.camera_id,
+        Frame.id,
+        Frame.captured_at,
+        SkyVerdict.level,
+        SkyVerdict.category,
+        SkyVerdict.smoothed_level,
+        SkyVerdict.reason,
+    ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+    if camera_id is not None:
+        q = q.where(Frame.camera_id == camera_id)
+    if since is not None:
+        q = q.where(Frame.captured_at >= since)
+    if until is not None:
+        q = q.where(Frame.captured_at < until)
+    return session.execute(
+        q.order_by(Frame.captured_at.desc(), Frame.id).limit(limit).offset(offset)
+    ).all()
+
+
+def aggregate(rows: Sequence[Any], bucket: str) -> list[dict[str, Any]]:
+    """Hourly or daily means of the graded readings, newest first."""
+    out: dict[tuple[str, datetime], list[float]] = {}
+    for r in rows:
+        if r.level is None:
+            continue
+        t: datetime = r.captured_at
+        start = t.replace(minute=0, second=0, microsecond=0)
+        if bucket == "daily":
+            start = start.replace(hour=0)
+        out.setdefault((r.camera_id, start), []).append(float(r.level))
+    result = [
+        {
+            "camera_id": cam,
+            "start": start,
+            "end": start + (timedelta(days=1) if bucket == "daily" else timedelta(hours=1)),
+            "n": len(v),
+            "mean_level": float(np.mean(v)),
+            "min_level": min(v),
+            "max_level": max(v),
+            "category": airquality.category(float(np.mean(v))),
+        }
+        for (cam, start), v in out.items()
+    ]
+    return sorted(result, key=lambda d: (d["start"], d["camera_id"]), reverse=True)
+
+
+def alerts(
+    session: Session, *, camera_id: str | None, limit: int, offset: int
+) -> Sequence[AirAlert]:
+    q = select(AirAlert)
+    if camera_id is not None:
+        q = q.where(AirAlert.camera_id == camera_id)
+    return session.scalars(
+        q.order_by(AirAlert.created_at.desc(), AirAlert.id).limit(limit).offset(offset)
+    ).all()
+
+
+@dataclass(frozen=True, slots=True)
+class Station:
+    camera_id: str
+    lon: float
+    lat: float
+    level: float
+    captured_at: datetime
+
+
+def stations(session: Session, *, since: datetime) -> list[Station]:
+    """Each located sky camera's latest smoothed (else graded) level since ``since``."""
+    newest = (
+        select(Frame.camera_id, func.max(Frame.captured_at).label("t"))
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.captured_at >= since, SkyVerdict.level.is_not(None))
+        .group_by(Frame.camera_id)
+        .subquery()
+    )
+    rows = session.execute(
+        select(
+            Camera.id,
+            Camera.lon,
+            Camera.lat,
+            SkyVerdict.smoothed_level,
+            SkyVerdict.level,
+            Frame.captured_at,
+        )
+        .join(Frame, Frame.camera_id == Camera.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .join(newest, (newest.c.camera_id == Frame.camera_id) & (newest.c.t == Frame.captured_at))
+        .where(Camera.lat.is_not(None), Camera.lon.is_not(None), SkyVerdict.level.is_not(None))
+    ).all()
+    seen: dict[str, Station] = {}
+    for cid, lon, lat, smooth, level, t in rows:
+        value = smooth if smooth is not None else level
+        if lon is None or lat is None or value is None:
+            continue
+        seen[cid] = Station(cid, float(lon), float(lat), float(value), t)
+    return sorted(seen.values(), key=lambda s: s.camera_id)

@@ -1,0 +1,215 @@
+"""Air quality end to end over HTTP: sky cameras, calibration, frames, latest, readings, alerts,
+isopleths (GeoJSON and PNG)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import timedelta
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from shapely.geometry import shape
+
+from tests.api.test_solar import Clock
+from tests.core.test_airquality import CLEAN, HAZE
+
+
+def sky_jpeg(level: float, seed: int = 0) -> bytes:
+    """Sky of the level's colour in the top 60 %, a dark street below (outside the ROI)."""
+    t = (10 - level) / 9
+    rng = np.random.default_rng(seed)
+    rgb = (1 - t) * CLEAN + t * HAZE + rng.normal(0, 2.0, 3)
+    image = np.empty((100, 160, 3))
+    image[:60] = rgb
+    image[60:] = (40, 40, 45)
+    image += rng.normal(0, 4, image.shape)
+    bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return buf.tobytes()
+
+
+@pytest.fixture
+def city(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
+    clock = Clock()
+    app.state.policy = replace(app.state.policy, clock=clock)
+    tokens = {}
+    rng = np.random.default_rng(1)
+    for i in range(12):
+        body = {
+            "id": f"sky{i}",
+            "kind": "sky",
+            "lat": 45.40 + 0.1 * rng.random(),
+            "lon": 9.10 + 0.2 * rng.random(),
+            "roi": [0, 0, 160, 55],
+        }
+        r = client.post("/cameras", json=body, headers=admin)
+        assert r.status_code == 201, r.text
+        tokens[body["id"]] = (r.json()["token"], body["lon"])
+    return {"tokens": tokens, "clock": clock}
+
+
+def calibrate(client: TestClient, admin: dict[str, str]) -> Any:
+    files, levels = [], []
+    for level in (1, 3, 5, 7, 10):
+        for k in range(8):
+            files.append(
+                ("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed=100 * level + k), "image/jpeg"))
+            )
+            levels.append(str(level))
+    return client.post(
+        "/air/calibration",
+        files=files,
+        data={"levels": levels},
+        headers=admin,
+        params={"camera_id": "sky0", "significance": 0.01},
+    )
+
+
+def post(client: TestClient, city: dict[str, Any], camera: str, level: float, seed: int) -> Any:
+    token = city["tokens"][camera][0]
+    r = client.post(
+        f"/cameras/{camera}/frames",
+        content=sky_jpeg(level, seed),
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]
+
+
+def test_end_to_end(client: TestClient, admin: dict[str, str], city: dict[str, Any]) -> None:
+    v = post(client, city, "sky0", 10, seed=1)
+    assert v["level"] is None
+    assert "not calibrated" in v["reason"]
+
+    r = calibrate(client, admin)
+    assert r.status_code == 201, r.text
+    model = r.json()
+    assert [c["level"] for c in model["clusters"]] == [1, 3, 5, 7, 10]
+    assert client.get("/air/calibration").json()["id"] == model["id"]  # public
+
+    # every camera reports: level rises with longitude (clean in the east)
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        for cam, (_, lon) in city["tokens"].items():
+            level = 1 if lon < 9.17 else (5 if lon < 9.24 else 10)
+            post(client, city, cam, level, seed=hour)
+    latest = client.get("/air/cameras/sky0/latest").json()
+    assert latest["level"] in (1, 5, 10)
+    assert latest["message"] == f"Today's Air Quality is {latest['category']}"
+    assert latest["smoothed_level"] is not None
+
+    readings = client.get("/air/readings", params={"camera_id": "sky0"}).json()
+    assert len(readings) == 4
+    times = [r["captured_at"] for r in readings]
+    assert times == sorted(times, reverse=True)
+    daily = client.get("/air/readings", params={"aggregate": "daily"}).json()
+    assert len(daily) == 12  # one bucket per camera and day
+    assert all(d["n"] == 3 for d in daily)  # sky0's first frame came before the calibration
+    hourly = client.get("/air/readings", params={"aggregate": "hourly", "camera_id": "sky3"}).json()
+    assert [h["n"] for h in hourly] == [1, 1, 1]
+
+    gj = client.get("/air/isopleths", params={"window": 7200, "max_distance": 20000})
+    assert gj.status_code == 200, gj.text
+    assert gj.headers["content-type"].startswith("application/geo+json")
+    fc = gj.json()
+    assert fc["type"] == "FeatureCollection"
+    assert fc["method"] == "idw"
+    assert len(fc["cameras"]) == 12
+    names = [f["properties"]["category"] for f in fc["features"]]
+    assert len(names) == len(set(names))
+    for f in fc["features"]:
+        assert shape(f["geometry"]).is_valid
+        assert f["geometry"]["type"] in ("Polygon", "MultiPolygon")
+    for method in ("kriging", "rbf"):
+        assert client.get("/air/isopleths", params={"method": method}).status_code == 200
+    png = client.get("/air/isopleths.png")
+    assert png.status_code == 200
+    assert png.headers["content-type"] == "image/png"
+
+
+def test_alert_when_the_smoothed_level_turns_poor(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    assert client.get("/air/alerts").json() == []
+    for k in range(4):
+        city["clock"].advance(minutes=20)
+        post(client, city, "sky1", 1, seed=10 + k)
+    alerts = client.get("/air/alerts").json()
+    assert len(alerts) == 1  # entering Poor once raises one alert, not one per frame
+    assert alerts[0]["camera_id"] == "sky1"
+    assert alerts[0]["category"] in ("Poor", "Very Poor")
+
+
+class TestBadInput:
+    def test_empty_city_is_an_empty_collection(self, client: TestClient) -> None:
+        fc = client.get("/air/isopleths").json()
+        assert fc["features"] == []
+        assert fc["cameras"] == []
+
+    @pytest.mark.parametrize(
+        "bbox", ["10,45,9,46", "9,46,10,45", "a,b,c,d", "1,2,3", "nan,45,10,46"]
+    )
+    def test_bad_bbox(self, client: TestClient, bbox: str) -> None:
+        r = client.get("/air/isopleths", params={"bbox": bbox})
+        assert r.status_code == 422
+        assert r.headers["content-type"] == "application/problem+json"
+
+    def test_cameras_all_at_one_point(
+        self, client: TestClient, admin: dict[str, str], city: dict[str, Any]
+    ) -> None:
+        calibrate(client, admin)
+        for i in range(2):
+            tok = client.post(
+                "/cameras",
+                json={
+                    "id": f"same{i}",
+                    "kind": "sky",
+                    "lat": 45.0,
+                    "lon": 9.0,
+                    "roi": [0, 0, 160, 55],
+                },
+                headers=admin,
+            ).json()["token"]
+            client.post(
+                f"/cameras/same{i}/frames",
+                content=sky_jpeg(5, i),
+                headers={"Authorization": f"Bearer {tok}", "Content-Type": "image/jpeg"},
+            )
+        r = client.get("/air/isopleths")
+        assert r.status_code == 422
+        assert "one point" in r.json()["detail"]
+
+    def test_levels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
+        files = [("files", ("a.jpg", sky_jpeg(5), "image/jpeg"))]
+        r = client.post("/air/calibration", files=files, data={"levels": ["5", "6"]}, headers=admin)
+        assert r.status_code == 422
+        r = client.post("/air/calibration", files=files, data={"levels": ["11"]}, headers=admin)
+        assert r.status_code == 422
+
+    def test_unknown_camera(self, client: TestClient) -> None:
+        assert client.get("/air/cameras/none/latest").status_code == 404
+
+    def test_calibration_needs_admin(self, client: TestClient) -> None:
+        assert (
+            client.post("/air/calibration", json={"frame_ids": ["x"], "levels": [1]}).status_code
+            == 401
+        )
+
+
+def test_window_excludes_old_readings(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    calibrate(client, admin)
+    post(client, city, "sky2", 7, seed=1)
+    city["clock"].advance(hours=3)
+    fc = client.get("/air/isopleths", params={"window": 3600}).json()
+    assert fc["cameras"] == []
+    city["clock"].now -= timedelta(hours=3)

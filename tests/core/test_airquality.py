@@ -1,0 +1,186 @@
+"""Chapter 6 grading, smoothing and the isopleth bands against synthetic known answers."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+from shapely.geometry import Point, shape
+
+from app.core import airquality
+from app.core.isopleths import IsoplethError, bands, default_bbox, interpolate
+
+# very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
+CLEAN = np.array([30.0, 78.0, 180.0])
+HAZE = np.array([165.0, 165.0, 170.0])
+
+
+def sky_modes(level: int, n: int, seed: int) -> np.ndarray:
+    t = (10 - level) / 9
+    rng = np.random.default_rng(seed)
+    return (1 - t) * CLEAN + t * HAZE + rng.normal(0, 2.0, (n, 3))
+
+
+class TestCategories:
+    @pytest.mark.parametrize(
+        ("level", "name"),
+        [
+            (10, "Very Good"),
+            (9, "Very Good"),
+            (8, "Good"),
+            (7, "Good"),
+            (6, "Fair"),
+            (5, "Fair"),
+            (4, "Poor"),
+            (3, "Poor"),
+            (2, "Very Poor"),
+            (1, "Very Poor"),
+            (8.49, "Good"),
+            (8.5, "Very Good"),
+            (4.5, "Fair"),
+            (4.49, "Poor"),
+        ],
+    )
+    def test_every_boundary(self, level: float, name: str) -> None:
+        assert airquality.category(level) == name
+
+    @pytest.mark.parametrize("level", [0, 0.49, 10.5, 11, float("nan")])
+    def test_out_of_range(self, level: float) -> None:
+        with pytest.raises(ValueError, match="1–10"):
+            airquality.category(level)
+
+    def test_message(self) -> None:
+        assert airquality.message("Good") == "Today's Air Quality is Good"
+
+
+class TestCalibration:
+    def test_well_separated_clusters_classify_held_out_frames(self) -> None:
+        levels = [1, 3, 5, 7, 10]
+        modes = np.vstack([sky_modes(v, 12, seed=v) for v in levels])
+        labels = np.repeat(levels, 12)
+        cal = airquality.calibrate(modes, labels, significance=0.01)
+        assert [c.level for c in cal.clusters] == levels
+        assert cal.warnings == ()
+        for v in levels:
+            for x in sky_modes(v, 10, seed=100 + v):
+                assert airquality.grade(cal, x).level == v
+
+    def test_sparse_level_is_pooled_with_a_warning(self) -> None:
+        modes = np.vstack([sky_modes(2, 10, 1), sky_modes(3, 2, 2), sky_modes(8, 10, 3)])
+        labels = [2] * 10 + [3] * 2 + [8] * 10
+        cal = airquality.calibrate(modes, labels)
+        assert [c.levels for c in cal.clusters] == [(2, 3), (8,)]
+        assert "pooled" in cal.warnings[0]
+
+    def test_outside_calibration_is_said_not_guessed(self) -> None:
+        cal = airquality.calibrate(sky_modes(10, 10, 1), [10] * 10)
+        g = airquality.grade(cal, [200.0, 40.0, 40.0])  # a red sunset
+        assert g.level is None
+        assert "outside calibration" in (g.reason or "")
+
+
+class TestNowcast:
+    def test_steady_air_is_the_plain_mean(self) -> None:
+        now = datetime(2026, 6, 1, 12, tzinfo=UTC)
+        times = [now - timedelta(hours=h) for h in range(6)]
+        assert airquality.nowcast(times, [7.0] * 6, now) == pytest.approx(7.0)
+
+    def test_changing_air_weighs_the_latest_hours(self) -> None:
+        now = datetime(2026, 6, 1, 12, tzinfo=UTC)
+        times = [now - timedelta(hours=h) for h in range(6)]
+        levels = [2.0, 8.0, 8.0, 8.0, 8.0, 8.0]  # it turned bad this hour
+        s = airquality.nowcast(times, levels, now)
+        # w = max(2/8, 0.5) = 0.5: (2 + 8(0.5 + 0.25 + 0.125 + 0.0625 + 0.03125)) / 1.96875
+        assert s == pytest.approx((2 + 8 * 0.96875) / 1.96875)
+        assert s < np.mean(levels)
+
+    def test_no_recent_reading(self) -> None:
+        now = datetime(2026, 6, 1, 12, tzinfo=UTC)
+        assert airquality.nowcast([now - timedelta(hours=5)], [5.0], now) is None
+
+
+def smooth_field(n: int = 60, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cameras over ~20 km sampling a level that rises from west (1) to east (10)."""
+    rng = np.random.default_rng(seed)
+    lon = 9.05 + 0.25 * rng.random(n)
+    lat = 45.40 + 0.15 * rng.random(n)
+    return lon, lat, 1 + 9 * (lon - 9.05) / 0.25
+
+
+class TestIsopleths:
+    @pytest.mark.parametrize("method", ["idw", "kriging", "rbf"])
+    def test_bands_contain_the_cameras_of_their_category(self, method: str) -> None:
+        lon, lat, level = smooth_field()
+        f = interpolate(
+            lon,
+            lat,
+            level,
+            bbox=default_bbox(lon, lat),
+            method=method,  # type: ignore[arg-type]
+            resolution=96,
+            max_distance=8000,
+        )
+        features = bands(f)
+        names = [ft["properties"]["category"] for ft in features]
+        assert names == ["Very Poor", "Poor", "Fair", "Good", "Very Good"]
+        geoms = [shape(ft["geometry"]) for ft in features]
+        for g in geoms:
+            assert g.is_valid
+            for poly in getattr(g, "geoms", [g]):
+                assert poly.exterior.is_ccw  # RFC 7946 right-hand rule
+        for i in range(len(geoms)):
+            for j in range(i + 1, len(geoms)):
+                assert geoms[i].intersection(geoms[j]).area < 1e-9  # no overlaps
+        inside = 0
+        for x, y, v in zip(lon, lat, level, strict=True):
+            band = geoms[names.index(airquality.category(v))]
+            near_boundary = any(abs(v - e) < 0.4 for e in (2.5, 4.5, 6.5, 8.5))
+            if not near_boundary:
+                assert band.buffer(1e-4).contains(Point(x, y)), (x, y, v)
+                inside += 1
+        assert inside > 30
+
+    def test_far_cells_are_masked(self) -> None:
+        lon, lat, level = smooth_field()
+        f = interpolate(
+            lon,
+            lat,
+            level,
+            bbox=(8.0, 45.0, 10.5, 46.0),
+            method="idw",
+            resolution=64,
+            max_distance=3000,
+        )
+        assert np.isnan(f.value).mean() > 0.5
+        assert f.uncertainty_kind == "nearest_camera_m"
+
+    def test_kriging_variance_is_the_uncertainty_layer(self) -> None:
+        lon, lat, level = smooth_field()
+        f = interpolate(
+            lon,
+            lat,
+            level,
+            bbox=default_bbox(lon, lat),
+            method="kriging",
+            resolution=32,
+            max_distance=50_000,
+        )
+        assert f.uncertainty_kind == "kriging_sd"
+        assert np.isfinite(f.uncertainty).all()
+
+    def test_bad_input(self) -> None:
+        lon, lat, level = smooth_field(5)
+        with pytest.raises(IsoplethError, match="one point"):
+            interpolate(np.full(4, 9.1), np.full(4, 45.4), np.arange(4.0), bbox=(9, 45, 10, 46))
+        with pytest.raises(IsoplethError, match="NaN"):
+            interpolate(
+                np.array([9.1, np.nan]), np.array([45.4, 45.5]), np.ones(2), bbox=(9, 45, 10, 46)
+            )
+        with pytest.raises(IsoplethError, match="min < max"):
+            interpolate(lon, lat, level, bbox=(10, 45, 9, 46))
+
+    def test_no_field_no_features(self) -> None:
+        lon, lat, level = smooth_field()
+        f = interpolate(lon, lat, level, bbox=(0, 0, 1, 1), method="idw", resolution=16)
+        assert bands(f) == []
