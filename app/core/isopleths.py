@@ -152,29 +152,39 @@ def fit_variogram(
         return 0.0, var, hmax / 3
 
 
+KRIGING_CHUNK = 4096
+"""Grid cells solved together: bounds the batch's memory (cells × (k+1)² floats, a few MB)."""
+
+
 def _kriging(
     xy: NDArray[np.float64], v: NDArray[np.float64], grid: NDArray[np.float64], k: int
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Ordinary kriging, local: the k nearest cameras of each cell, all cells solved at once."""
+    """Ordinary kriging, local: the k nearest cameras of each cell, cells solved in batches."""
     nugget, sill, rng = fit_variogram(xy, v)
-    _, idx = cKDTree(xy).query(grid, k=k)
-    idx = idx.reshape(len(grid), -1)
-    pts = xy[idx]  # (G, k, 2)
-    h = np.linalg.norm(pts[:, :, None, :] - pts[:, None, :, :], axis=-1)
-    gam = _exp_variogram(h, nugget, sill, rng)
-    gam[:, np.arange(k), np.arange(k)] = 0.0  # γ(0) = 0 at the same camera
-    g = len(grid)
-    a = np.ones((g, k + 1, k + 1))
-    a[:, :k, :k] = gam
-    a[:, k, k] = 0.0
-    b = np.ones((g, k + 1))
-    b[:, :k] = _exp_variogram(np.linalg.norm(pts - grid[:, None, :], axis=-1), nugget, sill, rng)
-    # coincident cameras make the system singular: a tiny ridge keeps it solvable
-    a[:, np.arange(k), np.arange(k)] += 1e-9 * (sill + nugget)
-    w = np.linalg.solve(a, b[..., None])[..., 0]
-    value = (w[:, :k] * v[idx]).sum(axis=1)
-    variance = np.maximum((w * b).sum(axis=1), 0.0)  # σ² = Σ wᵢ γᵢ₀ + μ
-    return value, np.sqrt(variance)
+    _, idx_all = cKDTree(xy).query(grid, k=k)
+    idx_all = idx_all.reshape(len(grid), -1)
+    value = np.empty(len(grid))
+    sd = np.empty(len(grid))
+    for start in range(0, len(grid), KRIGING_CHUNK):
+        cells = grid[start : start + KRIGING_CHUNK]
+        idx = idx_all[start : start + KRIGING_CHUNK]
+        pts = xy[idx]  # (G, k, 2)
+        h = np.linalg.norm(pts[:, :, None, :] - pts[:, None, :, :], axis=-1)
+        g = len(cells)
+        a = np.ones((g, k + 1, k + 1))
+        a[:, :k, :k] = _exp_variogram(h, nugget, sill, rng)
+        a[:, np.arange(k), np.arange(k)] = 0.0  # γ(0) = 0 at the same camera
+        a[:, k, k] = 0.0
+        # coincident cameras make the system singular: a tiny ridge keeps it solvable
+        a[:, np.arange(k), np.arange(k)] += 1e-9 * (sill + nugget)
+        b = np.ones((g, k + 1))
+        b[:, :k] = _exp_variogram(
+            np.linalg.norm(pts - cells[:, None, :], axis=-1), nugget, sill, rng
+        )
+        w = np.linalg.solve(a, b[..., None])[..., 0]
+        value[start : start + g] = (w[:, :k] * v[idx]).sum(axis=1)
+        sd[start : start + g] = np.sqrt(np.maximum((w * b).sum(axis=1), 0.0))  # σ² = Σ wᵢγᵢ₀ + μ
+    return value, sd
 
 
 def interpolate(
