@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -15,6 +17,7 @@ from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
 from app.routers import air, cameras, cleaning, fleet, health, panels, robots, vision
 from app.security import admin_token_hash
+from app.services import webhooks
 from app.services.camera_info import TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
@@ -33,7 +36,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
         app.state.writer.start()
+        notifier = None
+        if settings.alert_webhook_url:
+            notifier = asyncio.create_task(
+                webhooks.run(
+                    app.state.sessionmaker,
+                    settings.alert_webhook_url,
+                    app.state.policy,
+                    settings.alert_poll_seconds,
+                )
+            )
         yield
+        if notifier is not None:
+            notifier.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await notifier
         app.state.writer.stop()
         engine.dispose()
 

@@ -43,6 +43,10 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         default=200 * 1024 * 1024, gt=0, description="Cap for multi-image training uploads [B]."
     )
+    alert_webhook_url: str | None = Field(
+        default=None, description="POST each air-quality alert here (JSON), with retries."
+    )
+    alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
     log_level: str = "INFO"
     log_json: bool = True
 

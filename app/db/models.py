@@ -282,3 +282,5 @@ class AirAlert(Base):
     delivered: Mapped[bool] = mapped_column(Boolean, default=False)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     last_error: Mapped[str | None] = mapped_column(String(500))
+    next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    """When the webhook delivery is to be tried next (backoff after a failure)."""

@@ -52,7 +52,7 @@ def city(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
     return {"tokens": tokens, "clock": clock}
 
 
-def calibrate(client: TestClient, admin: dict[str, str]) -> Any:
+def calibrate(client: TestClient, admin: dict[str, str], camera: str = "sky0") -> Any:
     files, levels = [], []
     for level in (1, 3, 5, 7, 10):
         for k in range(8):
@@ -65,7 +65,7 @@ def calibrate(client: TestClient, admin: dict[str, str]) -> Any:
         files=files,
         data={"levels": levels},
         headers=admin,
-        params={"camera_id": "sky0", "significance": 0.01},
+        params={"camera_id": camera, "significance": 0.01},
     )
 
 
@@ -213,3 +213,64 @@ def test_window_excludes_old_readings(
     fc = client.get("/air/isopleths", params={"window": 3600}).json()
     assert fc["cameras"] == []
     city["clock"].now -= timedelta(hours=3)
+
+
+def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> None:
+    """The first POST fails (HTTP 500); the retry after the backoff is delivered."""
+    import json
+    import threading
+    import time
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    from app.main import create_app
+    from tests.conftest import _empty_tables
+
+    received: list[dict[str, Any]] = []
+
+    class Hook(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+            received.append(body)
+            self.send_response(500 if len(received) == 1 else 204)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    server = HTTPServer(("127.0.0.1", 0), Hook)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    _empty_tables(engine)
+    app = create_app(
+        settings.model_copy(
+            update={
+                "alert_webhook_url": f"http://127.0.0.1:{server.server_port}/hook",
+                "alert_poll_seconds": 0.05,
+            }
+        )
+    )
+    admin = {"Authorization": f"Bearer {settings.admin_token.get_secret_value()}"}
+    try:
+        with TestClient(app) as client:
+            token = client.post(
+                "/cameras", json={"id": "s", "kind": "sky", "roi": [0, 0, 160, 55]}, headers=admin
+            ).json()["token"]
+            assert calibrate(client, admin, camera="s").status_code == 201
+            for k in range(3):
+                client.post(
+                    "/cameras/s/frames",
+                    content=sky_jpeg(1, seed=k),
+                    headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+                )
+            deadline = time.monotonic() + 15
+            while time.monotonic() < deadline:
+                alerts = client.get("/air/alerts").json()
+                if alerts and alerts[0]["delivered"]:
+                    break
+                time.sleep(0.1)
+            assert alerts[0]["delivered"] is True
+            assert alerts[0]["attempts"] == 2
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert len(received) == 2
+    assert received[1]["message"].startswith("Today's Air Quality is")
