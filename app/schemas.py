@@ -292,6 +292,7 @@ class AirCalibrationOut(Out):
     n_images: int
     clusters: list[AirClusterOut]
     warnings: list[str] = Field(description="Levels pooled for want of images, and the like.")
+    method: str = Field(description="clusters (T², the dissertation) or regression.")
 
 
 class AirLatest(Out):

@@ -6,9 +6,9 @@ README suggests (Good 10, Moderate 8, USG 6, Unhealthy 4, Very Unhealthy 2, Seve
 ROI is the top 40 % of each photo (many show more city than sky). Methods, on the same folds:
 - ``modes, T² clusters``: the dissertation's method as the service runs it (``airquality``);
   "outside calibration" frames get no level and are left out of the correlation (coverage given);
-- ``features, ridge``: a regression across levels on the sky's modes, means, blue-to-red ratio,
-  darkest-channel median and spread (``airquality.sky_features``) plus the contrast of the band
-  below the sky (distant objects fade in haze).
+- ``features, ridge``: the service's ``method=regression`` — a ridge regression across levels
+  on the sky's modes, means, blue-to-red ratio, darkest-channel median and spread, and the
+  contrast of the strip below the sky (distant objects fade in haze): ``airquality.sky_features``.
 Reported: Spearman's ρ between the predicted level and the measured AQI (negative is right: a
 high level is clean air) and the within-one-category accuracy.
 Milan (16 frames of one fixed webcam, hourly PM2.5): leave-one-out, sky rows 3–35 % of the
@@ -23,7 +23,6 @@ import argparse
 import csv
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.stats import spearmanr
 from sklearn.linear_model import RidgeCV
@@ -34,6 +33,7 @@ from sklearn.preprocessing import StandardScaler
 from app.core import airquality, soiling
 from app.core.jpeg import decode_rgb
 from app.core.stats import channel_stats
+from app.services.air import fit_regression
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = {
@@ -50,20 +50,28 @@ CATEGORY_INDEX = {name: i for i, (_, name) in enumerate(airquality.CATEGORIES)}
 def features(
     image: np.ndarray, sky: tuple[float, float], below: tuple[float, float]
 ) -> tuple[np.ndarray, np.ndarray]:
+    """The service's features: modes of the sky region, ``airquality.sky_features`` of it and
+    of the strip below it (the skyline)."""
     h = image.shape[0]
     region = np.ascontiguousarray(image[int(sky[0] * h) : int(sky[1] * h)])
-    band = cv2.cvtColor(
-        np.ascontiguousarray(image[int(below[0] * h) : int(below[1] * h)]), cv2.COLOR_RGB2GRAY
-    )
+    strip = np.ascontiguousarray(image[int(below[0] * h) : int(below[1] * h)])
     modes = channel_stats(region).modes.astype(np.float64)
-    contrast = [float(band.std()), float(np.abs(cv2.Laplacian(band, cv2.CV_32F)).mean())]
-    return modes, np.concatenate([airquality.sky_features(region), contrast])
+    return modes, airquality.sky_features(region, strip)
 
 
 def within_one(pred_levels: np.ndarray, true_levels: np.ndarray) -> float:
     p = [CATEGORY_INDEX[airquality.category(float(np.clip(v, 1, 10)))] for v in pred_levels]
     t = [CATEGORY_INDEX[airquality.category(float(v))] for v in true_levels]
     return float(np.mean(np.abs(np.array(p) - np.array(t)) <= 1))
+
+
+def service_regression(f_tr: np.ndarray, lv_tr: np.ndarray, f_te: np.ndarray) -> np.ndarray:
+    """Exactly what the service does with ``method=regression``: fit, then integer levels."""
+    r = fit_regression(f_tr, [int(v) for v in lv_tr])
+    model = airquality.Regression(
+        np.asarray(r["mean"]), np.asarray(r["scale"]), np.asarray(r["coef"]), float(r["intercept"])
+    )
+    return np.array([model.level(f) for f in f_te], dtype=np.float64)
 
 
 def ridge() -> object:
@@ -123,9 +131,7 @@ def main() -> None:
     reg = np.full(len(rows), np.nan)
     for tr, te in GroupKFold(5).split(feats_a, level, groups):
         t2[te] = t2_predict(modes_a[tr], level[tr], modes_a[te])
-        model = ridge()
-        model.fit(feats_a[tr], level[tr])  # type: ignore[attr-defined]
-        reg[te] = model.predict(feats_a[te])  # type: ignore[attr-defined]
+        reg[te] = service_regression(feats_a[tr], level[tr], feats_a[te])
     print(
         f"India–Nepal: {len(rows)} photos, {len(set(groups))} sessions, 5 folds grouped by session"
     )

@@ -142,13 +142,57 @@ def nowcast(times: list[datetime], levels: list[float], now: datetime) -> float 
     return sum(weights[k] * means[k] for k in means) / sum(weights.values())
 
 
-def sky_features(rgb: NDArray[np.uint8]) -> NDArray[np.float64]:
-    """Modes, means and blue-to-red ratio of a sky region (RGB, uint8) for the regression
-    model that improves on the clusters (``bench/airquality_eval.py``)."""
-    x = rgb.reshape(-1, 3).astype(np.float64)
-    modes = [np.bincount(rgb[..., c].ravel(), minlength=256).argmax() for c in range(3)]
+SKY_FEATURES = (
+    "mode_r",
+    "mode_g",
+    "mode_b",
+    "mean_r",
+    "mean_g",
+    "mean_b",
+    "blue_red_ratio",
+    "darkest_median",
+    "spread",
+    "skyline_std",
+    "skyline_laplacian",
+)
+
+
+def sky_features(
+    sky: NDArray[np.uint8], below: NDArray[np.uint8] | None = None
+) -> NDArray[np.float64]:
+    """Features of a sky region (RGB, uint8) and of the strip below it (the skyline) for the
+    regression across levels that improves on the clusters: modes, means, blue-to-red ratio,
+    median of the darkest channel, spread; the skyline's contrast (0 without a strip)."""
+    x = sky.reshape(-1, 3).astype(np.float64)
+    modes = [np.bincount(sky[..., c].ravel(), minlength=256).argmax() for c in range(3)]
     means = x.mean(axis=0)
     lo = x.min(axis=1)
+    contrast = [0.0, 0.0]
+    if below is not None and below.size:
+        grey = below.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        lap = np.abs(np.diff(grey, 2, axis=0)).mean() if grey.shape[0] > 2 else 0.0
+        contrast = [float(grey.std()), float(lap)]
     return np.array(
-        [*modes, *means, (means[2] + 1) / (means[0] + 1), np.median(lo), x.std(axis=0).mean()]
+        [
+            *modes,
+            *means,
+            (means[2] + 1) / (means[0] + 1),
+            np.median(lo),
+            x.std(axis=0).mean(),
+            *contrast,
+        ]
     )
+
+
+@dataclass(frozen=True, slots=True)
+class Regression:
+    """Standardised ridge regression of the level on ``SKY_FEATURES``."""
+
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    coef: NDArray[np.float64]
+    intercept: float
+
+    def level(self, features: ArrayLike) -> int:
+        z = float(((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) @ self.coef)
+        return int(np.clip(np.rint(z + self.intercept), 1, 10))

@@ -265,6 +265,10 @@ class AirCalibration(Base):
     """[{levels, level, n, mean_modes, covariance, f_critical, significance, ...}]"""
     warnings: Mapped[list[str]] = mapped_column(JSON)
     n_images: Mapped[int] = mapped_column(Integer)
+    method: Mapped[str] = mapped_column(String(16), default="clusters", server_default="clusters")
+    """How frames are graded: the T² clusters (the dissertation) or the regression."""
+    regression: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    """{mean, scale, coef, intercept} of the ridge regression on the sky features."""
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
 
 

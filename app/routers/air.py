@@ -49,19 +49,23 @@ def _from_files(
     shrinkage: float,
     max_pixels: int,
     policy: Policy,
+    method: str,
 ) -> AirCalibrationOut:
     camera = CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
     if camera_id is not None:
         camera = CameraInfo.of(air.sky_camera(session, camera_id))
-    modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
+    decoded = training.decode_all(files, camera, max_pixels=max_pixels)
+    feats = np.array([d.features for d in decoded], dtype=np.float64)
     row = air.calibrate(
         session,
-        modes,
+        training.modes_of(decoded),
         levels,
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=None,
         now=policy.now(),
+        method=method,
+        features=feats,
     )
     return _calibration_out(row)
 
@@ -72,10 +76,11 @@ def _from_frames(
     significance: float,
     shrinkage: float,
     policy: Policy,
+    method: str,
 ) -> AirCalibrationOut:
     if len(body.frame_ids) != len(body.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
-    modes = air.modes_of_frames(session, body.frame_ids)
+    modes, feats = air.of_frames(session, body.frame_ids)
     row = air.calibrate(
         session,
         modes,
@@ -84,6 +89,8 @@ def _from_frames(
         shrinkage=shrinkage,
         frame_ids=body.frame_ids,
         now=policy.now(),
+        method=method,
+        features=feats,
     )
     return _calibration_out(row)
 
@@ -103,6 +110,13 @@ async def calibrate(
     significance: Significance = 0.05,
     shrinkage: Shrinkage = 0.0,
     camera_id: Annotated[str | None, Query(description="Whose ROI applies to uploads.")] = None,
+    method: Annotated[
+        Literal["clusters", "regression"],
+        Query(
+            description="Grade by the T² level clusters (the dissertation, eqs. 6.19–6.22) or "
+            "by a ridge regression on richer sky features (better on real photos)."
+        ),
+    ] = "clusters",
 ) -> AirCalibrationOut:
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
 
@@ -132,12 +146,13 @@ async def calibrate(
                 shrinkage,
                 settings.max_pixels,
                 policy,
+                method,
             )
         )
     if kind == "application/json":
         body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
         return await run_in_threadpool(
-            partial(_from_frames, session, body, significance, shrinkage, policy)
+            partial(_from_frames, session, body, significance, shrinkage, policy, method)
         )
     raise UnsupportedMediaType(
         "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"

@@ -51,6 +51,37 @@ def as_core(row: AirCalibration) -> airquality.Calibration:
     return airquality.Calibration(clusters, tuple(row.warnings))
 
 
+def fit_regression(features: NDArray[np.float64], levels: Sequence[int]) -> dict[str, Any]:
+    """Standardised ridge regression of the level on the sky features (scikit-learn)."""
+    from sklearn.linear_model import RidgeCV
+    from sklearn.preprocessing import StandardScaler
+
+    if len(levels) < 10 or len(set(levels)) < 3:
+        raise Unprocessable("the regression needs at least 10 images of at least 3 levels")
+    if not np.isfinite(features).all():
+        raise Unprocessable("some images gave non-finite features")
+    scaler = StandardScaler().fit(features)
+    model = RidgeCV(alphas=np.logspace(-2, 3, 30)).fit(scaler.transform(features), levels)
+    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    return {
+        "features": list(airquality.SKY_FEATURES),
+        "mean": scaler.mean_.tolist(),
+        "scale": scale.tolist(),
+        "coef": np.asarray(model.coef_).tolist(),
+        "intercept": float(model.intercept_),
+        "alpha": float(model.alpha_),
+    }
+
+
+def as_regression(row: AirCalibration) -> airquality.Regression | None:
+    r = row.regression
+    if not r:
+        return None
+    return airquality.Regression(
+        np.asarray(r["mean"]), np.asarray(r["scale"]), np.asarray(r["coef"]), float(r["intercept"])
+    )
+
+
 def calibrate(
     session: Session,
     modes: NDArray[np.float64],
@@ -60,7 +91,15 @@ def calibrate(
     shrinkage: float,
     frame_ids: list[str] | None,
     now: datetime,
+    method: str = "clusters",
+    features: NDArray[np.float64] | None = None,
 ) -> AirCalibration:
+    """The level clusters (always) and, for ``method="regression"``, the regression too."""
+    regression = None
+    if method == "regression":
+        if features is None:
+            raise Unprocessable("the regression needs the images' sky features")
+        regression = fit_regression(features, levels)
     try:
         cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
     except soiling.BaselineError as exc:
@@ -87,23 +126,36 @@ def calibrate(
         warnings=list(cal.warnings),
         n_images=len(levels),
         frame_ids=frame_ids,
+        method=method,
+        regression=regression,
     )
     session.add(row)
     session.flush()
     return row
 
 
-def modes_of_frames(session: Session, frame_ids: Sequence[str]) -> NDArray[np.float64]:
+def of_frames(
+    session: Session, frame_ids: Sequence[str]
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """Mode vectors and (when every frame kept them) sky features of stored sky frames."""
     rows = session.execute(
-        select(SkyVerdict.frame_id, SkyVerdict.mode_r, SkyVerdict.mode_g, SkyVerdict.mode_b).where(
-            SkyVerdict.frame_id.in_(frame_ids)
-        )
+        select(
+            SkyVerdict.frame_id,
+            SkyVerdict.mode_r,
+            SkyVerdict.mode_g,
+            SkyVerdict.mode_b,
+            SkyVerdict.details,
+        ).where(SkyVerdict.frame_id.in_(frame_ids))
     ).all()
-    found = {r[0]: (r[1], r[2], r[3]) for r in rows}
+    found = {r[0]: r for r in rows}
     missing = [f for f in frame_ids if f not in found]
     if missing:
         raise Unprocessable(f"no sky frames {', '.join(missing[:10])}", missing=missing)
-    return np.array([found[f] for f in frame_ids], dtype=np.float64)
+    modes = np.array([found[f][1:4] for f in frame_ids], dtype=np.float64)
+    feats = [(found[f][4] or {}).get("features") for f in frame_ids]
+    if any(x is None for x in feats):
+        return modes, None
+    return modes, np.array(feats, dtype=np.float64)
 
 
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
@@ -116,11 +168,18 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         category=None,
         **stats_columns(decoded.stats),
     )
+    if decoded.features is not None:
+        verdict.details = {"features": decoded.features.tolist()}
     cal_row = latest_calibration(session)
+    regression = as_regression(cal_row) if cal_row is not None else None
     if decoded.quality is not None:
         verdict.reason = decoded.quality
     elif cal_row is None:
         verdict.reason = "air-quality model not calibrated (POST /air/calibration)"
+    elif cal_row.method == "regression" and regression and decoded.features is not None:
+        verdict.calibration_id = cal_row.id
+        verdict.level = regression.level(decoded.features)
+        verdict.category = airquality.category(verdict.level)
     else:
         g = airquality.grade(as_core(cal_row), decoded.stats.modes)
         verdict.calibration_id = cal_row.id

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
-from app.core import fleet
+from app.core import airquality, fleet
 from app.core.jpeg import (
     SOI,
     JpegError,
@@ -38,7 +38,7 @@ class Decoded:
     quality: str | None
     """Why the frame cannot be judged (night, glare, blank, occluded), or None."""
     features: NDArray[np.float64] | None
-    """Fleet-model features (panel cameras only)."""
+    """Fleet-model features (panel cameras) or sky features (sky cameras)."""
     reduction: int
     """The frame was decoded at 1/reduction of its size (libjpeg DCT scaling)."""
 
@@ -92,9 +92,22 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
     quality = unusable_reason(stats)
-    wants_features = camera.kind == CameraKind.panel and not camera.panel_has_baseline
-    features = fleet.features(region) if wants_features else None
+    features = None
+    if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
+        features = fleet.features(region)
+    elif camera.kind == CameraKind.sky:
+        below = _band_below(image, roi)
+        features = airquality.sky_features(region, below)
     return Decoded(header, stats, quality, features, reduction)
+
+
+def _band_below(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8] | None:
+    """The strip under the sky region (a fifth of the frame's height): the distant skyline,
+    whose contrast fades in haze. None when the sky region reaches the bottom."""
+    h = image.shape[0]
+    top = roi[1] + roi[3] if roi else h
+    strip = image[top : min(h, top + max(1, h // 5))]
+    return strip if strip.shape[0] >= 2 else None
 
 
 @dataclass(frozen=True, slots=True)

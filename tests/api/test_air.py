@@ -274,3 +274,37 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
         server.server_close()
     assert len(received) == 2
     assert received[1]["message"].startswith("Today's Air Quality is")
+
+
+def test_regression_calibration(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """``method=regression``: a level for every frame, close to the truth on synthetic skies."""
+    files, levels = [], []
+    for level in range(1, 11):
+        for k in range(3):
+            files.append(
+                ("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed=10 * level + k), "image/jpeg"))
+            )
+            levels.append(str(level))
+    r = client.post(
+        "/air/calibration",
+        files=files,
+        data={"levels": levels},
+        headers=admin,
+        params={"camera_id": "sky0", "method": "regression"},
+    )
+    assert r.status_code == 201, r.text
+    assert r.json()["method"] == "regression"
+    for level in (2, 5, 9):
+        v = post(client, city, "sky4", level, seed=500 + level)
+        assert abs(v["level"] - level) <= 1
+    # too few images for a regression
+    r = client.post(
+        "/air/calibration",
+        files=files[:4],
+        data={"levels": levels[:4]},
+        headers=admin,
+        params={"method": "regression"},
+    )
+    assert r.status_code == 422
