@@ -17,6 +17,7 @@ from sqlalchemy import (
     Integer,
     SmallInteger,
     String,
+    UniqueConstraint,
     false,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
@@ -163,7 +164,12 @@ class Robot(TimestampMixin, Base):
 
 class Frame(Base):
     __tablename__ = "frames"
-    __table_args__ = (Index("ix_frames_camera_id_captured_at", "camera_id", "captured_at"),)
+    __table_args__ = (
+        Index("ix_frames_camera_id_captured_at", "camera_id", "captured_at"),
+        # a camera retrying an upload: the same bytes taken at the same instant are one frame
+        UniqueConstraint("camera_id", "sha256", "captured_at", name="uq_frames_camera_sha_time"),
+        UniqueConstraint("camera_id", "idempotency_key", name="uq_frames_camera_idempotency"),
+    )
 
     id: Mapped[str] = mapped_column(String(36), primary_key=True)
     camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"))
@@ -177,6 +183,8 @@ class Frame(Base):
     sha256: Mapped[str] = mapped_column(String(64), index=True)
     stored_path: Mapped[str | None] = mapped_column(String(200))
     """Path of the JPEG relative to the data directory (content-addressed), or none."""
+    idempotency_key: Mapped[str | None] = mapped_column(String(128))
+    """The client's ``Idempotency-Key``: a retry with the same key gets the original frame."""
 
     verdict: Mapped[Verdict] = relationship(back_populates="frame", lazy="raise")
 

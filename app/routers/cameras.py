@@ -7,7 +7,7 @@ from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, Response
 from sqlalchemy import select
@@ -116,8 +116,19 @@ async def post_frame(
         datetime | None,
         Query(description="When the frame was taken (RFC 3339; default: when received)."),
     ] = None,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            max_length=128,
+            description="Retries with the same key get the original response (as do retries "
+            "of the same bytes with the same captured_at).",
+        ),
+    ] = None,
 ) -> Response:
-    """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict."""
+    """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict.
+
+    A retried upload gets the original frame and verdict, with ``Idempotent-Replay: true``.
+    """
     start = time.perf_counter()
     when = _captured_at(captured_at)
     data = await read_jpeg(request, settings.max_body_bytes)
@@ -130,16 +141,19 @@ async def post_frame(
             captured_at=when,
             received_at=policy.now(),
             max_pixels=settings.max_pixels,
+            idempotency_key=idempotency_key,
         )
     )
-    frame, verdict = await request.app.state.writer.submit(
+    done = await request.app.state.writer.submit(
         partial(ingest.record, prepared=prepared, policy=policy)
     )
-    FRAMES_RECEIVED.labels(target.id).inc()
+    if not done.replay:
+        FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)
     # serialised once here: the schema is already FrameOut, validating it again costs per frame
-    body = frame_out(frame, verdict).model_dump_json()
-    return Response(body, status_code=201, media_type="application/json")
+    body = frame_out(done.frame, done.verdict).model_dump_json()
+    headers = {"Idempotent-Replay": "true"} if done.replay else None
+    return Response(body, status_code=201, media_type="application/json", headers=headers)
 
 
 @router.get(

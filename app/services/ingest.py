@@ -8,7 +8,8 @@ from datetime import datetime
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy.orm import Session
+from sqlalchemy import select
+from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, fleet
 from app.core.jpeg import (
@@ -127,6 +128,7 @@ def prepare(
     captured_at: datetime | None,
     received_at: datetime,
     max_pixels: int,
+    idempotency_key: str | None = None,
 ) -> Prepared:
     """Everything about a frame that needs no database, run in a worker thread.
 
@@ -147,15 +149,40 @@ def prepare(
         size_bytes=len(data),
         sha256=sha256,
         stored_path=stored_path,
+        idempotency_key=idempotency_key,
     )
     return Prepared(camera, frame, decoded)
 
 
-def record(session: Session, prepared: Prepared, policy: Policy) -> tuple[Frame, Verdict]:
-    """The database part: conclude the verdict and insert the frame and verdict rows.
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    frame: Frame
+    verdict: Verdict
+    replay: bool
+    """The frame was already stored (a retried upload): these are the original rows."""
+
+
+def find_original(session: Session, frame: Frame) -> tuple[Frame, Verdict] | None:
+    """The stored frame a retry repeats: same camera and Idempotency-Key, or same camera, bytes
+    and capture time."""
+    q = select(Frame).where(Frame.camera_id == frame.camera_id)
+    if frame.idempotency_key is not None:
+        q = q.where(Frame.idempotency_key == frame.idempotency_key)
+    else:
+        q = q.where(Frame.sha256 == frame.sha256, Frame.captured_at == frame.captured_at)
+    original = session.scalars(q.options(selectinload(Frame.verdict))).first()
+    return (original, original.verdict) if original is not None else None
+
+
+def record(session: Session, prepared: Prepared, policy: Policy) -> Recorded:
+    """The database part: conclude the verdict and insert the frame and verdict rows, unless
+    this is a retry of a stored frame, whose original rows are returned instead.
 
     Runs on the group-commit writer (``app.services.writer``), inside the batch's transaction.
     """
+    original = find_original(session, prepared.frame)
+    if original is not None:
+        return Recorded(*original, replay=True)
     verdict = conclude(session, prepared, policy)
     insert_rows(session, prepared.frame, verdict)
-    return prepared.frame, verdict
+    return Recorded(prepared.frame, verdict, replay=False)

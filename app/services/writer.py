@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 log = logging.getLogger("vantage.writer")
@@ -99,12 +100,26 @@ class GroupCommitWriter:
             for job, (result, error) in zip(batch, outcomes, strict=True):
                 job.loop.call_soon_threadsafe(_settle, job.future, result, error)
 
+    def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
+        try:
+            with self._sessions() as session:
+                result = job.fn(session)
+                session.commit()
+            return (result, None)
+        except Exception:
+            return (None, first)
+
     def _write(self, batch: list[_Job]) -> list[tuple[Any, BaseException | None]]:
         try:
             with self._sessions() as session:
                 results = [job.fn(session) for job in batch]
                 session.commit()
             return [(r, None) for r in results]
+        except IntegrityError as exc:
+            if len(batch) == 1:
+                # another process stored the same frame meanwhile: once more, the job now sees
+                # it (an idempotent replay) or fails for good
+                return [self._once(batch[0], exc)]
         except Exception as exc:
             if len(batch) == 1:
                 return [(None, exc)]

@@ -289,3 +289,61 @@ class TestBadInput:
         client.post("/cameras/cam-1/frames", content=png_bytes(), headers=cam_headers(camera))
         metrics = client.get("/metrics").text
         assert 'vantage_frames_rejected_total{camera_id="cam-1",reason="not_jpeg"}' in metrics
+
+
+class TestIdempotency:
+    def test_same_key_gets_the_original(
+        self, client: TestClient, camera: dict[str, Any], engine: Engine
+    ) -> None:
+        headers = {**cam_headers(camera), "Idempotency-Key": "upload-42"}
+        first = client.post(
+            "/cameras/cam-1/frames", content=make_jpeg(seed=1, noise=5), headers=headers
+        )
+        again = client.post(
+            "/cameras/cam-1/frames", content=make_jpeg(seed=1, noise=5), headers=headers
+        )
+        assert (first.status_code, again.status_code) == (201, 201)
+        assert again.json() == first.json()
+        assert again.headers["idempotent-replay"] == "true"
+        assert "idempotent-replay" not in first.headers
+        assert table_counts(engine)["frames"] == 1
+
+    def test_same_bytes_and_capture_time(
+        self, client: TestClient, camera: dict[str, Any], engine: Engine
+    ) -> None:
+        body = make_jpeg(seed=2, noise=5)
+        params = {"captured_at": "2026-05-01T12:00:00Z"}
+        r1 = client.post(
+            "/cameras/cam-1/frames", content=body, headers=cam_headers(camera), params=params
+        )
+        r2 = client.post(
+            "/cameras/cam-1/frames", content=body, headers=cam_headers(camera), params=params
+        )
+        assert r2.json()["frame_id"] == r1.json()["frame_id"]
+        # a new capture time is a new frame, though the bytes are the same
+        r3 = client.post(
+            "/cameras/cam-1/frames",
+            content=body,
+            headers=cam_headers(camera),
+            params={"captured_at": "2026-05-01T12:01:00Z"},
+        )
+        assert r3.json()["frame_id"] != r1.json()["frame_id"]
+        assert table_counts(engine)["frames"] == 2
+
+    def test_concurrent_retries_store_one_frame(
+        self, client: TestClient, camera: dict[str, Any], engine: Engine
+    ) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        headers = {**cam_headers(camera), "Idempotency-Key": "burst"}
+        body = make_jpeg(seed=3, noise=5)
+        with ThreadPoolExecutor(8) as pool:
+            results = list(
+                pool.map(
+                    lambda _: client.post("/cameras/cam-1/frames", content=body, headers=headers),
+                    range(8),
+                )
+            )
+        assert {r.status_code for r in results} == {201}
+        assert len({r.json()["frame_id"] for r in results}) == 1
+        assert table_counts(engine)["frames"] == 1
