@@ -17,7 +17,7 @@ from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
 from app.routers import air, cameras, cleaning, fleet, health, panels, robots, vision
 from app.security import admin_token_hash
-from app.services import webhooks
+from app.services import retention, webhooks
 from app.services.camera_info import TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
@@ -46,7 +46,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     settings.alert_poll_seconds,
                 )
             )
+        sweeper = asyncio.create_task(
+            retention.run(
+                app.state.sessionmaker,
+                app.state.frame_store,
+                app.state.policy,
+                settings.frame_retention_days,
+                settings.retention_sweep_seconds,
+            )
+        )
         yield
+        sweeper.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await sweeper
         if notifier is not None:
             notifier.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -31,6 +31,9 @@ class Settings(BaseSettings):
     frame_retention_days: float = Field(
         default=30.0, gt=0, description="Keep frames this long [d]."
     )
+    retention_sweep_seconds: float = Field(
+        default=3600.0, gt=0, description="How often old frames are swept [s]."
+    )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
     fsync_frames: bool = Field(
         default=False,

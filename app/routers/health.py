@@ -11,8 +11,9 @@ from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from app import __version__
-from app.deps import get_sessionmaker
+from app.deps import Admin, get_sessionmaker
 from app.schemas import Health
+from app.services import retention
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger("vantage.health")
@@ -38,3 +39,16 @@ def health(request: Request) -> JSONResponse:
 def metrics() -> Response:
     """Prometheus metrics."""
     return Response(generate_latest(), media_type=CONTENT_TYPE_LATEST)
+
+
+@router.post("/admin/retention/sweep", tags=["admin"])
+def sweep_now(request: Request, _: Admin) -> dict[str, int]:
+    """Run the frame-retention sweep now (it also runs on its own, hourly)."""
+    settings = request.app.state.settings
+    swept = retention.sweep(
+        request.app.state.sessionmaker,
+        request.app.state.frame_store,
+        request.app.state.policy,
+        settings.frame_retention_days,
+    )
+    return {"frames": swept.frames, "files": swept.files}

@@ -1,0 +1,118 @@
+"""Frame retention: old frames go (rows and files); frames something still needs stay.
+
+Kept whatever their age: frames a baseline or an air calibration was trained from, and frames
+an alert points at. A file goes when no frame row refers to it any more (identical frames share
+one file). At start-up, files that no row refers to (a process killed between writing a file
+and committing its row) are swept too, once they are old enough not to be in flight.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass
+from datetime import timedelta
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.db.models import (
+    AirAlert,
+    AirCalibration,
+    Baseline,
+    Frame,
+    PanelVerdict,
+    SkyVerdict,
+    Verdict,
+)
+from app.services.policy import Policy
+from app.services.storage import FrameStore
+
+log = logging.getLogger("vantage.retention")
+
+BATCH = 2000
+
+
+@dataclass(frozen=True, slots=True)
+class Swept:
+    frames: int
+    files: int
+
+
+def _kept(session: Session) -> set[str]:
+    keep: set[str] = set()
+    for ids in session.scalars(select(Baseline.frame_ids)):
+        keep.update(ids or [])
+    for ids in session.scalars(select(AirCalibration.frame_ids)):
+        keep.update(ids or [])
+    keep.update(session.scalars(select(AirAlert.frame_id)))
+    return keep
+
+
+def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float) -> Swept:
+    """Delete frames received more than ``days`` ago, and their files."""
+    cutoff = policy.now() - timedelta(days=days)
+    frames = files = 0
+    while True:
+        with sessions() as session:
+            keep = _kept(session)
+            rows = session.execute(
+                select(Frame.id, Frame.stored_path)
+                .where(Frame.received_at < cutoff)
+                .order_by(Frame.received_at)
+                .limit(BATCH + len(keep))
+            ).all()
+            doomed = [r for r in rows if r[0] not in keep][:BATCH]
+            if not doomed:
+                return Swept(frames, files)
+            ids = [r[0] for r in doomed]
+            for table in (PanelVerdict, SkyVerdict, Verdict):
+                session.execute(delete(table).where(table.frame_id.in_(ids)))
+            session.execute(delete(Frame).where(Frame.id.in_(ids)))
+            paths = {r[1] for r in doomed if r[1] is not None}
+            still = set(
+                session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(paths)))
+            )
+            session.commit()
+        for path in paths - still:
+            store.delete(path)
+            files += 1
+        frames += len(ids)
+
+
+def sweep_orphans(
+    sessions: sessionmaker[Session], store: FrameStore, *, min_age_s: float = 600
+) -> int:
+    """Delete stored files no frame row refers to, if older than ``min_age_s``."""
+    now = time.time()
+    candidates = [p for p in store.files() if now - store.path(p).stat().st_mtime >= min_age_s]
+    removed = 0
+    for start in range(0, len(candidates), 1000):
+        chunk = candidates[start : start + 1000]
+        with sessions() as session:
+            used = set(
+                session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(chunk)))
+            )
+        for p in chunk:
+            if p not in used:
+                store.delete(p)
+                removed += 1
+    if removed:
+        log.warning("removed %d frame files that no row referred to", removed)
+    return removed
+
+
+async def run(
+    sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float, every: float
+) -> None:
+    """Orphans once at start, then the retention sweep every ``every`` seconds."""
+    await asyncio.to_thread(sweep_orphans, sessions, store)
+    while True:
+        try:
+            swept = await asyncio.to_thread(sweep, sessions, store, policy, days)
+            if swept.frames:
+                log.info("retention sweep", extra={"frames": swept.frames, "files": swept.files})
+        except Exception:
+            log.exception("retention sweep failed")
+        await asyncio.sleep(every)
