@@ -35,6 +35,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
+        # files a killed process wrote without committing their rows
+        await asyncio.to_thread(
+            retention.sweep_orphans, app.state.sessionmaker, app.state.frame_store
+        )
         app.state.writer.start()
         notifier = None
         if settings.alert_webhook_url:

@@ -106,13 +106,12 @@ def sweep_orphans(
 async def run(
     sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float, every: float
 ) -> None:
-    """Orphans once at start, then the retention sweep every ``every`` seconds."""
-    await asyncio.to_thread(sweep_orphans, sessions, store)
+    """The retention sweep every ``every`` seconds (the first after one interval)."""
     while True:
+        await asyncio.sleep(every)
         try:
             swept = await asyncio.to_thread(sweep, sessions, store, policy, days)
             if swept.frames:
                 log.info("retention sweep", extra={"frames": swept.frames, "files": swept.files})
         except Exception:
             log.exception("retention sweep failed")
-        await asyncio.sleep(every)
