@@ -8,6 +8,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import timedelta
+from functools import partial
 
 from fastapi import FastAPI
 
@@ -37,7 +38,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
         # files a killed process wrote without committing their rows
         await asyncio.to_thread(
-            retention.sweep_orphans, app.state.sessionmaker, app.state.frame_store
+            partial(
+                retention.sweep_orphans,
+                app.state.sessionmaker,
+                app.state.frame_store,
+                min_age_s=settings.orphan_min_age_seconds,
+            )
         )
         app.state.writer.start()
         notifier = None

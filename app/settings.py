@@ -34,6 +34,12 @@ class Settings(BaseSettings):
     retention_sweep_seconds: float = Field(
         default=3600.0, gt=0, description="How often old frames are swept [s]."
     )
+    orphan_min_age_seconds: float = Field(
+        default=600.0,
+        ge=0,
+        description="At start, delete unreferenced frame files older than this [s] (younger "
+        "ones may belong to another process's upload in flight).",
+    )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
     fsync_frames: bool = Field(
         default=False,
