@@ -211,7 +211,7 @@ def readings(
     until: datetime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[AirReading] | list[AirAggregate]:
     """Readings newest first, paginated; or their hourly or daily means."""
     if since and until and since >= until:
@@ -244,7 +244,7 @@ def alerts(
     session: SessionDep,
     camera_id: Annotated[str | None, Query(max_length=64)] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[AirAlertOut]:
     """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first."""
     rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)

@@ -43,7 +43,7 @@ FRAMES_PATH = "/cameras/{camera_id}/frames"
 MAX_CLOCK_SKEW = timedelta(minutes=10)
 
 Limit = Annotated[int, Query(ge=1, le=1000)]
-Offset = Annotated[int, Query(ge=0)]
+Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 
 _JPEG_BODY = {
     "requestBody": {

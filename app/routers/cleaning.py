@@ -83,7 +83,7 @@ def list_tasks(
     _: RobotOrAdmin,
     panel_id: Annotated[str | None, Query(max_length=64)] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[TaskOut]:
     """Cleaning tasks, newest first."""
     now = policy.now()

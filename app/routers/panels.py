@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.db.models import Baseline, CameraKind
 from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep
-from app.errors import NotFound, UnsupportedMediaType
+from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, verdict_out
 from app.schemas import (
     BaselineFromFrames,
@@ -78,7 +78,7 @@ def list_panels(
     session: SessionDep,
     _: Admin,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[PanelOut]:
     """List panels, ordered by id."""
     rows = registry.list_panels(session, limit=limit, offset=offset)
@@ -320,6 +320,10 @@ async def evaluate(
         raise UnsupportedMediaType("send multipart/form-data with fields clean and dirty")
     form = await read_form(request, settings.max_upload_bytes, max_files=2000)
     clean, dirty = form.files_of("clean"), form.files_of("dirty")
+    if len(clean) < 5 or not dirty:
+        raise Unprocessable(
+            f"need at least 5 clean and 1 dirty image; got {len(clean)} clean, {len(dirty)} dirty"
+        )
     return await run_in_threadpool(
         partial(_evaluate, clean, dirty, significance, shrinkage, settings.max_pixels)
     )

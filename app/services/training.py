@@ -136,7 +136,7 @@ def evaluate(
         rates = soiling.misclassification(
             clean, dirty, significance=significance, shrinkage=shrinkage
         )
-    except soiling.BaselineError as exc:
+    except ValueError as exc:  # BaselineError included: too few or degenerate sets
         raise Unprocessable(str(exc), code="bad_baseline") from None
     return Evaluation(test, rates, clean, dirty)
 

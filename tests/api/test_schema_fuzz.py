@@ -1,0 +1,56 @@
+"""Schemathesis against the service's own OpenAPI schema: no 5xx, errors are problem+json.
+
+Examples are bounded (``MAX_EXAMPLES`` per operation) so the run stays within a few minutes.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+import schemathesis
+from hypothesis import HealthCheck, given, settings
+
+from tests.conftest import ADMIN_TOKEN
+
+MAX_EXAMPLES = 40
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+
+
+@pytest.mark.slow
+def test_no_server_errors(app: Any, client: Any) -> None:
+    client.post("/panels", json={"id": "p1"}, headers=ADMIN)
+    schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+    failures: list[str] = []
+    for result in schema.get_all_operations():
+        operation = result.ok()
+
+        @given(case=operation.as_strategy())
+        @settings(
+            max_examples=MAX_EXAMPLES,
+            deadline=None,
+            database=None,
+            suppress_health_check=list(HealthCheck),
+        )
+        def check(case: Any) -> None:
+            response = case.call(headers=ADMIN)
+            if response.status_code >= 500:
+                failures.append(
+                    f"{case.method} {case.formatted_path}: {response.status_code} "
+                    f"{response.text[:200]}"
+                )
+            elif response.status_code >= 400:
+                ctype = response.headers.get("content-type", "")
+                ctype = ctype[0] if isinstance(ctype, list) else ctype
+                if not ctype.startswith("application/problem+json"):
+                    failures.append(
+                        f"{case.method} {case.formatted_path}: {response.status_code} as {ctype}"
+                    )
+                else:
+                    body = json.loads(response.text)
+                    if not {"title", "status", "detail"} <= set(body):
+                        failures.append(f"{case.method} {case.formatted_path}: {body}")
+
+        check()
+    assert failures == [], "\n".join(sorted(set(failures))[:20])
