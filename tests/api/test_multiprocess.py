@@ -121,3 +121,31 @@ def test_twenty_robots_across_two_processes_get_twenty_distinct_tasks(servers: l
     for url in servers:
         r = httpx.post(f"{url}/cleaning/claim", headers={"Authorization": f"Bearer {tokens[0]}"})
         assert r.status_code == 204
+
+
+def test_frames_alternately_and_a_baseline_shared_at_once(servers: list[str]) -> None:
+    a, b = servers
+    with httpx.Client(headers=ADMIN, timeout=30) as c:
+        assert c.post(f"{a}/panels", json={"id": "p"}).status_code == 201
+        cam = c.post(f"{a}/cameras", json={"id": "c", "kind": "panel", "panel_id": "p"}).json()
+        token = {"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"}
+        ids = []
+        for i in range(200):
+            r = httpx.post(
+                f"{servers[i % 2]}/cameras/c/frames",
+                headers=token,
+                content=panel_jpeg(CLEAN_RGB, seed=i),
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["frame_id"])
+        stored = c.get(f"{b}/cameras/c/frames", params={"limit": 1000}).json()
+        assert {f["frame_id"] for f in stored} == set(ids)
+        assert all(f["verdict"]["modes"] for f in stored)
+        # a baseline trained through one process judges the other's very next frame
+        files = [("files", (f"{j}.jpg", f, "image/jpeg")) for j, f in enumerate(clean_set(6))]
+        assert c.post(f"{a}/panels/p/baseline", files=files).status_code == 201
+        v = httpx.post(
+            f"{b}/cameras/c/frames", headers=token, content=panel_jpeg(CLEAN_RGB + DUST, seed=999)
+        ).json()["verdict"]
+        assert v["method"] == "baseline"
+        assert v["clean"] is False
