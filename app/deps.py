@@ -5,17 +5,19 @@ from __future__ import annotations
 import base64
 import binascii
 import hmac
+import math
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 from typing import Annotated, Literal
 
 from fastapi import Depends, Path, Request
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import Camera, Panel, Robot
-from app.errors import Forbidden, NotFound, Unauthorized
+from app.db.models import Camera, Frame, Panel, Robot
+from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized
 from app.security import hash_token
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
@@ -204,7 +206,37 @@ async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo
         raise Unauthorized("the Basic user name is not the camera this token belongs to")
     if found.id != camera_id:
         raise Forbidden("this camera's token may only post frames for its own camera")
+    await _check_rate(request, found.id)
     return found
+
+
+def _recent(request: Request, camera_id: str, since: datetime) -> tuple[int, datetime | None]:
+    with get_sessionmaker(request)() as session:
+        row = session.execute(
+            select(func.count(), func.min(Frame.received_at)).where(
+                Frame.camera_id == camera_id, Frame.received_at >= since
+            )
+        ).one()
+    return int(row[0]), row[1]
+
+
+async def _check_rate(request: Request, camera_id: str) -> None:
+    """At most ``rate_limit_per_minute`` frames per camera in any rolling minute, counted from
+    the frames table, so every process sees every other's; a camera flooding is refused before
+    its body is read and cannot crowd out the others."""
+    limit: int = request.app.state.settings.rate_limit_per_minute
+    if limit <= 0:
+        return
+    policy: Policy = request.app.state.policy
+    now = policy.now()
+    count, oldest = await run_in_threadpool(_recent, request, camera_id, now - timedelta(minutes=1))
+    if count >= limit:
+        wait = 60 - (now - oldest).total_seconds() if oldest else 60
+        raise TooManyRequests(
+            f"camera {camera_id} posted {count} frames in the last minute; the limit is {limit}",
+            retry_after=max(1, math.ceil(wait)),
+            code="rate_limited",
+        )
 
 
 UploadTargetDep = Annotated[CameraInfo, Depends(get_upload_target)]

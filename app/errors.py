@@ -69,6 +69,14 @@ class Unprocessable(VantageError):
     title = "Unprocessable content"
 
 
+class TooManyRequests(VantageError):
+    status = 429
+    title = "Too many requests"
+
+    def __init__(self, detail: str, *, retry_after: int, **extra: Any):
+        super().__init__(detail, headers={"Retry-After": str(retry_after)}, **extra)
+
+
 class ServiceUnavailable(VantageError):
     status = 503
     title = "Service unavailable"

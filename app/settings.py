@@ -45,6 +45,12 @@ class Settings(BaseSettings):
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",
     )
+    rate_limit_per_minute: int = Field(
+        default=600,
+        ge=0,
+        description="Frames a camera may post per rolling minute, counted in the database "
+        "(so across processes); more → 429 with Retry-After. 0: no limit.",
+    )
     cleaning_debounce: int = Field(
         default=3, ge=1, description="Consecutive dirty verdicts that open a cleaning task."
     )

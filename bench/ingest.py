@@ -71,6 +71,7 @@ class Server:
     def __init__(self, backend: str, port: int, data_dir: Path) -> None:
         env = {**os.environ, "VANTAGE_DATA_DIR": str(data_dir), "VANTAGE_ADMIN_TOKEN": ADMIN}
         env["VANTAGE_LOG_LEVEL"] = "WARNING"
+        env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"  # one camera posts hundreds per second here
         if backend == "postgresql":
             prepare_pg()
             env["VANTAGE_DATABASE_URL"] = PG_BENCH_URL

@@ -76,6 +76,7 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
         database_url=database_url,
         admin_token=ADMIN_TOKEN,  # type: ignore[arg-type]
         log_json=True,
+        rate_limit_per_minute=0,  # on only where a test is about it
     )
 
 

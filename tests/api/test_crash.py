@@ -57,6 +57,7 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
         "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
         "VANTAGE_LOG_LEVEL": "WARNING",
         "VANTAGE_ORPHAN_MIN_AGE_SECONDS": "0",
+        "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
     }
     port = free_port()
     proc = start(env, port)

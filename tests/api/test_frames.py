@@ -347,3 +347,39 @@ class TestIdempotency:
         assert {r.status_code for r in results} == {201}
         assert len({r.json()["frame_id"] for r in results}) == 1
         assert table_counts(engine)["frames"] == 1
+
+
+class TestRateLimit:
+    def test_a_flooding_camera_gets_429_and_the_others_do_not(
+        self, client: TestClient, admin: dict[str, str], app: Any
+    ) -> None:
+        from dataclasses import replace
+
+        from tests.api.test_solar import Clock
+
+        clock = Clock()
+        app.state.policy = replace(app.state.policy, clock=clock)
+        app.state.settings = app.state.settings.model_copy(update={"rate_limit_per_minute": 5})
+        tokens = {
+            cid: client.post("/cameras", json={"id": cid, "kind": "rig"}, headers=admin).json()[
+                "token"
+            ]
+            for cid in ("loud", "quiet")
+        }
+
+        def post(cid: str, seed: int) -> Any:
+            clock.advance(seconds=1)
+            return client.post(
+                f"/cameras/{cid}/frames",
+                content=make_jpeg(seed=seed, noise=3),
+                headers={"Authorization": f"Bearer {tokens[cid]}", "Content-Type": "image/jpeg"},
+            )
+
+        assert [post("loud", i).status_code for i in range(5)] == [201] * 5
+        refused = post("loud", 99)
+        assert refused.status_code == 429
+        assert refused.headers["content-type"] == "application/problem+json"
+        assert 50 <= int(refused.headers["retry-after"]) <= 60
+        assert post("quiet", 1).status_code == 201  # the other camera is unaffected
+        clock.advance(seconds=60)
+        assert post("loud", 100).status_code == 201  # the minute has rolled on

@@ -44,6 +44,7 @@ def servers(engine: Engine, tmp_path: Path) -> Iterator[list[str]]:
         "VANTAGE_DATA_DIR": str(tmp_path),
         "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
         "VANTAGE_LOG_LEVEL": "WARNING",
+        "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
     }
     procs, urls = [], []
     for _ in range(2):
