@@ -118,6 +118,9 @@ class Prepared:
     camera: CameraInfo
     frame: Frame
     decoded: Decoded
+    may_repeat: bool = False
+    """The upload could repeat a stored one (it has an Idempotency-Key or its own captured_at);
+    otherwise the unique constraint alone guards against duplicates."""
 
 
 def prepare(
@@ -151,7 +154,8 @@ def prepare(
         stored_path=stored_path,
         idempotency_key=idempotency_key,
     )
-    return Prepared(camera, frame, decoded)
+    may_repeat = idempotency_key is not None or captured_at is not None
+    return Prepared(camera, frame, decoded, may_repeat)
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,22 +169,32 @@ class Recorded:
 def find_original(session: Session, frame: Frame) -> tuple[Frame, Verdict] | None:
     """The stored frame a retry repeats: same camera and Idempotency-Key, or same camera, bytes
     and capture time."""
-    q = select(Frame).where(Frame.camera_id == frame.camera_id)
+    q = select(Frame.id).where(Frame.camera_id == frame.camera_id)
     if frame.idempotency_key is not None:
         q = q.where(Frame.idempotency_key == frame.idempotency_key)
     else:
         q = q.where(Frame.sha256 == frame.sha256, Frame.captured_at == frame.captured_at)
-    original = session.scalars(q.options(selectinload(Frame.verdict))).first()
-    return (original, original.verdict) if original is not None else None
+    found = session.scalar(q.limit(1))
+    if found is None:
+        return None
+    original = session.scalars(
+        select(Frame).where(Frame.id == found).options(selectinload(Frame.verdict))
+    ).one()
+    return original, original.verdict
 
 
-def record(session: Session, prepared: Prepared, policy: Policy) -> Recorded:
+def record(
+    session: Session, prepared: Prepared, policy: Policy, *, retry: bool = False
+) -> Recorded:
     """The database part: conclude the verdict and insert the frame and verdict rows, unless
     this is a retry of a stored frame, whose original rows are returned instead.
 
     Runs on the group-commit writer (``app.services.writer``), inside the batch's transaction.
     """
-    original = find_original(session, prepared.frame)
+    # the lookup costs a query per frame: only uploads that could be retries make it (a
+    # duplicate of any other is refused by the unique constraint, and the writer then runs
+    # this job again with ``may_repeat`` forced on)
+    original = find_original(session, prepared.frame) if prepared.may_repeat or retry else None
     if original is not None:
         return Recorded(*original, replay=True)
     verdict = conclude(session, prepared, policy)

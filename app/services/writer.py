@@ -30,7 +30,8 @@ T = TypeVar("T")
 
 @dataclass(slots=True)
 class _Job:
-    fn: Callable[[Session], Any]
+    fn: Callable[..., Any]
+    """Called as fn(session), or fn(session, retry=True) when run again after a conflict."""
     loop: asyncio.AbstractEventLoop
     future: asyncio.Future[Any]
 
@@ -70,7 +71,11 @@ class GroupCommitWriter:
             thread.join(timeout=30)
 
     async def submit(self, fn: Callable[[Session], T]) -> T:
-        """Run ``fn(session)`` in the next batch; return its result once the batch committed."""
+        """Run ``fn(session)`` in the next batch; return its result once the batch committed.
+
+        ``fn`` must also accept ``retry=True``: it is run once more that way, alone, when its
+        batch hit a unique-constraint conflict.
+        """
         if self._thread is None:
             self.start()
         loop = asyncio.get_running_loop()
@@ -103,7 +108,7 @@ class GroupCommitWriter:
     def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
         try:
             with self._sessions() as session:
-                result = job.fn(session)
+                result = job.fn(session, retry=True)
                 session.commit()
             return (result, None)
         except Exception:
