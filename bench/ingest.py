@@ -68,7 +68,7 @@ def prepare_pg() -> None:
 
 
 class Server:
-    def __init__(self, backend: str, port: int, data_dir: Path) -> None:
+    def __init__(self, backend: str, port: int, data_dir: Path, workers: int = 1) -> None:
         env = {**os.environ, "VANTAGE_DATA_DIR": str(data_dir), "VANTAGE_ADMIN_TOKEN": ADMIN}
         env["VANTAGE_LOG_LEVEL"] = "WARNING"
         env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"  # one camera posts hundreds per second here
@@ -118,15 +118,26 @@ class Server:
         r = conn.getresponse()
         return r.status, r.read()
 
+    def pids(self) -> list[int]:
+        """The server process and, with several workers, its worker processes."""
+        pid = self.proc.pid
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        return [pid, *map(int, children)]
+
     def rss_mb(self) -> float:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-        return float("nan")
+        total = 0.0
+        for pid in self.pids():
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1]) / 1024
+        return total
 
     def cpu_seconds(self) -> float:
-        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        total = 0.0
+        for pid in self.pids():
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return total
 
     def stop(self) -> None:
         self.proc.terminate()
@@ -184,7 +195,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     # by an order of magnitude between the two on some machines
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
-        server = Server(backend, port, Path(tmp))
+        server = Server(backend, port, Path(tmp), args.workers)
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
             status, body = server.request(
@@ -210,7 +221,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
                     r.setdefault("p50", []).append(pct(lat, 50) * 1000)
                     r.setdefault("p99", []).append(pct(lat, 99) * 1000)
                     r.setdefault("server_cpu_ms_per_frame", []).append(cpu)
-            result: dict[str, object] = {"backend": backend}
+            result: dict[str, object] = {"backend": backend, "workers": args.workers}
             for name, r in rows.items():
                 result[name] = {k: round(statistics.median(v), 2) for k, v in r.items()}
             bare_fps = statistics.median(rows["bare"]["fps"])
@@ -242,6 +253,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
+    parser.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()
     for backend in args.backends.split(","):
