@@ -68,10 +68,13 @@ def prepare_pg() -> None:
 
 
 class Server:
-    def __init__(self, backend: str, port: int, data_dir: Path, workers: int = 1) -> None:
+    def __init__(
+        self, backend: str, port: int, data_dir: Path, workers: int = 1, rate_limit: bool = False
+    ) -> None:
         env = {**os.environ, "VANTAGE_DATA_DIR": str(data_dir), "VANTAGE_ADMIN_TOKEN": ADMIN}
         env["VANTAGE_LOG_LEVEL"] = "WARNING"
-        env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"  # one camera posts hundreds per second here
+        if not rate_limit:  # one camera posts hundreds of frames a second in bench/ingest.py
+            env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"
         if backend == "postgresql":
             prepare_pg()
             env["VANTAGE_DATABASE_URL"] = PG_BENCH_URL
