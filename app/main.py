@@ -16,7 +16,17 @@ from app import __version__
 from app.db.session import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
-from app.routers import air, cameras, cleaning, fleet, health, panels, robots, vision
+from app.routers import (
+    air,
+    calibrations,
+    cameras,
+    cleaning,
+    fleet,
+    health,
+    panels,
+    robots,
+    vision,
+)
 from app.security import admin_token_hash
 from app.services import retention, webhooks
 from app.services.camera_info import TokenCache
@@ -97,6 +107,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)
-    for module in (health, cameras, panels, fleet, robots, cleaning, air, vision):
+    for module in (health, cameras, panels, fleet, robots, cleaning, air, vision, calibrations):
         app.include_router(module.router)
     return app

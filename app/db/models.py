@@ -297,3 +297,17 @@ class AirAlert(Base):
     last_error: Mapped[str | None] = mapped_column(String(500))
     next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
     """When the webhook delivery is to be tried next (backoff after a failure)."""
+
+
+class Calibration(Base):
+    """A camera (or stereo pair) calibrated from checkerboard views."""
+
+    __tablename__ = "calibrations"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    """single or stereo."""
+    result: Mapped[dict[str, Any]] = mapped_column(JSON)
+    """K, dist, RMS, per-view RMS, standard deviations, views used and rejected (and for a
+    stereo pair both cameras, R, T and the baseline)."""

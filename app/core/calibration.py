@@ -1,0 +1,137 @@
+"""Camera calibration from checkerboard views (dissertation chapter 2 §IV, chapter 3 §I).
+
+The camera model is the pinhole with skew and the 5-term distortion k = [k1, k2, p1, p2, k3]
+(eqs. 2.6–2.13, the Bouguet / OpenCV model), world → camera P = R Pw + T (2.14). Parameters are
+estimated by OpenCV (Zhang's method with Levenberg–Marquardt refinement), which also gives the
+standard deviation of every parameter, as the Bouguet toolbox reports them (Table 3.1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+_cv: Any = cv2  # OpenCV's stubs type these calls for UMat only
+
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+
+
+class CalibrationError(ValueError):
+    """Too few usable views, or views of different sizes."""
+
+
+def board_points(cols: int, rows: int, square: float) -> NDArray[np.float32]:
+    """The inner corners of a cols × rows checkerboard in its own plane (Z = 0) [square units]."""
+    grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(np.float32)
+    points = np.zeros((cols * rows, 3), np.float32)
+    points[:, :2] = grid * square
+    return points
+
+
+def find_corners(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float32] | None:
+    """The board's inner corners refined to sub-pixel, shape (cols·rows, 1, 2), or None.
+
+    Tries the classic detector with ``cornerSubPix`` first (the reference results were made so),
+    then the sector-based detector, which copes better with blur and uneven light.
+    """
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, corners = cv2.findChessboardCorners(grey, (cols, rows), flags=flags)
+    if ok:
+        refined = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1), SUBPIX_CRITERIA)
+        return np.asarray(refined, dtype=np.float32)
+    ok, corners = _cv.findChessboardCornersSB(
+        grey, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
+    return np.asarray(corners, dtype=np.float32) if ok else None
+
+
+@dataclass(frozen=True, slots=True)
+class Intrinsics:
+    K: NDArray[np.float64]
+    """Camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] [px]."""
+    dist: NDArray[np.float64]
+    """[k1, k2, p1, p2, k3]."""
+    rms: float
+    """Reprojection RMS over all views [px]."""
+    per_view_rms: NDArray[np.float64]
+    """[px] per used view."""
+    std: dict[str, float]
+    """Standard deviations: fx, fy, cx, cy, k1, k2, p1, p2, k3."""
+    rvecs: list[NDArray[np.float64]]
+    tvecs: list[NDArray[np.float64]]
+    image_size: tuple[int, int]
+    """(width, height) [px]."""
+
+
+STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+def calibrate(
+    object_points: list[NDArray[np.float32]],
+    image_points: list[NDArray[np.float32]],
+    image_size: tuple[int, int],
+) -> Intrinsics:
+    """Intrinsics, distortion and per-view extrinsics with their uncertainties."""
+    if len(image_points) < 3:
+        raise CalibrationError(
+            f"need at least 3 views where the board was found; got {len(image_points)}"
+        )
+    rms, k, dist, rvecs, tvecs, std_in, _, per_view = _cv.calibrateCameraExtended(
+        object_points, image_points, image_size, None, None
+    )
+    std = {name: float(v) for name, v in zip(STD_NAMES, np.ravel(std_in)[:9], strict=True)}
+    return Intrinsics(
+        K=np.asarray(k, dtype=np.float64),
+        dist=np.asarray(dist, dtype=np.float64).ravel()[:5],
+        rms=float(rms),
+        per_view_rms=np.asarray(per_view, dtype=np.float64).ravel(),
+        std=std,
+        rvecs=[np.asarray(r, dtype=np.float64).ravel() for r in rvecs],
+        tvecs=[np.asarray(t, dtype=np.float64).ravel() for t in tvecs],
+        image_size=image_size,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class StereoPose:
+    R: NDArray[np.float64]
+    """Rotation from the first camera's frame to the second's."""
+    T: NDArray[np.float64]
+    """Translation, x₂ = R x₁ + T [square units]."""
+    rms: float
+    baseline: float
+    """|T| [square units]."""
+    rotation_deg: float
+
+
+def stereo(
+    object_points: list[NDArray[np.float32]],
+    left_points: list[NDArray[np.float32]],
+    right_points: list[NDArray[np.float32]],
+    left: Intrinsics,
+    right: Intrinsics,
+) -> StereoPose:
+    """The pair's relative pose from simultaneous views, intrinsics held fixed."""
+    if len(left_points) < 1:
+        raise CalibrationError("no view where both cameras found the board")
+    rms, *_, r, t, _, _ = _cv.stereoCalibrate(
+        object_points,
+        left_points,
+        right_points,
+        left.K,
+        left.dist,
+        right.K,
+        right.dist,
+        left.image_size,
+        flags=cv2.CALIB_FIX_INTRINSIC,
+    )
+    r = np.asarray(r, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64).ravel()
+    angle = float(np.degrees(np.linalg.norm(cv2.Rodrigues(r)[0])))
+    return StereoPose(
+        R=r, T=t, rms=float(rms), baseline=float(np.linalg.norm(t)), rotation_deg=angle
+    )
