@@ -24,6 +24,7 @@ from app.routers import (
     fleet,
     health,
     panels,
+    rigs,
     robots,
     vision,
 )
@@ -107,6 +108,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)
-    for module in (health, cameras, panels, fleet, robots, cleaning, air, vision, calibrations):
+    for module in (
+        health,
+        cameras,
+        panels,
+        fleet,
+        robots,
+        cleaning,
+        air,
+        vision,
+        calibrations,
+        rigs,
+    ):
         app.include_router(module.router)
     return app

@@ -336,3 +336,74 @@ class AirAlertOut(Out):
     category: str
     delivered: bool
     attempts: int
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class CalibratedCamera(Schema):
+    K: list[list[Finite]] = Field(description="3 × 3 camera matrix [px].")
+    dist: list[Finite] = Field(
+        default_factory=lambda: [0.0] * 5, description="[k1, k2, p1, p2, k3]."
+    )
+    R: list[list[Finite]] = Field(description="3 × 3 rotation, world → camera.")
+    t: list[Finite] = Field(description="Translation, x_cam = R X + t [world units].")
+
+    @field_validator("K", "R")
+    @classmethod
+    def _three_by_three(cls, m: list[list[float]]) -> list[list[float]]:
+        if len(m) != 3 or any(len(r) != 3 for r in m):
+            raise ValueError("must be 3 × 3")
+        return m
+
+    @field_validator("t")
+    @classmethod
+    def _three(cls, v: list[float]) -> list[float]:
+        if len(v) != 3:
+            raise ValueError("must have 3 numbers")
+        return v
+
+    @field_validator("dist")
+    @classmethod
+    def _five(cls, v: list[float]) -> list[float]:
+        if len(v) not in (4, 5):
+            raise ValueError("must be [k1, k2, p1, p2] or [k1, k2, p1, p2, k3]")
+        return v
+
+
+class RigCreate(Schema):
+    id: Id
+    kind: Literal["cross", "calibrated"]
+    f_px: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    ax: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    ay: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    principal_point: list[Finite] | None = Field(default=None, description="[cx, cy] [px].")
+    cameras: list[CalibratedCamera] | None = None
+
+
+class RigOut(Out):
+    id: str
+    kind: str
+    spec: dict[str, object]
+    created_at: datetime
+
+
+class TriangulateIn(Schema):
+    observations: list[list[list[Finite] | None]] = Field(
+        description="Per point, per camera: [u, v] in pixels, or null when not seen.",
+        max_length=200_000,
+    )
+    method: Literal["least_squares", "weighted", "mean"] = Field(
+        default="least_squares",
+        description="Cross rigs: all 8 coordinates (ML), inverse-variance weights, or the "
+        "plain mean of the ten estimates (eq. 4.47).",
+    )
+
+
+class TriangulateOut(Out):
+    points: list[list[float] | None]
+    reprojection_rms_px: list[float | None]
+    z_estimates: list[list[float | None]] | None = Field(
+        default=None, description="Cross rigs: the ten pairwise depths (eqs. 4.14–4.41)."
+    )
+    z_spread: list[float | None] | None = None

@@ -311,3 +311,15 @@ class Calibration(Base):
     result: Mapped[dict[str, Any]] = mapped_column(JSON)
     """K, dist, RMS, per-view RMS, standard deviations, views used and rejected (and for a
     stereo pair both cameras, R, T and the baseline)."""
+
+
+class Rig(Base):
+    """A measuring rig: the 4-camera cross or any set of calibrated cameras."""
+
+    __tablename__ = "rigs"
+
+    id: Mapped[str] = mapped_column(String(ID_LENGTH), primary_key=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    """cross or calibrated."""
+    spec: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())

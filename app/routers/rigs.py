@@ -1,0 +1,126 @@
+"""Measuring rigs: register, then triangulate image observations into 3-D points."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from fastapi import APIRouter
+
+from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
+from app.db.base import utcnow
+from app.db.models import Rig
+from app.deps import Admin, RobotOrAdmin, SessionDep
+from app.errors import Conflict, NotFound, Unprocessable
+from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
+from app.schemas import RigCreate, RigOut, TriangulateIn, TriangulateOut
+
+router = APIRouter(prefix="/rigs", tags=["stereo"])
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=RigOut,
+    responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
+)
+def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
+    """Register a 4-camera cross (f_px, ax, ay, principal_point) or 2+ calibrated cameras."""
+    if session.get(Rig, body.id) is not None:
+        raise Conflict(f"a rig with id {body.id!r} already exists")
+    if body.kind == "cross":
+        if body.f_px is None or body.ax is None or body.ay is None:
+            raise Unprocessable("a cross rig needs f_px, ax and ay")
+        cx, cy = body.principal_point or [0.0, 0.0]
+        spec: dict[str, object] = {
+            "f_px": body.f_px,
+            "ax": body.ax,
+            "ay": body.ay,
+            "principal_point": [cx, cy],
+        }
+    else:
+        if not body.cameras or len(body.cameras) < 2:
+            raise Unprocessable("a calibrated rig needs at least 2 cameras")
+        for i, c in enumerate(body.cameras):
+            r = np.array(c.R)
+            if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+                raise Unprocessable(f"camera {i}: R is not a rotation")
+            if np.linalg.det(np.array(c.K)) == 0:
+                raise Unprocessable(f"camera {i}: K is singular")
+        spec = {"cameras": [c.model_dump() for c in body.cameras]}
+    row = Rig(id=body.id, kind=body.kind, spec=spec, created_at=utcnow())
+    session.add(row)
+    session.flush()
+    return RigOut.model_validate(row)
+
+
+@router.get("/{rig_id}", response_model=RigOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_rig(rig_id: str, session: SessionDep, _: RobotOrAdmin) -> RigOut:
+    """One rig."""
+    row = session.get(Rig, rig_id)
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    return RigOut.model_validate(row)
+
+
+def _clean(values: np.ndarray) -> list[float | None]:
+    return [None if not math.isfinite(float(v)) else float(v) for v in values]
+
+
+@router.post(
+    "/{rig_id}/triangulate",
+    response_model=TriangulateOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+)
+def triangulate(
+    rig_id: str, body: TriangulateIn, session: SessionDep, _: RobotOrAdmin
+) -> TriangulateOut:
+    """Points in the rig's frame from pixel observations (null for a camera that did not see
+    the point), with per-point reprojection RMS; for the cross, the ten pairwise depths."""
+    row = session.get(Rig, rig_id)
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    n_cams = 4 if row.kind == "cross" else len(row.spec["cameras"])
+    obs = np.full((len(body.observations), n_cams, 2), np.nan)
+    for i, point in enumerate(body.observations):
+        if len(point) != n_cams:
+            raise Unprocessable(f"point {i}: {len(point)} observations for {n_cams} cameras")
+        for k, uv in enumerate(point):
+            if uv is not None:
+                if len(uv) != 2:
+                    raise Unprocessable(f"point {i}, camera {k}: expected [u, v]")
+                obs[i, k] = uv
+    if len(obs) == 0:
+        return TriangulateOut(points=[], reprojection_rms_px=[])
+    if row.kind == "cross":
+        s = row.spec
+        rig = CrossRig(
+            f=s["f_px"],
+            ax=s["ax"],
+            ay=s["ay"],
+            cx=s["principal_point"][0],
+            cy=s["principal_point"][1],
+        )
+        few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
+        safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
+        with np.errstate(all="ignore"):
+            r = triangulate_cross(rig, safe, method=body.method)
+        points = r.points.copy()
+        points[few] = np.nan
+        est = r.z_estimates.copy()
+        est[few] = np.nan
+        return TriangulateOut(
+            points=[None if not np.isfinite(p).all() else p.tolist() for p in points],
+            reprojection_rms_px=_clean(np.where(few, np.nan, r.reprojection_rms)),
+            z_estimates=[_clean(e) for e in est],
+            z_spread=_clean(np.where(few, np.nan, r.z_spread)),
+        )
+    views = [
+        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
+        for c in row.spec["cameras"]
+    ]
+    res = triangulate_views(views, obs)
+    return TriangulateOut(
+        points=[None if not np.isfinite(p).all() else p.tolist() for p in res.points],
+        reprojection_rms_px=_clean(res.reprojection_rms),
+    )

@@ -1,0 +1,93 @@
+"""Rigs over HTTP: register, triangulate."""
+
+from __future__ import annotations
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.core.triangulation import project_views
+from tests.core.test_triangulation import RIG, calibrated_views, points
+
+
+def test_cross_rig(client: TestClient, admin: dict[str, str]) -> None:
+    body = {
+        "id": "cell-1",
+        "kind": "cross",
+        "f_px": 800,
+        "ax": 0.3,
+        "ay": 0.2,
+        "principal_point": [320, 240],
+    }
+    assert client.post("/rigs", json=body, headers=admin).status_code == 201
+    assert client.post("/rigs", json=body, headers=admin).status_code == 409
+    p = points(5)
+    obs = RIG.project(p).tolist()
+    obs[4][1] = None
+    obs[4][2] = None
+    obs[4][3] = None  # one view only: no point
+    r = client.post("/rigs/cell-1/triangulate", json={"observations": obs}, headers=admin)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    np.testing.assert_allclose(out["points"][:4], p[:4], rtol=1e-9)
+    assert out["points"][4] is None
+    assert len(out["z_estimates"][0]) == 10
+
+
+def test_calibrated_rig(client: TestClient, admin: dict[str, str]) -> None:
+    views = calibrated_views()
+    cams = [
+        {"K": v.K.tolist(), "dist": v.dist.tolist(), "R": v.R.tolist(), "t": v.t.tolist()}
+        for v in views
+    ]
+    assert (
+        client.post(
+            "/rigs", json={"id": "r", "kind": "calibrated", "cameras": cams}, headers=admin
+        ).status_code
+        == 201
+    )
+    p = points(10) + [0, 0, 1.0]
+    obs = project_views(views, p).tolist()
+    r = client.post("/rigs/r/triangulate", json={"observations": obs}, headers=admin)
+    assert r.status_code == 200, r.text
+    np.testing.assert_allclose(r.json()["points"], p, rtol=1e-7)
+
+
+def test_bad_rigs_and_observations(client: TestClient, admin: dict[str, str]) -> None:
+    bad_r = {
+        "id": "x",
+        "kind": "calibrated",
+        "cameras": [
+            {
+                "K": [[800, 0, 320], [0, 800, 240], [0, 0, 1]],
+                "R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]],
+                "t": [0, 0, 0],
+            },
+            {
+                "K": [[800, 0, 320], [0, 800, 240], [0, 0, 1]],
+                "R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                "t": [1, 0, 0],
+            },
+        ],
+    }
+    assert client.post("/rigs", json=bad_r, headers=admin).status_code == 422
+    assert (
+        client.post(
+            "/rigs", json={"id": "y", "kind": "cross", "f_px": 800}, headers=admin
+        ).status_code
+        == 422
+    )
+    client.post(
+        "/rigs", json={"id": "c", "kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2}, headers=admin
+    )
+    r = client.post("/rigs/c/triangulate", json={"observations": [[[1, 2], [3, 4]]]}, headers=admin)
+    assert r.status_code == 422
+    r = client.post(
+        "/rigs/c/triangulate",
+        content=b'{"observations": [[[NaN, 1], null, null, null]]}',
+        headers={**admin, "Content-Type": "application/json"},
+    )
+    assert r.status_code == 422
+    assert (
+        client.post("/rigs/none/triangulate", json={"observations": []}, headers=admin).status_code
+        == 404
+    )

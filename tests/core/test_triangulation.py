@@ -1,0 +1,107 @@
+"""Triangulation by simulation: project known 3-D points, then recover them."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from app.core.triangulation import (
+    PAIRS,
+    CrossRig,
+    View,
+    project_views,
+    triangulate_cross,
+    triangulate_views,
+    z_estimates,
+)
+
+RIG = CrossRig(f=800.0, ax=0.30, ay=0.20, cx=320.0, cy=240.0)
+
+
+def points(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack(
+        [rng.uniform(-0.5, 0.5, n), rng.uniform(-0.4, 0.4, n), rng.uniform(1.0, 5.0, n)]
+    )
+
+
+class TestCross:
+    def test_geometry_of_the_contract(self) -> None:
+        # a point on camera 1's axis is at its principal point
+        uv = RIG.project(np.array([[0.15, 0.0, 2.0]]))[0]
+        np.testing.assert_allclose(uv[0], [320.0, 240.0])
+        assert uv[1, 0] > 320  # camera 2, left of it, sees the point to its right
+        assert uv[3, 1] < 240  # camera 4, below, sees it higher (v down)
+
+    @pytest.mark.parametrize("method", ["mean", "weighted", "least_squares"])
+    def test_noise_free_is_exact(self, method: str) -> None:
+        p = points(500)
+        r = triangulate_cross(RIG, RIG.project(p), method=method)
+        np.testing.assert_allclose(r.points, p, rtol=1e-9)
+        assert np.nanmax(r.reprojection_rms) < 1e-6
+
+    def test_ten_estimates_all_equal_z_without_noise(self) -> None:
+        p = points(50)
+        est = z_estimates(RIG, RIG.project(p))
+        assert est.shape == (50, len(PAIRS)) == (50, 10)
+        np.testing.assert_allclose(est, np.repeat(p[:, 2:3], 10, axis=1), rtol=1e-9)
+
+    def test_weighting_beats_the_plain_mean_under_noise(self) -> None:
+        rng = np.random.default_rng(1)
+        p = points(4000, seed=2)
+        obs = RIG.project(p) + rng.normal(0, 0.5, (4000, 4, 2))
+        err = {
+            m: np.sqrt(np.mean(np.sum((triangulate_cross(RIG, obs, method=m).points - p) ** 2, 1)))
+            for m in ("mean", "weighted", "least_squares")
+        }
+        assert err["weighted"] < err["mean"]
+        assert err["least_squares"] <= err["weighted"] * 1.02
+
+    def test_a_missing_view(self) -> None:
+        p = points(20)
+        obs = RIG.project(p)
+        obs[:, 2] = np.nan
+        r = triangulate_cross(RIG, obs)
+        np.testing.assert_allclose(r.points, p, rtol=1e-9)
+        assert np.isnan(r.z_estimates[:, 1]).all()  # the 3–4 pair lacks camera 3
+
+
+def calibrated_views() -> list[View]:
+    k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    dist = np.array([-0.1, 0.01, 0.0, 0.0, 0.0])
+    views = []
+    for i in range(4):
+        r = cv2.Rodrigues(np.radians([0.0, (i - 1.5) * 8, 0.0]))[0]
+        centre = np.array([(i - 1.5) * 0.3, 0.05 * i, 0.0])
+        views.append(View(k, dist, r, -r @ centre))
+    return views
+
+
+class TestCalibratedRig:
+    def test_noise_free(self) -> None:
+        views = calibrated_views()
+        p = points(2000) + [0, 0, 1.0]
+        r = triangulate_views(views, project_views(views, p))
+        np.testing.assert_allclose(r.points, p, rtol=1e-7)  # undistortion is iterative
+        assert np.nanmax(r.reprojection_rms) < 1e-3
+
+    def test_missing_views_and_an_outlier_view(self) -> None:
+        rng = np.random.default_rng(3)
+        views = calibrated_views()
+        p = points(300) + [0, 0, 1.0]
+        obs = project_views(views, p) + rng.normal(0, 0.3, (300, 4, 2))
+        obs[:100, 0] = np.nan  # camera 0 missed a third of the points
+        clean = triangulate_views(views, obs)
+        obs[100:200, 3] += 40.0  # camera 3 is off by 40 px for another third
+        r = triangulate_views(views, obs)
+        assert not r.used[100:200, 3].any()  # the outlier view is rejected
+        assert r.used[100:200, :3].all()
+        rms = {
+            k: float(np.sqrt(np.mean(np.sum((x.points[100:200] - p[100:200]) ** 2, 1))))
+            for k, x in (("clean", clean), ("outlier", r))
+        }
+        # three good views instead of four: a little worse than clean, nothing like 40 px
+        assert rms["outlier"] < 1.6 * rms["clean"]
+        obs[200:, 1:] = np.nan  # a single view is not enough
+        assert np.isnan(triangulate_views(views, obs).points[200:]).all()
