@@ -1,0 +1,132 @@
+"""Triangulation accuracy and speed, by simulation.
+
+Accuracy: a 4-camera cross (f = 800 px, ax = 0.30, ay = 0.20 m), 20,000 points at each depth,
+σ = 0.5 px Gaussian pixel noise, seeded. RMS 3-D error [mm] of each single pair's depth (with
+X, Y from that pair), the plain mean of the ten estimates (eq. 4.47), the inverse-variance
+weighted mean, the least-squares / ML solution on all eight coordinates, and two-view epipolar
+triangulation (``cv2.triangulatePoints`` on cameras 1 and 2, the dissertation's competitor).
+Speed: the same, timed; and a calibrated 4-view rig with distortion, 100,000 points, against
+``cv2.triangulatePoints`` on 2 views.
+
+    python bench/triangulation.py
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.core.triangulation import (  # noqa: E402
+    PAIRS,
+    CrossRig,
+    View,
+    project_views,
+    triangulate_cross,
+    triangulate_views,
+)
+
+RIG = CrossRig(f=800.0, ax=0.30, ay=0.20, cx=320.0, cy=240.0)
+N = 20_000
+
+
+def rms_mm(p: np.ndarray, truth: np.ndarray) -> float:
+    ok = np.isfinite(p).all(axis=1)
+    return float(np.sqrt(np.mean(np.sum((p[ok] - truth[ok]) ** 2, axis=1))) * 1000)
+
+
+def epipolar(obs: np.ndarray) -> np.ndarray:
+    k = np.array([[RIG.f, 0, RIG.cx], [0, -RIG.f, RIG.cy], [0, 0, 1.0]])  # v down, Y up
+    p1 = k @ np.hstack([np.eye(3), [[-RIG.ax / 2], [0], [0]]])
+    p2 = k @ np.hstack([np.eye(3), [[RIG.ax / 2], [0], [0]]])
+    x = cv2.triangulatePoints(p1, p2, obs[:, 0].T.copy(), obs[:, 1].T.copy())
+    return (x[:3] / x[3]).T
+
+
+def main() -> None:
+    rng = np.random.default_rng(7)
+    print(
+        "| depth [m] | "
+        + " | ".join(f"pair {i + 1}–{j + 1} {a}" for i, j, a in PAIRS)
+        + " | mean (4.47) | weighted | least squares | epipolar 1–2 |"
+    )
+    print("|---" * (len(PAIRS) + 5) + "|")
+    for depth in (0.5, 1.0, 2.0, 4.0, 8.0):
+        truth = np.column_stack(
+            [
+                rng.uniform(-0.2, 0.2, N) * depth,
+                rng.uniform(-0.15, 0.15, N) * depth,
+                np.full(N, depth),
+            ]
+        )
+        obs = RIG.project(truth) + rng.normal(0, 0.5, (N, 4, 2))
+        r = triangulate_cross(RIG, obs, method="mean")
+        singles = []
+        n = RIG.normalised(obs)
+        c = RIG.centres
+        for k, (i, j, _) in enumerate(PAIRS):
+            z = r.z_estimates[:, k]
+            x = 0.5 * ((n[:, i, 0] * z + c[i, 0]) + (n[:, j, 0] * z + c[j, 0]))
+            y = 0.5 * ((n[:, i, 1] * z + c[i, 1]) + (n[:, j, 1] * z + c[j, 1]))
+            singles.append(rms_mm(np.column_stack([x, y, z]), truth))
+        cols = [
+            rms_mm(triangulate_cross(RIG, obs, method=m).points, truth)
+            for m in ("mean", "weighted", "least_squares")
+        ]
+        cols.append(rms_mm(epipolar(obs), truth))
+        print(f"| {depth} | " + " | ".join(f"{v:.1f}" for v in singles + cols) + " |")
+
+    truth = np.column_stack(
+        [rng.uniform(-0.4, 0.4, N), rng.uniform(-0.3, 0.3, N), rng.uniform(1, 4, N)]
+    )
+    obs = RIG.project(truth) + rng.normal(0, 0.5, (N, 4, 2))
+    print("\ntime for 20,000 points (median of 5):")
+    for name, fn in (
+        ("cross, mean (4.47)", lambda: triangulate_cross(RIG, obs, method="mean")),
+        ("cross, weighted", lambda: triangulate_cross(RIG, obs, method="weighted")),
+        ("cross, least squares", lambda: triangulate_cross(RIG, obs, method="least_squares")),
+        ("epipolar 1–2 (cv2)", lambda: epipolar(obs)),
+    ):
+        ts = []
+        for _ in range(5):
+            t = time.perf_counter()
+            fn()
+            ts.append(time.perf_counter() - t)
+        print(f"  {name:24s} {np.median(ts) * 1000:8.1f} ms")
+
+    k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    dist = np.array([-0.1, 0.01, 0, 0, 0.0])
+    views = []
+    for i in range(4):
+        r = cv2.Rodrigues(np.radians([0.0, (i - 1.5) * 8, 0.0]))[0]
+        views.append(View(k, dist, r, -r @ np.array([(i - 1.5) * 0.3, 0.05 * i, 0.0])))
+    m = 100_000
+    pts = np.column_stack(
+        [rng.uniform(-0.5, 0.5, m), rng.uniform(-0.4, 0.4, m), rng.uniform(2, 5, m)]
+    )
+    o = project_views(views, pts) + rng.normal(0, 0.3, (m, 4, 2))
+    t = time.perf_counter()
+    res = triangulate_views(views, o)
+    ours = time.perf_counter() - t
+    p1 = k @ np.hstack([views[0].R, views[0].t[:, None]])
+    p2 = k @ np.hstack([views[1].R, views[1].t[:, None]])
+    und = [
+        cv2.undistortPoints(o[:, i].reshape(-1, 1, 2), k, dist, P=k).reshape(-1, 2) for i in (0, 1)
+    ]
+    t = time.perf_counter()
+    cv2.triangulatePoints(p1, p2, und[0].T.copy(), und[1].T.copy())
+    theirs = time.perf_counter() - t
+    print(
+        f"\ncalibrated rig, 100,000 points: ours on 4 views (undistort, linear, Gauss–Newton, "
+        f"RANSAC) {ours * 1000:.0f} ms, RMS {rms_mm(res.points, pts):.1f} mm; "
+        f"cv2.triangulatePoints on 2 views (linear only, pre-undistorted) {theirs * 1000:.0f} ms"
+    )
+
+
+if __name__ == "__main__":
+    main()
