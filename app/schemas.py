@@ -407,3 +407,9 @@ class TriangulateOut(Out):
         default=None, description="Cross rigs: the ten pairwise depths (eqs. 4.14–4.41)."
     )
     z_spread: list[float | None] | None = None
+
+
+class LaserDotOut(Out):
+    point: list[float] = Field(description="[X, Y, Z] in the rig's frame.")
+    pixels: list[list[float] | None] = Field(description="The dot in each camera [u, v], or null.")
+    reprojection_rms_px: float

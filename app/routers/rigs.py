@@ -3,17 +3,23 @@
 from __future__ import annotations
 
 import math
+from functools import partial
+from typing import Any
 
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
 
+from app.core import laser
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
-from app.deps import Admin, RobotOrAdmin, SessionDep
-from app.errors import Conflict, NotFound, Unprocessable
+from app.deps import Admin, RobotOrAdmin, SessionDep, SettingsDep
+from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
-from app.schemas import RigCreate, RigOut, TriangulateIn, TriangulateOut
+from app.schemas import LaserDotOut, RigCreate, RigOut, TriangulateIn, TriangulateOut
+from app.services import vision
+from app.uploads import content_type, read_form
 
 router = APIRouter(prefix="/rigs", tags=["stereo"])
 
@@ -124,3 +130,88 @@ def triangulate(
         points=[None if not np.isfinite(p).all() else p.tolist() for p in res.points],
         reprojection_rms_px=_clean(res.reprojection_rms),
     )
+
+
+def _triangulator(row: Rig) -> Any:
+    if row.kind == "cross":
+        s = row.spec
+        rig = CrossRig(
+            f=s["f_px"],
+            ax=s["ax"],
+            ay=s["ay"],
+            cx=s["principal_point"][0],
+            cy=s["principal_point"][1],
+        )
+
+        def cross(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with np.errstate(all="ignore"):
+                r = triangulate_cross(rig, obs)
+            return r.points, r.reprojection_rms
+
+        return cross
+    views = [
+        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
+        for c in row.spec["cameras"]
+    ]
+
+    def calibrated(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = triangulate_views(views, obs)
+        return r.points, r.reprojection_rms
+
+    return calibrated
+
+
+def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
+    n_cams = 4 if row.kind == "cross" else len(row.spec["cameras"])
+    if len(files) != n_cams:
+        raise Unprocessable(
+            f"send one image per camera, in camera order: {n_cams}, got {len(files)}"
+        )
+    candidates = [laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
+    try:
+        dot = laser.locate(candidates, _triangulator(row))
+    except ValueError as exc:
+        raise Unprocessable(str(exc), code="dot_not_found") from None
+    if not np.isfinite(dot.point).all():
+        raise Unprocessable("the dot's views do not triangulate to a point", code="dot_not_found")
+    return LaserDotOut(
+        point=dot.point.tolist(),
+        pixels=[list(p) if p is not None else None for p in dot.pixels],
+        reprojection_rms_px=dot.reprojection_rms,
+    )
+
+
+@router.post(
+    "/{rig_id}/laser/dot",
+    response_model=LaserDotOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    openapi_extra={
+        "requestBody": {
+            "content": {
+                "multipart/form-data": {
+                    "schema": {
+                        "type": "object",
+                        "properties": {
+                            "files": {
+                                "type": "array",
+                                "items": {"type": "string", "format": "binary"},
+                            }
+                        },
+                    }
+                }
+            }
+        }
+    },
+)
+async def laser_dot(
+    rig_id: str, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
+) -> LaserDotOut:
+    """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
+    dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
+    row = session.get(Rig, rig_id)
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send the images as multipart/form-data (files)")
+    form = await read_form(request, settings.max_upload_bytes, max_files=64)
+    return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))

@@ -91,3 +91,74 @@ def test_bad_rigs_and_observations(client: TestClient, admin: dict[str, str]) ->
         client.post("/rigs/none/triangulate", json={"observations": []}, headers=admin).status_code
         == 404
     )
+
+
+def render_views(
+    rig: object, point: np.ndarray, *, distractor: bool = False, seed: int = 0
+) -> list[bytes]:
+    """Four 640×480 photos of a grey scene with the laser dot (a red Gaussian spot, σ 1.5 px)
+    where the cross sees ``point``; optionally a red label in camera 2."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    uv = RIG.project(point[None])[0]
+    y, x = np.mgrid[0:480, 0:640]
+    out = []
+    for i in range(4):
+        image = np.full((480, 640, 3), 110.0) + rng.normal(0, 3, (480, 640, 3))
+        g = np.exp(-((x - uv[i, 0]) ** 2 + (y - uv[i, 1]) ** 2) / (2 * 1.5**2))
+        image[..., 0] += 145 * g
+        image[..., 1] -= 60 * g
+        image[..., 2] -= 60 * g
+        if distractor and i == 1:
+            image[100:106, 500:520] = (230, 30, 30)
+        ok, buf = cv2.imencode(".png", np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1])
+        out.append(buf.tobytes())
+    return out
+
+
+def test_laser_dot_within_1_mm_at_1_m(client: TestClient, admin: dict[str, str]) -> None:
+    body = {
+        "id": "cell",
+        "kind": "cross",
+        "f_px": 800,
+        "ax": 0.3,
+        "ay": 0.2,
+        "principal_point": [320, 240],
+    }
+    client.post("/rigs", json=body, headers=admin)
+    truth = np.array([0.05, -0.03, 1.0])
+    images = render_views(RIG, truth, distractor=True)
+    r = client.post(
+        "/rigs/cell/laser/dot",
+        files=[("files", (f"{i}.png", im, "image/png")) for i, im in enumerate(images)],
+        headers=admin,
+    )
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert np.linalg.norm(np.array(out["point"]) - truth) < 0.001
+    np.testing.assert_allclose(out["pixels"], RIG.project(truth[None])[0], atol=0.2)
+
+
+def test_laser_dot_not_found(client: TestClient, admin: dict[str, str]) -> None:
+    body = {
+        "id": "cell",
+        "kind": "cross",
+        "f_px": 800,
+        "ax": 0.3,
+        "ay": 0.2,
+        "principal_point": [320, 240],
+    }
+    client.post("/rigs", json=body, headers=admin)
+    images = render_views(RIG, np.array([5.0, 0.0, 1.0]))  # far off every image
+    r = client.post(
+        "/rigs/cell/laser/dot",
+        files=[("files", (f"{i}.png", im, "image/png")) for i, im in enumerate(images)],
+        headers=admin,
+    )
+    assert r.status_code == 422
+    assert "camera(s) 1, 2, 3, 4" in r.json()["detail"]
+    r = client.post(
+        "/rigs/cell/laser/dot", files=[("files", ("0.png", images[0], "image/png"))], headers=admin
+    )
+    assert r.status_code == 422
