@@ -121,4 +121,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         rigs,
     ):
         app.include_router(module.router)
+    app.include_router(rigs.shapes_router)
     return app

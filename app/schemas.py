@@ -413,3 +413,17 @@ class LaserDotOut(Out):
     point: list[float] = Field(description="[X, Y, Z] in the rig's frame.")
     pixels: list[list[float] | None] = Field(description="The dot in each camera [u, v], or null.")
     reprojection_rms_px: float
+
+
+class ShapeMatchIn(Schema):
+    points: list[list[Finite]] = Field(
+        min_length=6, max_length=10_000, description="3-D corner points [[X, Y, Z], ...]."
+    )
+
+
+class ShapeFitOut(Out):
+    shape: Literal["box", "prism", "cylinder"]
+    dimensions: dict[str, float]
+    centre: list[float]
+    axes: list[list[float]] = Field(description="The shape's local x, y, z axes (rows).")
+    rms: float = Field(description="RMS distance of the points from the fitted shape.")

@@ -10,14 +10,22 @@ import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
-from app.core import laser
+from app.core import laser, shapes
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
 from app.deps import Admin, RobotOrAdmin, SessionDep, SettingsDep
 from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
-from app.schemas import LaserDotOut, RigCreate, RigOut, TriangulateIn, TriangulateOut
+from app.schemas import (
+    LaserDotOut,
+    RigCreate,
+    RigOut,
+    ShapeFitOut,
+    ShapeMatchIn,
+    TriangulateIn,
+    TriangulateOut,
+)
 from app.services import vision
 from app.uploads import content_type, read_form
 
@@ -215,3 +223,30 @@ async def laser_dot(
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
     form = await read_form(request, settings.max_upload_bytes, max_files=64)
     return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))
+
+
+shapes_router = APIRouter(prefix="/shapes", tags=["stereo"])
+
+
+@shapes_router.post(
+    "/match", response_model=list[ShapeFitOut], responses={**AUTH_ERRORS, **UNPROCESSABLE}
+)
+def match_shape(body: ShapeMatchIn, _: RobotOrAdmin) -> list[ShapeFitOut]:
+    """Fit the library of regular parts (box, triangular prism, cylinder) to located points:
+    shape, dimensions, pose and residual, best first."""
+    if any(len(p) != 3 for p in body.points):
+        raise Unprocessable("every point must be [X, Y, Z]")
+    try:
+        fits = shapes.match(np.array(body.points))
+    except ValueError as exc:
+        raise Unprocessable(str(exc)) from None
+    return [
+        ShapeFitOut(
+            shape=f.shape,
+            dimensions=f.dimensions,
+            centre=f.centre.tolist(),
+            axes=f.axes.tolist(),
+            rms=f.rms,
+        )
+        for f in fits
+    ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from app.core.triangulation import project_views
@@ -162,3 +163,21 @@ def test_laser_dot_not_found(client: TestClient, admin: dict[str, str]) -> None:
         "/rigs/cell/laser/dot", files=[("files", ("0.png", images[0], "image/png"))], headers=admin
     )
     assert r.status_code == 422
+
+
+def test_shape_match(client: TestClient, admin: dict[str, str]) -> None:
+    import itertools
+
+    corners = [list(c) for c in itertools.product((0.0, 0.4), (0.0, 0.2), (0.0, 0.1))]
+    r = client.post("/shapes/match", json={"points": corners}, headers=admin)
+    assert r.status_code == 200, r.text
+    best = r.json()[0]
+    assert best["shape"] == "box"
+    assert sorted(best["dimensions"].values()) == [
+        pytest.approx(0.1),
+        pytest.approx(0.2),
+        pytest.approx(0.4),
+    ]
+    assert (
+        client.post("/shapes/match", json={"points": corners[:3]}, headers=admin).status_code == 422
+    )
