@@ -377,7 +377,9 @@ class RigCreate(Schema):
     f_px: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
     ax: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
     ay: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
-    principal_point: list[Finite] | None = Field(default=None, description="[cx, cy] [px].")
+    principal_point: list[Finite] | None = Field(
+        default=None, min_length=2, max_length=2, description="[cx, cy] [px]."
+    )
     cameras: list[CalibratedCamera] | None = None
 
 

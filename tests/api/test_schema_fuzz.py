@@ -6,6 +6,7 @@ Examples are bounded (``MAX_EXAMPLES`` per operation) so the run stays within a 
 from __future__ import annotations
 
 import json
+import os
 from typing import Any
 
 import pytest
@@ -15,6 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from tests.conftest import ADMIN_TOKEN
 
 MAX_EXAMPLES = 40
+DERANDOMIZE = os.environ.get("VANTAGE_FUZZ_RANDOM") is None
+"""Deterministic examples in CI; set VANTAGE_FUZZ_RANDOM to explore new ones."""
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
@@ -31,6 +34,7 @@ def test_no_server_errors(app: Any, client: Any) -> None:
             max_examples=MAX_EXAMPLES,
             deadline=None,
             database=None,
+            derandomize=DERANDOMIZE,
             suppress_health_check=list(HealthCheck),
         )
         def check(case: Any) -> None:
