@@ -12,7 +12,14 @@ from sqlalchemy.orm import Session
 from app.db.models import Baseline, CameraKind
 from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, verdict_out
+from app.routers.responses import (
+    AUTH_ERRORS,
+    CONFLICT,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+    verdict_out,
+)
 from app.schemas import (
     BaselineFromFrames,
     BaselineOut,
@@ -283,27 +290,7 @@ def _evaluate(
     "/panels/evaluate",
     response_model=EvaluationOut,
     responses={**AUTH_ERRORS, **UNPROCESSABLE},
-    openapi_extra={
-        "requestBody": {
-            "content": {
-                "multipart/form-data": {
-                    "schema": {
-                        "type": "object",
-                        "properties": {
-                            "clean": {
-                                "type": "array",
-                                "items": {"type": "string", "format": "binary"},
-                            },
-                            "dirty": {
-                                "type": "array",
-                                "items": {"type": "string", "format": "binary"},
-                            },
-                        },
-                    }
-                }
-            }
-        }
-    },
+    openapi_extra=multipart_body(clean="files", dirty="files"),
 )
 async def evaluate(
     request: Request,

@@ -85,3 +85,21 @@ def frame_out(frame: Frame, verdict: Verdict) -> FrameOut:
         stored=frame.stored_path is not None,
         verdict=verdict_out(verdict),
     )
+
+
+def multipart_body(*, required: bool = True, **fields: str) -> dict[str, Any]:
+    """``openapi_extra`` for a multipart body read by hand: field name → ``file``, ``files``
+    (repeated), ``text`` or ``texts`` (repeated)."""
+    kinds = {
+        "file": {"type": "string", "format": "binary"},
+        "files": {"type": "array", "items": {"type": "string", "format": "binary"}},
+        "text": {"type": "string"},
+        "texts": {"type": "array", "items": {"type": "string"}},
+    }
+    schema = {"type": "object", "properties": {name: kinds[kind] for name, kind in fields.items()}}
+    return {
+        "requestBody": {
+            "required": required,
+            "content": {"multipart/form-data": {"schema": schema}},
+        }
+    }

@@ -16,7 +16,7 @@ from app.db.base import utcnow
 from app.db.models import Rig
 from app.deps import Admin, RobotOrAdmin, SessionDep, SettingsDep
 from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
+from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, multipart_body
 from app.schemas import (
     LaserDotOut,
     RigCreate,
@@ -77,6 +77,20 @@ def get_rig(rig_id: str, session: SessionDep, _: RobotOrAdmin) -> RigOut:
     return RigOut.model_validate(row)
 
 
+def _cross(row: Rig) -> CrossRig:
+    s = row.spec
+    return CrossRig(
+        f=s["f_px"], ax=s["ax"], ay=s["ay"], cx=s["principal_point"][0], cy=s["principal_point"][1]
+    )
+
+
+def _views(row: Rig) -> list[View]:
+    return [
+        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
+        for c in row.spec["cameras"]
+    ]
+
+
 def _clean(values: np.ndarray) -> list[float | None]:
     return [None if not math.isfinite(float(v)) else float(v) for v in values]
 
@@ -107,14 +121,7 @@ def triangulate(
     if len(obs) == 0:
         return TriangulateOut(points=[], reprojection_rms_px=[])
     if row.kind == "cross":
-        s = row.spec
-        rig = CrossRig(
-            f=s["f_px"],
-            ax=s["ax"],
-            ay=s["ay"],
-            cx=s["principal_point"][0],
-            cy=s["principal_point"][1],
-        )
+        rig = _cross(row)
         few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
         safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
         with np.errstate(all="ignore"):
@@ -129,10 +136,7 @@ def triangulate(
             z_estimates=[_clean(e) for e in est],
             z_spread=_clean(np.where(few, np.nan, r.z_spread)),
         )
-    views = [
-        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
-        for c in row.spec["cameras"]
-    ]
+    views = _views(row)
     res = triangulate_views(views, obs)
     return TriangulateOut(
         points=[None if not np.isfinite(p).all() else p.tolist() for p in res.points],
@@ -142,14 +146,7 @@ def triangulate(
 
 def _triangulator(row: Rig) -> Any:
     if row.kind == "cross":
-        s = row.spec
-        rig = CrossRig(
-            f=s["f_px"],
-            ax=s["ax"],
-            ay=s["ay"],
-            cx=s["principal_point"][0],
-            cy=s["principal_point"][1],
-        )
+        rig = _cross(row)
 
         def cross(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             with np.errstate(all="ignore"):
@@ -157,10 +154,7 @@ def _triangulator(row: Rig) -> Any:
             return r.points, r.reprojection_rms
 
         return cross
-    views = [
-        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
-        for c in row.spec["cameras"]
-    ]
+    views = _views(row)
 
     def calibrated(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r = triangulate_views(views, obs)
@@ -193,23 +187,7 @@ def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> La
     "/{rig_id}/laser/dot",
     response_model=LaserDotOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
-    openapi_extra={
-        "requestBody": {
-            "content": {
-                "multipart/form-data": {
-                    "schema": {
-                        "type": "object",
-                        "properties": {
-                            "files": {
-                                "type": "array",
-                                "items": {"type": "string", "format": "binary"},
-                            }
-                        },
-                    }
-                }
-            }
-        }
-    },
+    openapi_extra=multipart_body(files="files"),
 )
 async def laser_dot(
     rig_id: str, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin

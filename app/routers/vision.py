@@ -13,27 +13,14 @@ from fastapi.responses import Response
 from app.core.imaging import CannyParams, OutlineParams
 from app.deps import PrincipalDep, SettingsDep
 from app.errors import Unprocessable
-from app.routers.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS
+from app.routers.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body
 from app.schemas import EllipseOut, OutlineOut
 from app.services import vision
 from app.uploads import read_files
 
 router = APIRouter(prefix="/vision", tags=["vision"])
 
-_FILE_BODY = {
-    "requestBody": {
-        "required": True,
-        "content": {
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "properties": {"file": {"type": "string", "format": "binary"}},
-                    "required": ["file"],
-                }
-            }
-        },
-    }
-}
+_FILE_BODY = multipart_body(file="file")
 
 RoiQuery = Annotated[
     str | None,
