@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Annotated, Literal
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -151,6 +151,9 @@ RobotOrAdmin = Annotated[Principal, Depends(require_robot_or_admin)]
 
 CameraId = Annotated[str, Path(pattern=ID_PATTERN, description="Camera id.")]
 PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]
+RigId = Annotated[str, Path(pattern=ID_PATTERN, description="Rig id.")]
+RecordId = Annotated[str, Path(pattern=ID_PATTERN, description="Id given by the service.")]
+IdFilter = Annotated[str | None, Query(pattern=ID_PATTERN, description="Only this id.")]
 
 
 def _info(session: Session, camera: Camera) -> CameraInfo:

@@ -15,9 +15,17 @@ Lon = Annotated[float, Field(ge=-180, le=180, description="Longitude [°], WGS 8
 
 
 class Schema(BaseModel):
-    """Project base: no NaN or infinity anywhere, unknown fields refused."""
+    """Project base: no NaN or infinity anywhere, no NUL in text, unknown fields refused."""
 
     model_config = ConfigDict(allow_inf_nan=False, extra="forbid", from_attributes=True)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _no_nul(cls, value: object) -> object:
+        # PostgreSQL text cannot hold NUL; refuse it here rather than fail in the database
+        if isinstance(value, str) and "\x00" in value:
+            raise ValueError("must not contain NUL characters")
+        return value
 
 
 class Out(Schema):

@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 
 from app.core import airquality, isopleths
 from app.db.models import CameraKind
-from app.deps import Admin, CameraId, PolicyDep, SessionDep, SettingsDep
+from app.deps import Admin, CameraId, IdFilter, PolicyDep, SessionDep, SettingsDep
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.schemas import (
@@ -206,7 +206,7 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
 )
 def readings(
     session: SessionDep,
-    camera_id: Annotated[str | None, Query(max_length=64)] = None,
+    camera_id: IdFilter = None,
     since: datetime | None = None,
     until: datetime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
@@ -242,7 +242,7 @@ def readings(
 @router.get("/alerts", response_model=list[AirAlertOut])
 def alerts(
     session: SessionDep,
-    camera_id: Annotated[str | None, Query(max_length=64)] = None,
+    camera_id: IdFilter = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[AirAlertOut]:

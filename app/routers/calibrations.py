@@ -10,7 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.deps import Admin, PolicyDep, SessionDep, SettingsDep
+from app.deps import Admin, PolicyDep, RecordId, SessionDep, SettingsDep
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.services import calibrations
@@ -128,7 +128,7 @@ async def calibrate_stereo(
 
 
 @router.get("/{calibration_id}", responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_calibration(calibration_id: str, session: SessionDep, _: Admin) -> JSONResponse:
+def get_calibration(calibration_id: RecordId, session: SessionDep, _: Admin) -> JSONResponse:
     """One calibration."""
     row = calibrations.get(session, calibration_id)
     return JSONResponse({"id": row.id, "created_at": row.created_at.isoformat(), **row.result})

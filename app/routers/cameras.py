@@ -18,6 +18,7 @@ from app.deps import (
     Admin,
     CameraId,
     PolicyDep,
+    RecordId,
     SessionDep,
     SettingsDep,
     UploadTargetDep,
@@ -178,7 +179,7 @@ def list_frames(
 
 
 @router.get("/frames/{frame_id}", response_model=FrameOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_frame(frame_id: str, session: SessionDep, _: Admin) -> FrameOut:
+def get_frame(frame_id: RecordId, session: SessionDep, _: Admin) -> FrameOut:
     """One frame with its verdict."""
     frame = session.scalars(
         select(Frame).where(Frame.id == frame_id).options(selectinload(Frame.verdict))
@@ -193,7 +194,9 @@ def get_frame(frame_id: str, session: SessionDep, _: Admin) -> FrameOut:
     response_class=FileResponse,
     responses={200: {"content": {"image/jpeg": {}}}, **AUTH_ERRORS, **NOT_FOUND},
 )
-def get_frame_image(frame_id: str, session: SessionDep, _: Admin, request: Request) -> FileResponse:
+def get_frame_image(
+    frame_id: RecordId, session: SessionDep, _: Admin, request: Request
+) -> FileResponse:
     """The stored JPEG of a frame."""
     frame = session.get(Frame, frame_id)
     if frame is None or frame.stored_path is None:

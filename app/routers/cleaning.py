@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Path, Query, Response
+from fastapi import APIRouter, Body, Query, Response
 
-from app.deps import PolicyDep, RobotAuth, RobotOrAdmin, SessionDep
+from app.deps import IdFilter, PolicyDep, RecordId, RobotAuth, RobotOrAdmin, SessionDep
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
 from app.schemas import ClaimOut, FailIn, TaskOut
 from app.services import cleaning
@@ -14,7 +14,7 @@ from app.services.panels import task_view
 
 router = APIRouter(prefix="/cleaning", tags=["cleaning"])
 
-TaskId = Annotated[str, Path(max_length=64, description="Cleaning task id.")]
+TaskId = RecordId
 
 
 @router.post(
@@ -81,7 +81,7 @@ def list_tasks(
     session: SessionDep,
     policy: PolicyDep,
     _: RobotOrAdmin,
-    panel_id: Annotated[str | None, Query(max_length=64)] = None,
+    panel_id: IdFilter = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[TaskOut]:

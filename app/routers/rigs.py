@@ -14,7 +14,7 @@ from app.core import laser, shapes
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
-from app.deps import Admin, RobotOrAdmin, SessionDep, SettingsDep
+from app.deps import Admin, RigId, RobotOrAdmin, SessionDep, SettingsDep
 from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, multipart_body
 from app.schemas import (
@@ -69,7 +69,7 @@ def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
 
 
 @router.get("/{rig_id}", response_model=RigOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_rig(rig_id: str, session: SessionDep, _: RobotOrAdmin) -> RigOut:
+def get_rig(rig_id: RigId, session: SessionDep, _: RobotOrAdmin) -> RigOut:
     """One rig."""
     row = session.get(Rig, rig_id)
     if row is None:
@@ -101,7 +101,7 @@ def _clean(values: np.ndarray) -> list[float | None]:
     responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
 )
 def triangulate(
-    rig_id: str, body: TriangulateIn, session: SessionDep, _: RobotOrAdmin
+    rig_id: RigId, body: TriangulateIn, session: SessionDep, _: RobotOrAdmin
 ) -> TriangulateOut:
     """Points in the rig's frame from pixel observations (null for a camera that did not see
     the point), with per-point reprojection RMS; for the cross, the ten pairwise depths."""
@@ -190,7 +190,7 @@ def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> La
     openapi_extra=multipart_body(files="files"),
 )
 async def laser_dot(
-    rig_id: str, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
+    rig_id: RigId, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""

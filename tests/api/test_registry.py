@@ -97,3 +97,15 @@ class TestPanelsAndRobots:
         assert r.status_code == 201
         assert r.json()["token"].startswith("vr_")
         assert "token" not in client.get("/robots", headers=admin).json()[0]
+
+
+def test_nul_characters_are_refused(client: TestClient, admin: dict[str, str]) -> None:
+    # PostgreSQL cannot store NUL in text: refused as input, never a 500
+    assert (
+        client.post("/panels", json={"id": "p", "name": "a\u0000b"}, headers=admin).status_code
+        == 422
+    )
+    assert (
+        client.get("/cleaning/tasks", params={"panel_id": "\x00"}, headers=admin).status_code == 422
+    )
+    assert client.get("/frames/%00", headers=admin).status_code == 422
