@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from app.core import airquality, isopleths
 from app.db.models import CameraKind
 from app.deps import Admin, CameraId, IdFilter, PolicyDep, SessionDep, SettingsDep
-from app.errors import Unprocessable, UnsupportedMediaType
+from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.schemas import (
     AirAggregate,
@@ -164,8 +164,6 @@ def current_calibration(session: SessionDep) -> AirCalibrationOut:
     """The calibration in use."""
     row = air.latest_calibration(session)
     if row is None:
-        from app.errors import NotFound
-
         raise NotFound("no air-quality calibration yet")
     return _calibration_out(row)
 
