@@ -96,8 +96,6 @@ def otsu_level(image: Grey) -> int:
     return int(level)
 
 
-PART_LEVEL_STEP = 1
-"""Levels scanned by ``part_level``, every this many."""
 MIN_SOLIDITY = 0.96
 """A region whose area is at least this fraction of its convex hull's counts as convex."""
 
@@ -116,7 +114,7 @@ def part_level(image: Grey) -> int:
     small = image[::4, ::4]
     top = otsu_level(small)
     samples: list[tuple[int, float, float]] = []
-    for level in range(top, int(small.min()), -PART_LEVEL_STEP):
+    for level in range(top, int(small.min()), -1):
         mask = (small <= level).astype(np.uint8)
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if not contours:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
@@ -16,6 +17,7 @@ from app.errors import Unprocessable
 from app.routers.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body
 from app.schemas import EllipseOut, OutlineOut
 from app.services import vision
+from app.settings import Settings
 from app.uploads import read_files
 
 router = APIRouter(prefix="/vision", tags=["vision"])
@@ -56,28 +58,13 @@ def _roi(value: str | None) -> tuple[int, int, int, int] | None:
     return (x, y, w, h)
 
 
-def _params(
-    shadow: bool,
-    alpha: float,
-    theta: float | None,
-    sigma: float,
-    high: float | None,
-    dissertation: bool,
-) -> OutlineParams:
-    canny = CannyParams(sigma=sigma, high=0.5 if dissertation else high)
-    return OutlineParams(shadow=shadow, alpha=alpha, theta=theta, canny=canny)
+@dataclass(frozen=True, slots=True)
+class OutlineQuery:
+    params: OutlineParams
+    roi: tuple[int, int, int, int] | None
 
 
-@router.post(
-    "/outline",
-    response_model=OutlineOut,
-    responses={**AUTH_ERRORS, **UPLOAD_ERRORS, **UNPROCESSABLE},
-    openapi_extra=_FILE_BODY,
-)
-async def outline(
-    request: Request,
-    settings: SettingsDep,
-    _: PrincipalDep,
+def outline_query(
     roi: RoiQuery = None,
     shadow: Shadow = True,
     alpha: Alpha = 1.0,
@@ -87,14 +74,34 @@ async def outline(
     dissertation: Annotated[
         bool, Query(description="The dissertation's Canny threshold (0.5) instead of automatic.")
     ] = False,
+) -> OutlineQuery:
+    canny = CannyParams(sigma=sigma, high=0.5 if dissertation else canny_high)
+    params = OutlineParams(shadow=shadow, alpha=alpha, theta=theta, canny=canny)
+    return OutlineQuery(params, _roi(roi))
+
+
+OutlineQueryDep = Annotated[OutlineQuery, Depends(outline_query)]
+
+
+async def _find(request: Request, settings: Settings, q: OutlineQuery) -> vision.OutlineResult:
+    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
+    return await run_in_threadpool(
+        partial(vision.find_outline, data, q.params, roi=q.roi, max_pixels=settings.max_pixels)
+    )
+
+
+@router.post(
+    "/outline",
+    response_model=OutlineOut,
+    responses={**AUTH_ERRORS, **UPLOAD_ERRORS, **UNPROCESSABLE},
+    openapi_extra=_FILE_BODY,
+)
+async def outline(
+    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: PrincipalDep
 ) -> OutlineOut:
     """The outline of the part in one image (multipart ``file``): corners counter-clockwise and
     sides, or for curved parts the contour and fitted ellipses."""
-    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
-    params = _params(shadow, alpha, theta, sigma, canny_high, dissertation)
-    result = await run_in_threadpool(
-        partial(vision.find_outline, data, params, roi=_roi(roi), max_pixels=settings.max_pixels)
-    )
+    result = await _find(request, settings, q)
     o, (dx, dy) = result.outline, result.offset
     shift = np.array([dx, dy], dtype=np.float64)
     return OutlineOut(
@@ -121,22 +128,10 @@ async def outline(
     openapi_extra=_FILE_BODY,
 )
 async def outline_png(
-    request: Request,
-    settings: SettingsDep,
-    _: PrincipalDep,
-    roi: RoiQuery = None,
-    shadow: Shadow = True,
-    alpha: Alpha = 1.0,
-    theta: Theta = None,
-    sigma: Sigma = 1.5,
-    canny_high: High = None,
+    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: PrincipalDep
 ) -> Response:
     """The outline drawn for debugging: edges, sides, numbered corners (of the ROI)."""
-    [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
-    params = _params(shadow, alpha, theta, sigma, canny_high, False)
-    result = await run_in_threadpool(
-        partial(vision.find_outline, data, params, roi=_roi(roi), max_pixels=settings.max_pixels)
-    )
+    result = await _find(request, settings, q)
     return Response(await run_in_threadpool(vision.debug_png, result), media_type="image/png")
 
 

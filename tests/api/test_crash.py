@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -15,52 +13,18 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine, text
 
-from tests.api.test_multiprocess import free_port
-from tests.conftest import ADMIN_TOKEN, ROOT, _empty_tables, make_jpeg
+from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
+from tests.servers import free_port, server_env, start_server
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
-
-
-def start(env: dict[str, str], port: int) -> subprocess.Popen[bytes]:
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "uvicorn",
-            "app.main:create_app",
-            "--factory",
-            "--port",
-            str(port),
-            "--log-level",
-            "warning",
-        ],
-        cwd=ROOT,
-        env=env,
-    )
-    for _ in range(100):
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/health").status_code == 200:
-                return proc
-        except httpx.TransportError:
-            time.sleep(0.1)
-    proc.kill()
-    pytest.fail("server did not start")
 
 
 @pytest.mark.slow
 def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path) -> None:
     _empty_tables(engine)
-    env = {
-        **os.environ,
-        "VANTAGE_DATABASE_URL": database_url,
-        "VANTAGE_DATA_DIR": str(tmp_path),
-        "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
-        "VANTAGE_LOG_LEVEL": "WARNING",
-        "VANTAGE_ORPHAN_MIN_AGE_SECONDS": "0",
-        "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
-    }
+    env = server_env(database_url, tmp_path, VANTAGE_ORPHAN_MIN_AGE_SECONDS="0")
     port = free_port()
-    proc = start(env, port)
+    proc = start_server(env, port)
     base = f"http://127.0.0.1:{port}"
     token = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN).json()[
         "token"
@@ -108,7 +72,7 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
     for path in frames.values():  # no row without its file
         assert (tmp_path / path).is_file()
 
-    proc = start(env, port)  # the start-up sweep removes files no row refers to
+    proc = start_server(env, port)  # the start-up sweep removes files no row refers to
     try:
         on_disk = {str(p.relative_to(tmp_path)) for p in (tmp_path / "frames").rglob("*.jpg")}
         assert on_disk == set(frames.values())

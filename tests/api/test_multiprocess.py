@@ -6,10 +6,6 @@ Runs only when ``VANTAGE_TEST_DATABASE_URL`` names a PostgreSQL database (``.ci/
 from __future__ import annotations
 
 import os
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -19,7 +15,8 @@ import pytest
 from sqlalchemy import Engine
 
 from tests.api.test_solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
-from tests.conftest import ADMIN_TOKEN, ROOT, _empty_tables
+from tests.conftest import ADMIN_TOKEN, _empty_tables
+from tests.servers import free_port, server_env, start_server
 
 URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
 pytestmark = [
@@ -29,57 +26,17 @@ pytestmark = [
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture
 def servers(engine: Engine, tmp_path: Path) -> Iterator[list[str]]:
     _empty_tables(engine)
-    env = {
-        **os.environ,
-        "VANTAGE_DATABASE_URL": URL,
-        "VANTAGE_DATA_DIR": str(tmp_path),
-        "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
-        "VANTAGE_LOG_LEVEL": "WARNING",
-        "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
-    }
-    procs, urls = [], []
-    for _ in range(2):
-        port = free_port()
-        procs.append(
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "uvicorn",
-                    "app.main:create_app",
-                    "--factory",
-                    "--port",
-                    str(port),
-                    "--log-level",
-                    "warning",
-                ],
-                cwd=ROOT,
-                env=env,
-            )
-        )
-        urls.append(f"http://127.0.0.1:{port}")
+    env = server_env(URL, tmp_path)
+    procs = []
     try:
-        for url in urls:
-            for _ in range(100):
-                try:
-                    if httpx.get(f"{url}/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    time.sleep(0.1)
-            else:
-                pytest.fail(f"server {url} did not start")
-        yield urls
+        for _ in range(2):
+            procs.append((port := free_port(), start_server(env, port)))
+        yield [f"http://127.0.0.1:{port}" for port, _ in procs]
     finally:
-        for p in procs:
+        for _, p in procs:
             p.terminate()
             p.wait(10)
 

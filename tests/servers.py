@@ -1,0 +1,60 @@
+"""Real server processes for the tests that need them (several processes, kill -9)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx2 as httpx
+import pytest
+
+from tests.conftest import ADMIN_TOKEN, ROOT
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def server_env(database_url: str, data_dir: Path, **extra: str) -> dict[str, str]:
+    return {
+        **os.environ,
+        "VANTAGE_DATABASE_URL": database_url,
+        "VANTAGE_DATA_DIR": str(data_dir),
+        "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
+        "VANTAGE_LOG_LEVEL": "WARNING",
+        "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
+        **extra,
+    }
+
+
+def start_server(env: dict[str, str], port: int) -> subprocess.Popen[bytes]:
+    """uvicorn on ``port``, returned once /health answers."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "app.main:create_app",
+            "--factory",
+            "--port",
+            str(port),
+            "--log-level",
+            "warning",
+        ],
+        cwd=ROOT,
+        env=env,
+    )
+    for _ in range(100):
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/health").status_code == 200:
+                return proc
+        except httpx.TransportError:
+            time.sleep(0.1)
+    proc.kill()
+    pytest.fail(f"server on port {port} did not start")
