@@ -425,6 +425,37 @@ class LaserDotOut(Out):
     reprojection_rms_px: float
 
 
+class LaserGridOut(Out):
+    points: list[list[float]] = Field(description="Every grid node located, [X, Y, Z].")
+    labels: list[list[int]] = Field(
+        description="Each point's [row, column] on the grid. The surface the laser dot lands on "
+        "is labelled from the dot (0, 0); each other connected surface from its own first node."
+    )
+    surfaces: list[int] = Field(description="Each point's connected surface; −1: isolated.")
+    reprojection_rms_px: list[float]
+    surface_area: float = Field(
+        description="3-D area of the part's surface the grid covers (above the base plane) "
+        "[units²]."
+    )
+    side_area: float = Field(
+        description="Walls from the part's outline down to the base plane [units²]."
+    )
+    footprint_area: float = Field(description="The part's outline on the base plane [units²].")
+    volume: float = Field(description="Between the part's surface and the base plane [units³].")
+    base_plane: list[float] = Field(
+        description="[a, b, c, d]: a X + b Y + c Z + d = 0, unit normal towards the cameras."
+    )
+    height_max: float = Field(
+        description="The part's height above the base plane (98th percentile of its nodes)."
+    )
+    nodes_per_view: list[int]
+    boundary_traced: int = Field(
+        description="Outline crossings placed where a laser line ends in the images."
+    )
+    boundary_guessed: int = Field(description="Outline crossings placed at mid-cell.")
+    warnings: list[str]
+
+
 class ShapeMatchIn(Schema):
     points: list[list[Finite]] = Field(
         min_length=6, max_length=10_000, description="3-D corner points [[X, Y, Z], ...]."

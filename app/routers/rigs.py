@@ -10,7 +10,7 @@ import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
-from app.core import laser, shapes
+from app.core import laser, laser_grid, shapes
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
@@ -19,6 +19,7 @@ from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, multipart_body
 from app.schemas import (
     LaserDotOut,
+    LaserGridOut,
     RigCreate,
     RigOut,
     ShapeFitOut,
@@ -26,7 +27,7 @@ from app.schemas import (
     TriangulateIn,
     TriangulateOut,
 )
-from app.services import vision
+from app.services import grid, vision
 from app.uploads import content_type, read_form
 
 router = APIRouter(prefix="/rigs", tags=["stereo"])
@@ -201,6 +202,47 @@ async def laser_dot(
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
     form = await read_form(request, settings.max_upload_bytes, max_files=64)
     return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))
+
+
+def _geometry(row: Rig) -> laser_grid.Geometry:
+    if row.kind == "cross":
+        return laser_grid.cross_geometry(_cross(row))
+    return laser_grid.views_geometry(_views(row))
+
+
+@router.post(
+    "/{rig_id}/laser/grid",
+    response_model=LaserGridOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        files="files", dot_files="files", origin="text", base_plane="text"
+    ),
+)
+async def laser_grid_measure(
+    rig_id: RigId, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
+) -> LaserGridOut:
+    """Measure a part under the laser grid: one grid image per camera (``files``, in camera
+    order) → every node in 3-D, surface area, volume and the base plane. The dot gives the
+    grid's origin: its images (``dot_files``) or its pixels (``origin``, JSON, per camera
+    [u, v] or null, e.g. from ``/laser/dot``). ``base_plane`` (JSON [a, b, c, d]) is fitted to
+    the support surface when not given."""
+    row = session.get(Rig, rig_id)
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send the images as multipart/form-data (files)")
+    form = await read_form(request, settings.max_upload_bytes, max_files=64)
+    return await run_in_threadpool(
+        partial(
+            grid.measure,
+            _geometry(row),
+            form.files_of("files"),
+            dot_files=form.files_of("dot_files"),
+            origin=form.fields.get("origin", []),
+            base_plane=form.fields.get("base_plane", []),
+            max_pixels=settings.max_pixels,
+        )
+    )
 
 
 shapes_router = APIRouter(prefix="/shapes", tags=["stereo"])

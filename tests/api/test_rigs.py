@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+import json
+
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -181,3 +184,109 @@ def test_shape_match(client: TestClient, admin: dict[str, str]) -> None:
     assert (
         client.post("/shapes/match", json={"points": corners[:3]}, headers=admin).status_code == 422
     )
+
+
+@functools.cache
+def grid_scene() -> tuple:
+    from tests.core.laser_scenes import Part, Scene, render
+
+    scene = Scene(
+        Part("box", (0.20, 0.14, 0.08), (0.01, -0.02), 0.15), table_tilt=0.05, grid_rotation=0.1
+    )
+    return scene, render(scene, seed=1), render(scene, mode="dot", seed=2)
+
+
+class TestLaserGrid:
+    """``POST /rigs/{id}/laser/grid`` on a ray-traced box (tests/core/laser_scenes.py)."""
+
+    CROSS = {
+        "id": "cell",
+        "kind": "cross",
+        "f_px": 1000,
+        "ax": 0.3,
+        "ay": 0.2,
+        "principal_point": [320, 240],
+    }
+
+    @staticmethod
+    def png(images: list[np.ndarray], field: str) -> list[tuple[str, tuple[str, bytes, str]]]:
+        import cv2
+
+        return [
+            (field, (f"{i}.png", cv2.imencode(".png", im[:, :, ::-1])[1].tobytes(), "image/png"))
+            for i, im in enumerate(images)
+        ]
+
+    def test_box_area_and_volume(self, client: TestClient, admin: dict[str, str]) -> None:
+        truth, grid, dots = grid_scene()
+        assert client.post("/rigs", json=self.CROSS, headers=admin).status_code == 201
+        r = client.post(
+            "/rigs/cell/laser/grid",
+            files=self.png(grid, "files") + self.png(dots, "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        out = r.json()
+        # ground truth: the box's own dimensions
+        assert out["volume"] == pytest.approx(truth.part.volume, rel=0.02)
+        assert out["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+        np.testing.assert_allclose(out["base_plane"], truth.base_plane(), atol=0.005)
+        assert len(out["points"]) == len(out["labels"]) == len(out["surfaces"]) > 1400
+        assert min(out["nodes_per_view"]) > 1000
+        # the dot's node is (0, 0), on the box's top
+        dot = r.json()["points"][out["labels"].index([0, 0])]
+        assert dot[2] == pytest.approx(0.92, abs=0.002)
+
+        # the dot's pixels (as /laser/dot returns them) serve as the origin too
+        pixels = client.post(
+            "/rigs/cell/laser/dot", files=self.png(dots, "files"), headers=admin
+        ).json()["pixels"]
+        r2 = client.post(
+            "/rigs/cell/laser/grid",
+            files=self.png(grid, "files"),
+            data={"origin": json.dumps(pixels), "base_plane": json.dumps(list(truth.base_plane()))},
+            headers=admin,
+        )
+        assert r2.status_code == 200, r2.text
+        assert r2.json()["volume"] == pytest.approx(truth.part.volume, rel=0.02)
+        np.testing.assert_allclose(r2.json()["base_plane"], truth.base_plane(), atol=1e-9)
+
+    def test_bad_requests(self, client: TestClient, admin: dict[str, str]) -> None:
+        _, grid, _ = grid_scene()
+        client.post("/rigs", json=self.CROSS, headers=admin)
+        url = "/rigs/cell/laser/grid"
+        cases = [
+            ({"files": self.png(grid[:3], "files")}, "one grid image per camera"),
+            (
+                {"files": self.png(grid, "files"), "data": {"origin": "[1, 2]"}},
+                "origin must be a list of 4",
+            ),
+            (
+                {
+                    "files": self.png(grid, "files"),
+                    "data": {"origin": "[[NaN, 1], null, null, null]"},
+                },
+                "origin",
+            ),
+            (
+                {"files": self.png(grid, "files"), "data": {"base_plane": "[0, 0, 0, 1]"}},
+                "non-zero normal",
+            ),
+            (
+                {"files": self.png([np.full((480, 640, 3), 90, np.uint8)] * 4, "files")},
+                "no laser grid",
+            ),
+            ({"files": [("files", ("a.png", b"not an image", "image/png"))] * 4}, "not a JPEG"),
+        ]
+        for kwargs, detail in cases:
+            r = client.post(url, headers=admin, **kwargs)
+            assert r.status_code in (415, 422), (detail, r.text)
+            assert r.headers["content-type"] == "application/problem+json"
+            assert detail in r.json()["detail"], r.json()
+        assert client.post(url, json={}, headers=admin).status_code == 415
+        assert (
+            client.post(
+                "/rigs/none/laser/grid", files=self.png(grid, "files"), headers=admin
+            ).status_code
+            == 404
+        )

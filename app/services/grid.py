@@ -1,0 +1,124 @@
+"""Measure a part with the laser grid: images in, area and volume out."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from app.core import laser, laser_grid
+from app.core.laser_grid import Geometry
+from app.errors import Unprocessable
+from app.schemas import LaserGridOut
+from app.services import vision
+
+Files = list[tuple[str | None, bytes]]
+
+
+def _vector(raw: list[str], name: str, size: int) -> list[object] | None:
+    if not raw:
+        return None
+    try:
+        value = json.loads(raw[0])
+    except ValueError:
+        raise Unprocessable(f"{name} must be JSON") from None
+    if not isinstance(value, list) or len(value) != size:
+        raise Unprocessable(f"{name} must be a list of {size}")
+    return value
+
+
+def _finite(value: object, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise Unprocessable(f"{name} must hold finite numbers")
+    return float(value)
+
+
+def origin_from(
+    geo: Geometry,
+    dot_files: Files,
+    origin: list[str],
+    n_cams: int,
+    max_pixels: int,
+) -> tuple[np.ndarray | None, list[str]]:
+    """The laser dot's 3-D point, from dot-mode images or from its pixels in each view."""
+    if dot_files:
+        if len(dot_files) != n_cams:
+            raise Unprocessable(f"send one dot image per camera: {n_cams}, got {len(dot_files)}")
+        spots = [
+            laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in dot_files
+        ]
+        try:
+            dot = laser.locate(spots, geo.triangulate)
+        except ValueError as exc:
+            raise Unprocessable(str(exc), code="dot_not_found") from None
+        return dot.point, []
+    pixels = _vector(origin, "origin", n_cams)
+    if pixels is None:
+        return None, [
+            "no laser dot (dot_files or origin): labels start anywhere, and a grid aligned "
+            "with the rig's baselines may be matched a whole number of cells off"
+        ]
+    obs = np.full((1, n_cams, 2), np.nan)
+    for k, uv in enumerate(pixels):
+        if uv is None:
+            continue
+        if not isinstance(uv, list) or len(uv) != 2:
+            raise Unprocessable(f"origin: camera {k + 1} must be [u, v] or null")
+        obs[0, k] = [_finite(x, "origin") for x in uv]
+    if np.isfinite(obs[0]).all(axis=1).sum() < 2:
+        raise Unprocessable("origin: the dot must be given in at least 2 cameras")
+    point, _ = geo.triangulate(obs)
+    if not np.isfinite(point).all():
+        raise Unprocessable("origin: the dot's pixels do not triangulate to a point")
+    return point[0], []
+
+
+def measure(
+    geo: Geometry,
+    files: Files,
+    *,
+    dot_files: Files,
+    origin: list[str],
+    base_plane: list[str],
+    max_pixels: int,
+) -> LaserGridOut:
+    n_cams = len(geo.f)
+    if len(files) != n_cams:
+        raise Unprocessable(
+            f"send one grid image per camera, in camera order: {n_cams}, got {len(files)}"
+        )
+    plane_raw = _vector(base_plane, "base_plane", 4)
+    plane = None if plane_raw is None else np.array([_finite(x, "base_plane") for x in plane_raw])
+    if plane is not None and np.linalg.norm(plane[:3]) == 0:
+        raise Unprocessable("base_plane needs a non-zero normal (a, b, c)")
+    point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels)
+    nodes = [laser_grid.detect(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
+    blind = [k + 1 for k, n in enumerate(nodes) if len(n.uv) == 0]
+    if len(blind) > n_cams - 2:
+        raise Unprocessable(
+            f"no laser grid found in camera(s) {', '.join(map(str, blind))}", code="grid_not_found"
+        )
+    index = laser_grid.match(nodes, geo, origin=point)
+    grid = laser_grid.label(nodes, index, geo, origin=point)
+    if len(grid.points) < 4:
+        raise Unprocessable("too few grid nodes matched across the views", code="grid_not_found")
+    try:
+        m = laser_grid.measure(grid, nodes, geo, base_plane=plane)
+    except ValueError as exc:
+        raise Unprocessable(str(exc), code="no_base_plane") from None
+    return LaserGridOut(
+        points=grid.points.tolist(),
+        labels=grid.labels.tolist(),
+        surfaces=grid.surface.tolist(),
+        reprojection_rms_px=grid.rms.tolist(),
+        surface_area=m.surface_area,
+        side_area=m.side_area,
+        footprint_area=m.footprint_area,
+        volume=m.volume,
+        base_plane=m.base_plane.tolist(),
+        height_max=m.height_max,
+        nodes_per_view=[len(n.uv) for n in nodes],
+        boundary_traced=m.boundary_traced,
+        boundary_guessed=m.boundary_guessed,
+        warnings=warnings + grid.warnings,
+    )

@@ -1,0 +1,146 @@
+"""The laser grid on ray-traced renders with exact ground truth (tests/core/laser_scenes.py):
+a box and an upright cylinder on a tilted table, the grid rotated against the cross."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from app.core import laser, laser_grid
+from app.core.triangulation import View, project_views
+from tests.core.laser_scenes import RIG, Part, Scene, _intersect, render
+
+GEO = laser_grid.cross_geometry(RIG)
+
+BOX = Scene(
+    Part("box", (0.20, 0.14, 0.08), (0.01, -0.02), 0.15), table_tilt=0.05, grid_rotation=0.1
+)
+CYLINDER = Scene(Part("cylinder", (0.08, 0.10), (0.01, -0.02)), table_tilt=0.05, grid_rotation=0.1)
+FLAT_BOX = Scene(
+    Part("box", (0.22, 0.10, 0.05), (0.03, 0.02), -0.3), table_tilt=0.03, grid_rotation=-0.15
+)
+
+
+def run(scene: Scene) -> tuple[laser_grid.Labelled, laser_grid.Measurement, list]:
+    images = render(scene, seed=1)
+    dot = laser.locate(
+        [laser.find_spots(im) for im in render(scene, mode="dot", seed=2)], GEO.triangulate
+    )
+    nodes = [laser_grid.detect(im) for im in images]
+    index = laser_grid.match(nodes, GEO, origin=dot.point)
+    grid = laser_grid.label(nodes, index, GEO, origin=dot.point)
+    return grid, laser_grid.measure(grid, nodes, GEO), nodes
+
+
+@pytest.fixture(scope="module")
+def box() -> tuple[laser_grid.Labelled, laser_grid.Measurement, list]:
+    return run(BOX)
+
+
+def true_nodes(scene: Scene, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grid node nearest each point's laser ray: its exact 3-D point and (row, column)."""
+    a, b = points[:, 0] / points[:, 2], points[:, 1] / points[:, 2]
+    c, s = math.cos(scene.grid_rotation), math.sin(scene.grid_rotation)
+    col = np.round((c * a + s * b) / scene.pitch)
+    row = np.round((-s * a + c * b) / scene.pitch)
+    ar, br = col * scene.pitch, row * scene.pitch
+    d = np.column_stack([c * ar - s * br, s * ar + c * br, np.ones_like(ar)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t, _ = _intersect(scene, np.zeros_like(d), d)
+    # image rows grow downwards, so the grid's row label counts −b
+    return d * t[:, None], np.column_stack([-row, col]).astype(int)
+
+
+@pytest.mark.parametrize(
+    ("scene", "name"), [(BOX, "box"), (CYLINDER, "cylinder"), (FLAT_BOX, "flat box")]
+)
+def test_area_and_volume_within_2_percent(scene: Scene, name: str) -> None:
+    # ground truth: the part's own dimensions (Part.volume, Part.top_area)
+    _, m, _ = run(scene)
+    assert m.volume == pytest.approx(scene.part.volume, rel=0.02), name
+    assert m.surface_area == pytest.approx(scene.part.top_area, rel=0.02), name
+    assert m.footprint_area == pytest.approx(scene.part.top_area, rel=0.02), name
+    assert m.height_max == pytest.approx(scene.part.dims[-1], abs=0.003)
+
+
+def test_box_walls_and_base_plane(box: tuple) -> None:
+    _, m, _ = box
+    # the walls are inferred from the outline and its height: the corners are cut by chords
+    assert m.side_area == pytest.approx(BOX.part.side_area, rel=0.03)
+    truth = BOX.base_plane()
+    assert math.degrees(math.acos(min(1.0, float(m.base_plane[:3] @ truth[:3])))) < 0.2
+    assert m.base_plane[3] == pytest.approx(truth[3], abs=0.001)
+
+
+def test_nodes_are_located_and_labelled_from_the_dot(box: tuple) -> None:
+    grid, _, _ = box
+    exact, labels = true_nodes(BOX, grid.points)
+    error = np.linalg.norm(grid.points - exact, axis=1)
+    # σ_Z ≈ Z² σ_px / (f B) ≈ 0.4 mm at 1 m for 0.1 px on a 0.3 m baseline
+    assert np.median(error) < 0.0006
+    assert np.percentile(error, 99) < 0.004
+    assert len(grid.points) > 1400
+    on_dot = grid.surface == grid.surface[grid.origin]
+    np.testing.assert_array_equal(grid.labels[on_dot], labels[on_dot])
+    # every other surface is labelled consistently up to one offset
+    for s in set(grid.surface[grid.surface >= 0]) - {grid.surface[grid.origin]}:
+        offsets = np.unique(labels[grid.surface == s] - grid.labels[grid.surface == s], axis=0)
+        assert len(offsets) == 1
+    assert grid.conflicts == 0
+
+
+def test_detection_is_sub_pixel(box: tuple) -> None:
+    grid, _, nodes = box
+    exact, _ = true_nodes(BOX, grid.points)
+    projected = RIG.project(exact)
+    errors = [
+        np.linalg.norm(nodes[k].uv[grid.index[seen, k]] - projected[seen, k], axis=1)
+        for k in range(4)
+        if (seen := grid.index[:, k] >= 0).any()
+    ]
+    assert np.median(np.concatenate(errors)) < 0.2  # measured 0.16 px
+
+
+def test_a_given_base_plane_is_used(box: tuple) -> None:
+    grid, m, nodes = box
+    given = laser_grid.measure(grid, nodes, GEO, base_plane=-2 * BOX.base_plane())
+    np.testing.assert_allclose(given.base_plane, BOX.base_plane(), atol=1e-12)
+    assert given.volume == pytest.approx(m.volume, rel=0.01)
+    with pytest.raises(ValueError, match="normal"):
+        laser_grid.measure(grid, nodes, GEO, base_plane=np.zeros(4))
+
+
+def test_no_grid_in_a_plain_image() -> None:
+    image = np.full((120, 160, 3), 90, np.uint8)
+    assert len(laser_grid.detect(image).uv) == 0
+    with pytest.raises(ValueError, match="RGB"):
+        laser_grid.detect(np.zeros((10, 10), np.uint8))
+
+
+def test_calibrated_views_match_a_lattice() -> None:
+    """Three calibrated, distorted cameras see a periodic lattice of points on a wavy surface:
+    every point is matched to itself across the views."""
+    rng = np.random.default_rng(4)
+    k = np.array([[900.0, 0, 400], [0, 900.0, 300], [0, 0, 1]])
+    dist = np.array([-0.08, 0.02, 0.0005, -0.0003, 0.0])
+    views = []
+    for cx, cy, yaw in ((-0.2, 0.0, 0.1), (0.2, 0.0, -0.1), (0.0, 0.15, 0.0)):
+        c, s = math.cos(yaw), math.sin(yaw)
+        r = np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
+        views.append(View(k, dist, r, -r @ np.array([cx, cy, 0.0])))
+    gx, gy = np.meshgrid(np.arange(-12, 13) * 0.012, np.arange(-9, 10) * 0.012)
+    z = 1.0 + 0.03 * np.sin(gx * 20) * np.cos(gy * 15)
+    points = np.column_stack([gx.ravel() * z.ravel(), gy.ravel() * z.ravel(), z.ravel()])
+    uv = project_views(views, points) + rng.normal(0, 0.05, (len(points), 3, 2))
+    perm = [rng.permutation(len(points)) for _ in views]
+    nodes = [
+        laser_grid.Nodes(uv[p, i], np.zeros((0, 3), np.int64), np.zeros((1, 1), np.float32), 1.0)
+        for i, p in enumerate(perm)
+    ]
+    geo = laser_grid.views_geometry(views)
+    index = laser_grid.match(nodes, geo)
+    assert len(index) == len(points)
+    truth = np.stack([p[idx] for p, idx in zip(perm, index.T, strict=True)], axis=1)
+    assert (truth == truth[:, :1]).all()  # the three views' nodes are the same point
