@@ -281,13 +281,35 @@ def _project(geo: Geometry, points: NDArray[np.float64]) -> tuple[NDArray[np.flo
     return q, z
 
 
+@dataclass(frozen=True, slots=True)
+class Matches:
+    index: NDArray[np.int64]
+    """(M, V) node index in each view, −1 where the view lacks the node."""
+    tied: float
+    """Fraction of nodes whose candidates tied: high when the grid is aligned with the rig's
+    baselines, where whole-cell shifts fit every view."""
+
+    @property
+    def warnings(self) -> list[str]:
+        if self.tied < TIED_WARNING:
+            return []
+        return [
+            f"{self.tied:.0%} of the grid's nodes matched more than one way: the grid looks "
+            "aligned with the rig's baselines; rotate the laser 5–15° about its axis, or depths "
+            "seen by fewer than all cameras may be whole cells off"
+        ]
+
+
+TIED_WARNING = 0.2
+
+
 def match(
     nodes: list[Nodes],
     geo: Geometry,
     *,
     origin: NDArray[np.float64] | None = None,
     tol_px: float = 1.5,
-) -> NDArray[np.int64]:
+) -> Matches:
     """Corresponding nodes across views: (M, V) node indices, −1 where a view lacks the node.
 
     Each view in turn is the reference for its nodes not matched yet; a match needs the
@@ -312,6 +334,7 @@ def match(
     need = min(3, v)
     found: list[NDArray[np.int64]] = []
     anchors: list[dict[int, NDArray[np.float64]]] = [{} for _ in range(v)]
+    ties = looked = 0
     for ref in range(v):
         free = np.flatnonzero(~used[ref])
         if len(free) == 0:
@@ -367,7 +390,11 @@ def match(
             missed[:, k] = ~hit & (dist < 1.5 * spacing[k])
         front = (depth > 0).all(axis=1) | (depth[np.arange(len(ca)), ck] > 0) & (depth[:, ref] > 0)
         score = np.where(front, support.sum(axis=1) - missed.sum(axis=1), 0)
-        order = _choose(nodes[ref], free, ca, points, score, err, need, anchors[ref], origin)
+        order, tied = _choose(
+            nodes[ref], free, ca, points, score, err, nearest, need, anchors[ref], origin
+        )
+        ties += tied
+        looked += len(free)
         taken = [u.copy() for u in used]
         for n in order:
             a = free[ca[n]]
@@ -381,7 +408,7 @@ def match(
                     anchors[k][int(row[k])] = points[n]
             found.append(row)
         used = taken
-    return np.array(found, dtype=np.int64).reshape(-1, v)
+    return Matches(np.array(found, dtype=np.int64).reshape(-1, v), ties / max(looked, 1))
 
 
 def _choose(
@@ -391,11 +418,12 @@ def _choose(
     points: NDArray[np.float64],
     score: NDArray[np.int64],
     err: NDArray[np.float64],
+    nearest: NDArray[np.int64],
     need: int,
     known: dict[int, NDArray[np.float64]],
     origin: NDArray[np.float64] | None,
-) -> list[int]:
-    """The order in which to accept candidates.
+) -> tuple[list[int], int]:
+    """The order in which to accept candidates, and how many nodes had tied options.
 
     A node's options are its confirmed candidates whose mean squared error per view is within a
         factor of 4 (+0.25 px²) of its best: not only those with the most views, since at the edge
@@ -457,7 +485,14 @@ def _choose(
     dropped = {m for i, n in chosen.items() for m in options[i] if m != n}
     ranked = np.flatnonzero(score >= need)
     ranked = ranked[np.lexsort((err[ranked], -score[ranked]))]
-    return order + [int(n) for n in ranked if int(n) not in dropped]
+    # ties proper: two candidates with the most views fitting equally well (0.05 px² apart)
+    best = np.zeros(len(free), np.int64)
+    np.maximum.at(best, ca, score)
+    close = np.flatnonzero(confirmed & (score == best[ca]) & (mean <= least[ca] + 0.05))
+    # (one match found through several partner views is one candidate, not a tie)
+    distinct = {(int(ca[n]), tuple(nearest[n].tolist())) for n in close}
+    tied = int((np.bincount([i for i, _ in distinct], minlength=len(free)) > 1).sum())
+    return order + [int(n) for n in ranked if int(n) not in dropped], tied
 
 
 @dataclass(slots=True)
@@ -484,7 +519,7 @@ class Labelled:
 
 def label(
     nodes: list[Nodes],
-    index: NDArray[np.int64],
+    matches: Matches,
     geo: Geometry,
     *,
     origin: NDArray[np.float64] | None = None,
@@ -493,6 +528,7 @@ def label(
     """Triangulate the matched nodes and label them (row, column) by walking 3-D neighbours.
 
     ``origin``: the laser dot's 3-D point; the surface it lands on is labelled from it."""
+    index = matches.index
     v = len(nodes)
     obs = np.full((len(index), v, 2), np.nan)
     for k in range(v):
@@ -548,7 +584,7 @@ def label(
     labels = np.zeros((m, 2), np.int64)
     surface = np.full(m, -1)
     conflicts = 0
-    warnings: list[str] = []
+    warnings: list[str] = list(matches.warnings)
     start_node: int | None = None
     if origin is not None and m:
         d = np.linalg.norm(points - origin, axis=1)

@@ -98,8 +98,8 @@ def measure(
         raise Unprocessable(
             f"no laser grid found in camera(s) {', '.join(map(str, blind))}", code="grid_not_found"
         )
-    index = laser_grid.match(nodes, geo, origin=point)
-    grid = laser_grid.label(nodes, index, geo, origin=point)
+    matches = laser_grid.match(nodes, geo, origin=point)
+    grid = laser_grid.label(nodes, matches, geo, origin=point)
     if len(grid.points) < 4:
         raise Unprocessable("too few grid nodes matched across the views", code="grid_not_found")
     try:

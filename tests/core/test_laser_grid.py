@@ -140,7 +140,20 @@ def test_calibrated_views_match_a_lattice() -> None:
         for i, p in enumerate(perm)
     ]
     geo = laser_grid.views_geometry(views)
-    index = laser_grid.match(nodes, geo)
+    index = laser_grid.match(nodes, geo).index
     assert len(index) == len(points)
     truth = np.stack([p[idx] for p, idx in zip(perm, index.T, strict=True)], axis=1)
     assert (truth == truth[:, :1]).all()  # the three views' nodes are the same point
+
+
+def test_an_aligned_grid_is_flagged() -> None:
+    """A grid square to the cross is periodic along its baselines: whole-cell shifts fit, and
+    where fewer than all cameras see a node the depth can be wrong. Say so."""
+    scene = Scene(BOX.part, table_tilt=0.0, grid_rotation=0.0)
+    nodes = [laser_grid.detect(im) for im in render(scene, seed=1)]
+    aligned = laser_grid.match(nodes, GEO)
+    assert aligned.tied > laser_grid.TIED_WARNING
+    assert "aligned" in aligned.warnings[0]
+    rotated = laser_grid.match([laser_grid.detect(im) for im in render(BOX, seed=1)], GEO)
+    assert rotated.tied < laser_grid.TIED_WARNING
+    assert rotated.warnings == []
