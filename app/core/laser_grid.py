@@ -41,7 +41,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
+from app.core.triangulation import (
+    CrossRig,
+    View,
+    project_views,
+    triangulate_cross,
+    triangulate_views,
+)
 
 Triangulator = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
 """(N, V, 2) pixels (NaN: not seen) → ((N, 3) points, (N,) reprojection RMS [px])."""
@@ -66,6 +72,8 @@ class Geometry:
     f: NDArray[np.float64]
     normalise: Callable[[int, NDArray[np.float64]], NDArray[np.float64]]
     triangulate: Triangulator
+    project: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+    """(N, 3) points → (N, V, 2) pixels."""
 
     @property
     def centres(self) -> NDArray[np.float64]:
@@ -301,6 +309,13 @@ class Matches:
 
 
 TIED_WARNING = 0.2
+
+REACH = 3.0
+"""How far a laser line is traced beyond a node on the part's edge [cells]."""
+
+LINK_RANGE = (0.6, 1.35)
+"""Image neighbours are 3-D neighbours when their distance is within this range of a typical
+cell at their distance from the rig."""
 
 
 def match(
@@ -573,8 +588,16 @@ def label(
     links = np.array(list(votes), dtype=np.int64).reshape(-1, 3)
     lengths = np.linalg.norm(points[links[:, 1]] - points[links[:, 0]], axis=1)
     cell = float(np.median(lengths)) if len(lengths) else float("nan")
-    # a link across a depth step is far longer than a cell in 3-D, however regular it looks
-    links = links[(lengths > 0.5 * cell) & (lengths < 1.5 * cell)]
+    # a link across a depth step is far longer than a cell in 3-D, however regular it looks.
+    # Cells grow with the distance from the rig: compare each link with the median cell
+    # scaled to its distance
+    reach = np.linalg.norm(
+        0.5 * (points[links[:, 0]] + points[links[:, 1]]) - geo.centres.mean(axis=0), axis=1
+    )
+    if len(lengths):
+        scale = float(np.median(lengths / reach))
+        ratio = lengths / (scale * reach)
+        links = links[(ratio > LINK_RANGE[0]) & (ratio < LINK_RANGE[1])]
     step = np.array([[0, 1], [1, 0]])
     adjacency: list[list[tuple[int, int, int]]] = [[] for _ in range(m)]
     for a, b, fam in links:
@@ -627,14 +650,14 @@ def label(
 def trace(nodes: Nodes, a: NDArray[np.float64], prev: NDArray[np.float64]) -> float | None:
     """Where the laser line that runs from ``prev`` through node ``a`` ends beyond ``a``, in
     units of the cell ``a − prev`` (both in pixels of this view): the line's half-brightness
-    point; None when the line runs on past two cells (this view cannot tell). Past one cell
-    is allowed: the node at the part's very edge is often lost (its crossing is cut)."""
+    point; None when the line runs on past ``REACH`` cells (this view cannot tell). Past one
+    cell is allowed: the nodes at the part's very edge are often lost (their crossings cut)."""
     d = a - prev
     length = float(np.hypot(*d))
     if length < 1:
         return None
     normal = np.array([-d[1], d[0]]) / length
-    s = np.arange(-0.8, 2.2, 0.25 / length)
+    s = np.arange(-0.8, REACH + 0.2, 0.25 / length)
     offsets = np.array([-1.0, 0.0, 1.0])
     pts = a[None, None] + s[:, None, None] * d[None, None] + offsets[None, :, None] * normal
     profile = _sample(nodes.excess, pts).max(axis=1)
@@ -643,7 +666,7 @@ def trace(nodes: Nodes, a: NDArray[np.float64], prev: NDArray[np.float64]) -> fl
     if ref <= 0:
         return None
     beyond = np.flatnonzero((s > 0.15) & (profile < 0.5 * ref))
-    if len(beyond) == 0 or s[beyond[0]] > 2.0:
+    if len(beyond) == 0 or s[beyond[0]] > REACH:
         return None
     k = int(beyond[0])
     # interpolate the half-brightness crossing between samples k − 1 and k
@@ -754,6 +777,54 @@ def measure(
             if all(j is not None and high[j] for j in cell_nodes):
                 on[i] = True
                 break
+    # each node's pixel in each view (NaN: not seen), for tracing line ends
+    pix = np.full((len(pts), len(nodes), 2), np.nan)
+    for k, n in enumerate(nodes):
+        seen = grid.index[:, k] >= 0
+        pix[seen, k] = n.uv[grid.index[seen, k]]
+    pts_list = list(pts)
+    height_list = list(height)
+    on_list = list(on)
+    pix_list = list(pix)
+
+    def traces(a: int, prev: int) -> list[float]:
+        out = []
+        for k, n in enumerate(nodes):
+            pa, pp = pix_list[a][k], pix_list[prev][k]
+            if np.isfinite(pa).all() and np.isfinite(pp).all():
+                t = trace(n, pa, pp)
+                if t is not None:
+                    out.append(t)
+        return out
+
+    # a line that runs on past the next node, which is missing (its crossing cut at the very
+    # edge), puts a node there: where the line says, on the part's surface, seen where it
+    # projects (again from the new node: its own line may run on too)
+    for _ in range(int(REACH)):
+        added = []
+        for (s, r, c), a in list(lookup.items()):
+            if not on_list[a]:
+                continue
+            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                prev = lookup.get((s, r - dr, c - dc))
+                if (s, r + dr, c + dc) in lookup or prev is None or not on_list[prev]:
+                    continue
+                ts = traces(a, prev)
+                if ts and min(ts) >= 1.0:
+                    added.append(((s, r + dr, c + dc), 2 * pts_list[a] - pts_list[prev]))
+        if not added:
+            break
+        for key, p in added:
+            if key in lookup:
+                continue
+            lookup[key] = len(pts_list)
+            pts_list.append(p)
+            height_list.append(float(p @ normal + offset))
+            on_list.append(True)
+            pix_list.append(geo.project(p[None])[0])
+    pts = np.array(pts_list)
+    height = np.array(height_list)
+    on = np.array(on_list)
     traced = guessed = 0
 
     def node(s: int, r: int, c: int) -> int | None:
@@ -774,19 +845,11 @@ def measure(
                 return np.asarray(0.5 * (pts[a] + pts[b]), dtype=np.float64)
             guessed += 1
             return np.asarray(pts[a], dtype=np.float64).copy()
-        ts = []
-        for k, n in enumerate(nodes):
-            ia, ip = grid.index[a, k], grid.index[prev, k]
-            if ia >= 0 and ip >= 0:
-                t = trace(n, n.uv[ia], n.uv[ip])
-                if t is not None:
-                    ts.append(t)
+        ts = traces(a, prev)
         if ts:
             traced += 1
-            # a view where the line runs on over another surface overshoots: trust the
-            # shortest traces (those within 0.1 cell of the shortest)
-            short = np.array(ts)
-            t = float(np.clip(np.median(short[short <= short.min() + 0.1]), 0.0, 2.0))
+            # a view where the line runs on over another surface overshoots: the shortest
+            t = float(np.clip(min(ts), 0.0, 1.0))
         else:
             guessed += 1
             t = 0.5
@@ -869,7 +932,7 @@ def cross_geometry(rig: CrossRig) -> Geometry:
         points = np.where(few[:, None], np.nan, res.points)
         return points, np.where(few, np.nan, res.reprojection_rms)
 
-    return Geometry(r, t, np.full(4, rig.f), normalise, tri)
+    return Geometry(r, t, np.full(4, rig.f), normalise, tri, rig.project)
 
 
 def views_geometry(views: list[View]) -> Geometry:
@@ -890,4 +953,5 @@ def views_geometry(views: list[View]) -> Geometry:
         np.array([float(np.sqrt(v.K[0, 0] * v.K[1, 1])) for v in views]),
         normalise,
         tri,
+        lambda points: project_views(views, points),
     )
