@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Literal
 
+import shapely
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from app.db.models import CameraKind
@@ -39,23 +40,46 @@ class CameraCreate(Schema):
     lat: Lat | None = None
     lon: Lon | None = None
     panel_id: Id | None = Field(default=None, description="The panel this camera watches.")
-    roi: list[int] | None = Field(
+    roi: list[int] | list[list[int]] | None = Field(
         default=None,
-        description="Region of interest [x, y, w, h] in pixels of the full frame.",
-        examples=[[0, 60, 640, 300]],
+        description="Region of interest in pixels of the full frame: a rectangle [x, y, w, h], "
+        "or a polygon [[x, y], ...] (3–64 vertices, simple, in order) — a sky above an "
+        "irregular skyline, a panel seen in perspective.",
+        examples=[[0, 60, 640, 300], [[0, 0], [640, 0], [640, 180], [320, 240], [0, 200]]],
     )
 
     @field_validator("roi")
     @classmethod
-    def _roi_shape(cls, roi: list[int] | None) -> list[int] | None:
+    def _roi_shape(
+        cls, roi: list[int] | list[list[int]] | None
+    ) -> list[int] | list[list[int]] | None:
         if roi is None:
             return None
-        if len(roi) != 4:
-            raise ValueError(f"roi must be [x, y, w, h]; got {len(roi)} numbers")
-        x, y, w, h = roi
+        if roi and isinstance(roi[0], list):
+            return _polygon(roi)
+        rect = [int(v) for v in roi if isinstance(v, int)]
+        if len(rect) != 4 or len(roi) != 4:
+            raise ValueError(f"roi must be [x, y, w, h] or [[x, y], ...]; got {len(roi)} numbers")
+        x, y, w, h = rect
         if x < 0 or y < 0 or w < 1 or h < 1:
             raise ValueError("roi needs x, y ≥ 0 and w, h ≥ 1")
         return roi
+
+
+def _polygon(points: list[list[int]]) -> list[list[int]]:
+    """A region polygon: 3–64 vertices [x, y] ≥ 0, simple (no self-crossing), with area."""
+    if not 3 <= len(points) <= 64:
+        raise ValueError(f"a roi polygon needs 3 to 64 vertices; got {len(points)}")
+    if any(len(p) != 2 for p in points):
+        raise ValueError("every roi polygon vertex must be [x, y]")
+    if any(x < 0 or y < 0 for x, y in points):
+        raise ValueError("roi polygon vertices need x, y ≥ 0")
+    shape = shapely.Polygon(points)
+    if not shape.is_valid or shape.area < 1:
+        raise ValueError(
+            f"the roi polygon is not simple or has no area: {shapely.is_valid_reason(shape)}"
+        )
+    return points
 
 
 class CameraOut(Out):
@@ -65,7 +89,7 @@ class CameraOut(Out):
     lat: float | None
     lon: float | None
     panel_id: str | None
-    roi: list[int] | None
+    roi: list[int] | list[list[int]] | None
     created_at: datetime
 
 

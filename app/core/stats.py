@@ -11,6 +11,29 @@ from numpy.typing import NDArray
 Roi = tuple[int, int, int, int]
 """Region of interest (x, y, w, h) [px]."""
 
+Polygon = tuple[tuple[int, int], ...]
+"""Region of interest as a polygon's vertices (x, y) [px], in order."""
+
+
+def bounding_box(polygon: Polygon) -> Roi:
+    """The smallest (x, y, w, h) holding every vertex's pixel."""
+    xs = [x for x, _ in polygon]
+    ys = [y for _, y in polygon]
+    return (min(xs), min(ys), max(xs) - min(xs) + 1, max(ys) - min(ys) + 1)
+
+
+def polygon_pixels(image: NDArray[np.uint8], polygon: Polygon) -> NDArray[np.uint8]:
+    """The pixels of ``image`` (H, W, 3) inside ``polygon`` (edges included) as a column
+    image (N, 1, 3), which every per-channel statistic takes like any other image.
+
+    Raises ValueError when the polygon does not lie inside the image.
+    """
+    x, y, w, h = bounding_box(polygon)
+    box = crop(image, (x, y, w, h))
+    mask = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(mask, [np.array([(px - x, py - y) for px, py in polygon], np.int32)], 1)
+    return np.ascontiguousarray(box[mask.astype(bool)][:, None, :])
+
 
 @dataclass(frozen=True, slots=True)
 class ChannelStats:

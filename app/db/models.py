@@ -146,7 +146,7 @@ class Camera(TimestampMixin, Base):
     lat: Mapped[float | None] = mapped_column(Float)
     lon: Mapped[float | None] = mapped_column(Float)
     panel_id: Mapped[str | None] = mapped_column(ForeignKey("panels.id"), index=True)
-    roi: Mapped[list[int] | None] = mapped_column(JSON)
+    roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
     """Region of interest [x, y, w, h] in pixels of the full frame, or none for the whole frame."""
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     """SHA-256 of the camera's token (the token itself is shown once and never stored)."""

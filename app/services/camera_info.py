@@ -6,7 +6,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from app.core.stats import Roi
+from app.core.stats import Polygon, Roi
 from app.db.models import Camera, CameraKind
 
 
@@ -20,11 +20,20 @@ class CameraInfo:
     """When true, the fleet-model features need not be computed (possibly stale: it only ever
     turns from false to true, and a stale false costs a little work, never a wrong verdict)."""
 
+    polygon: Polygon | None = None
+    """The region as a polygon instead of ``roi``'s rectangle."""
+
     @classmethod
     def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
         r = camera.roi
-        roi = (r[0], r[1], r[2], r[3]) if r else None
-        return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline)
+        roi: Roi | None = None
+        polygon: Polygon | None = None
+        if r and isinstance(r[0], list):
+            polygon = tuple((int(p[0]), int(p[1])) for p in r if isinstance(p, list))
+        elif r:
+            x, y, w, h = (int(v) for v in r if isinstance(v, int))
+            roi = (x, y, w, h)
+        return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
 
 
 class TokenCache:

@@ -21,7 +21,15 @@ from app.core.jpeg import (
     read_header,
 )
 from app.core.quality import unusable_reason
-from app.core.stats import ChannelStats, Roi, channel_stats, crop
+from app.core.stats import (
+    ChannelStats,
+    Polygon,
+    Roi,
+    bounding_box,
+    channel_stats,
+    crop,
+    polygon_pixels,
+)
 from app.db.models import CameraKind, Frame, Verdict
 from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
@@ -66,6 +74,28 @@ def scale_roi(roi: Roi, width: int, height: int, reduction: int) -> Roi:
     return (x // r, y // r, max(1, w // r), max(1, h // r))
 
 
+def scale_polygon(polygon: Polygon, width: int, height: int, reduction: int) -> Polygon:
+    """The polygon of the full frame, checked against it, in the pixels of the reduced image."""
+    if any(x >= width or y >= height for x, y in polygon):
+        raise ValueError(
+            f"ROI polygon {[list(p) for p in polygon]} does not lie inside the "
+            f"{width}×{height} frame"
+        )
+    return tuple((x // reduction, y // reduction) for x, y in polygon)
+
+
+def region_of(
+    image: NDArray[np.uint8], camera: CameraInfo, width: int, height: int, reduction: int
+) -> tuple[NDArray[np.uint8], Roi | None]:
+    """The camera's region of the (reduced) image, and its bounding box: a rectangle's crop,
+    or a polygon's pixels as a column image."""
+    if camera.polygon is not None:
+        polygon = scale_polygon(camera.polygon, width, height, reduction)
+        return polygon_pixels(image, polygon), bounding_box(polygon)
+    roi = camera.roi and scale_roi(camera.roi, width, height, reduction)
+    return crop(image, roi), roi
+
+
 def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
     """Validate and decode the JPEG; channel statistics inside the ROI; quality; features.
 
@@ -87,8 +117,7 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
     except JpegError as exc:
         raise Unprocessable(str(exc), code="corrupt_jpeg") from None
     try:
-        roi = camera.roi and scale_roi(camera.roi, header.width, header.height, reduction)
-        region = crop(image, roi)
+        region, roi = region_of(image, camera, header.width, header.height, reduction)
     except ValueError as exc:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)

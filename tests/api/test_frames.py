@@ -111,6 +111,54 @@ class TestPostFrame:
         assert r.status_code == 201, r.text
         np.testing.assert_allclose(r.json()["verdict"]["modes"], [200, 30, 30], atol=3)
 
+    def test_polygon_roi_restricts_the_statistics(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        """Sky above a sloping skyline: a triangle of blue over a dark building. The polygon's
+        statistics are the sky's alone; its bounding rectangle would mix in the building."""
+        triangle = [[0, 0], [63, 0], [0, 47]]
+        cam = client.post(
+            "/cameras", json={"id": "s", "kind": "rig", "roi": triangle}, headers=admin
+        ).json()
+        assert cam["roi"] == triangle
+        image = np.full((48, 64, 3), (40, 40, 40), np.uint8)
+        yy, xx = np.mgrid[0:48, 0:64]
+        image[xx / 63 + yy / 47 <= 1.02] = (120, 160, 230)  # the sky, up to the diagonal
+        jpeg = cv2.imencode(".jpg", image[:, :, ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 100])[1]
+        r = client.post("/cameras/s/frames", content=jpeg.tobytes(), headers=cam_headers(cam))
+        assert r.status_code == 201, r.text
+        verdict = r.json()["verdict"]
+        np.testing.assert_allclose(verdict["modes"], [120, 160, 230], atol=3)
+        np.testing.assert_allclose(verdict["means"], [120, 160, 230], atol=8)
+
+    @pytest.mark.parametrize(
+        ("roi", "why"),
+        [
+            ([[0, 0], [10, 10]], "3 to 64"),
+            ([[0, 0], [10, 10], [10, 0], [0, 10]], "not simple"),  # a bow tie
+            ([[0, 0], [5, 5], [10, 10]], "no area"),
+            ([[0, 0], [-1, 5], [10, 10]], "x, y ≥ 0"),
+            ([[0, 0, 1], [5, 5], [10, 0]], "[x, y]"),
+        ],
+    )
+    def test_bad_polygon_roi(
+        self, client: TestClient, admin: dict[str, str], roi: list, why: str
+    ) -> None:
+        r = client.post("/cameras", json={"id": "s", "kind": "sky", "roi": roi}, headers=admin)
+        assert r.status_code == 422
+        assert why in r.text
+        assert client.get("/cameras/s", headers=admin).status_code == 404
+
+    def test_polygon_roi_outside_frame(self, client: TestClient, admin: dict[str, str]) -> None:
+        cam = client.post(
+            "/cameras",
+            json={"id": "s", "kind": "sky", "roi": [[0, 0], [700, 0], [0, 40]]},
+            headers=admin,
+        ).json()
+        r = client.post("/cameras/s/frames", content=make_jpeg(), headers=cam_headers(cam))
+        assert r.status_code == 422
+        assert "does not lie inside" in r.json()["detail"]
+
     def test_identical_bytes_share_one_file(
         self, client: TestClient, camera: dict[str, Any], settings: Any
     ) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.core.stats import channel_stats, crop
+from app.core.stats import bounding_box, channel_stats, crop, polygon_pixels
 
 
 def image_with_histogram(counts: dict[int, int], width: int = 10) -> np.ndarray:
@@ -58,3 +58,19 @@ def test_roi() -> None:
     np.testing.assert_array_equal(stats.modes, [255, 255, 255])
     with pytest.raises(ValueError, match="does not lie inside the 10×10 frame"):
         crop(image, (8, 8, 5, 5))
+
+
+def test_polygon_pixels_are_those_inside() -> None:
+    image = np.zeros((100, 120, 3), np.uint8)
+    image[..., 0] = np.arange(120)[None, :]  # R = x
+    square = ((10, 20), (59, 20), (59, 69), (10, 69))  # 50 × 50 pixels, edges included
+    pixels = polygon_pixels(image, square)
+    assert pixels.shape == (2500, 1, 3)
+    assert pixels[:, 0, 0].min() == 10
+    assert pixels[:, 0, 0].max() == 59
+    assert bounding_box(square) == (10, 20, 50, 50)
+    triangle = ((0, 0), (99, 0), (0, 99))
+    # the rasterised right triangle holds about half the 100 × 100 box (edges included)
+    assert polygon_pixels(image, triangle).shape[0] == pytest.approx(5050, rel=0.02)
+    with pytest.raises(ValueError, match="inside"):
+        polygon_pixels(image, ((0, 0), (130, 0), (0, 10)))
