@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import timedelta
@@ -13,6 +14,7 @@ from functools import partial
 from fastapi import FastAPI
 
 from app import __version__
+from app.core import triangulation
 from app.db.session import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
@@ -57,6 +59,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             )
         )
         app.state.writer.start()
+        threading.Thread(target=triangulation.warm_up, name="jit-warm-up", daemon=True).start()
         notifier = None
         if settings.alert_webhook_url:
             notifier = asyncio.create_task(
