@@ -64,7 +64,10 @@ async def get_policy(request: Request) -> Policy:
     return policy
 
 
-SessionDep = Annotated[Session, Depends(get_session)]
+# scope="function": the commit ends the route's work, before the response is sent. (With the
+# default request scope it would run after: a client could see 201 and another process not yet
+# find the row, or a failed commit would follow a success already sent.)
+SessionDep = Annotated[Session, Depends(get_session, scope="function")]
 PolicyDep = Annotated[Policy, Depends(get_policy)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

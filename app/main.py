@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import timedelta
@@ -59,7 +58,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             )
         )
         app.state.writer.start()
-        threading.Thread(target=triangulation.warm_up, name="jit-warm-up", daemon=True).start()
+        # compile the triangulation loop before serving, not beside requests: numba's
+        # compiler and FastAPI's route building both swap the process-wide warning filters
+        triangulation.warm_up()
         notifier = None
         if settings.alert_webhook_url:
             notifier = asyncio.create_task(
