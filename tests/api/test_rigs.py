@@ -251,6 +251,32 @@ class TestLaserGrid:
         assert r2.json()["volume"] == pytest.approx(truth.part.volume, rel=0.02)
         np.testing.assert_allclose(r2.json()["base_plane"], truth.base_plane(), atol=1e-9)
 
+    def test_the_same_images_on_a_calibrated_rig(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        """The cross's frame is left-handed (Y up); with Y flipped it is a calibrated rig of four
+        cameras with R = I and t = (−Xi, Yi, 0), which sees exactly the same images."""
+        truth, grid, dots = grid_scene()
+        k = [[1000.0, 0.0, 320.0], [0.0, 1000.0, 240.0], [0.0, 0.0, 1.0]]
+        eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        centres = [(0.15, 0.0), (-0.15, 0.0), (0.0, 0.1), (0.0, -0.1)]
+        cameras = [{"K": k, "R": eye, "t": [-x, y, 0.0]} for x, y in centres]
+        r = client.post(
+            "/rigs", json={"id": "flat", "kind": "calibrated", "cameras": cameras}, headers=admin
+        )
+        assert r.status_code == 201, r.text
+        r = client.post(
+            "/rigs/flat/laser/grid",
+            files=self.png(grid, "files") + self.png(dots, "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        out = r.json()
+        assert out["volume"] == pytest.approx(truth.part.volume, rel=0.02)
+        assert out["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+        a, b, c, d = truth.base_plane()
+        np.testing.assert_allclose(out["base_plane"], [a, -b, c, d], atol=0.005)
+
     def test_bad_requests(self, client: TestClient, admin: dict[str, str]) -> None:
         _, grid, _ = grid_scene()
         client.post("/rigs", json=self.CROSS, headers=admin)
