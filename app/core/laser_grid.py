@@ -13,14 +13,18 @@ this module makes it a measurement:
 2. **Correspondence** (:func:`match`). The grid is periodic, so a node's partner in another view
    is ambiguous along the epipolar line. Every candidate pair within ``tol_px`` of the epipolar
    line is triangulated and projected into the other views; the candidate that the most views
-   confirm (then the smallest error) wins. With three or more views a wrong pair is confirmed
-   only by coincidence.
+   confirm (then the smallest error) wins, a view that shows grid there but no node counting
+   against it. With three or more views a wrong pair is confirmed only by coincidence — except
+   on a grid square to the rig's baselines, where whole-cell shifts fit every view: ties are
+   broken by continuity, grown from the laser dot, and reported.
 3. **Labels** (:func:`label`). Image neighbours become 3-D neighbours when the two points are
    about one cell apart in space, so a link across a depth step (where one view can show a line
    running on unbroken) is dropped. A breadth-first walk gives every node its (row, column); the
    laser dot, a grid node, is (0, 0). Each connected surface gets its own labels.
 4. **Measurement** (:func:`measure`). The base plane is given, or fitted (RANSAC) to the nodes
-   with no node behind it. Nodes higher than ``tol`` above it are on the part. Each grid cell
+   with no node behind it. Nodes higher than ``tol`` above it, corners of a cell wholly above
+   it, are on the part; where a laser line runs on past the part's last node (the node at the
+   very edge is often lost), a node is put where the line says. Each grid cell
    contributes the part of it that is on the part (marching squares): where the surface is
    continuous the boundary is where the height crosses zero; at a step it is where the laser line
    on the part ends, traced in the images (:func:`trace`). Sums over cells give the measured
