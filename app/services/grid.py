@@ -99,6 +99,10 @@ def measure(
             f"no laser grid found in camera(s) {', '.join(map(str, blind))}", code="grid_not_found"
         )
     matches = laser_grid.match(nodes, geo, origin=point)
+    if matches.tied >= laser_grid.TIED_WARNING:
+        # a grid square to the baselines matches whole cells off where fewer than all cameras
+        # see it: better no figures than wrong ones
+        raise Unprocessable(matches.warnings[0], code="grid_ambiguous")
     grid = laser_grid.label(nodes, matches, geo, origin=point)
     if len(grid.points) < 4:
         raise Unprocessable("too few grid nodes matched across the views", code="grid_not_found")

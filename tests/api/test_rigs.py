@@ -277,6 +277,24 @@ class TestLaserGrid:
         a, b, c, d = truth.base_plane()
         np.testing.assert_allclose(out["base_plane"], [a, -b, c, d], atol=0.005)
 
+    def test_a_grid_square_to_the_cross_is_refused(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        """Periodic along the baselines, it can be matched whole cells off: no figures."""
+        from tests.core.laser_scenes import Part, Scene, render
+
+        scene = Scene(Part("box", (0.20, 0.14, 0.08), (0.01, -0.02), 0.15))
+        client.post("/rigs", json=self.CROSS, headers=admin)
+        r = client.post(
+            "/rigs/cell/laser/grid",
+            files=self.png(render(scene, seed=1), "files")
+            + self.png(render(scene, mode="dot", seed=2), "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 422, r.text
+        assert r.json()["code"] == "grid_ambiguous"
+        assert "rotate the laser" in r.json()["detail"]
+
     def test_bad_requests(self, client: TestClient, admin: dict[str, str]) -> None:
         _, grid, _ = grid_scene()
         client.post("/rigs", json=self.CROSS, headers=admin)
