@@ -89,13 +89,18 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--backend", default="postgresql")
     parser.add_argument("--port", type=int, default=8921)
+    parser.add_argument(
+        "--no-rate-limit", action="store_true", help="turn the per-camera rate limit off"
+    )
     args = parser.parse_args()
     if args.backend == "postgresql" and not pg_reachable():
         sys.exit("PostgreSQL not reachable")
     jpeg = jpeg_640x480()
     (ROOT / "data").mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory(dir=ROOT / "data", prefix="load-") as tmp:
-        server = Server(args.backend, args.port, Path(tmp), args.workers, rate_limit=True)
+        server = Server(
+            args.backend, args.port, Path(tmp), args.workers, rate_limit=not args.no_rate_limit
+        )
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
             paths, headers = [], []
