@@ -58,9 +58,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             )
         )
         app.state.writer.start()
-        # compile the triangulation loop before serving, not beside requests: numba's
-        # compiler and FastAPI's route building both swap the process-wide warning filters
-        triangulation.warm_up()
+        if settings.warm_up_triangulation:
+            # before serving, not in a thread beside requests: numba's compiler and FastAPI's
+            # route building both swap the process-wide warning filters
+            triangulation.warm_up()
         notifier = None
         if settings.alert_webhook_url:
             notifier = asyncio.create_task(

@@ -45,6 +45,12 @@ class Settings(BaseSettings):
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",
     )
+    warm_up_triangulation: bool = Field(
+        default=False,
+        description="Compile the calibrated-rig triangulation loop (numba) at start, before "
+        "serving (~10 s the first time, a few seconds from its cache), instead of on the first "
+        "request that needs it. It costs ~100 MB a process: for robot cells.",
+    )
     rate_limit_per_minute: int = Field(
         default=600,
         ge=0,

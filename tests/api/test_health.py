@@ -53,3 +53,17 @@ def test_unknown_route_is_problem_json(client: TestClient) -> None:
     assert r.status_code == 404
     assert r.headers["content-type"] == "application/problem+json"
     assert r.json()["status"] == 404
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_triangulation_warm_up_at_start_is_a_setting(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch, warm: bool
+) -> None:
+    from app.core import triangulation
+
+    calls: list[int] = []
+    monkeypatch.setattr(triangulation, "warm_up", lambda: calls.append(1))
+    app = create_app(settings.model_copy(update={"warm_up_triangulation": warm}))
+    with TestClient(app) as c:
+        assert c.get("/health").status_code == 200
+    assert calls == ([1] if warm else [])
