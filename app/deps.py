@@ -8,17 +8,18 @@ import hmac
 import math
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import datetime
 from typing import Annotated, Literal
 
 from fastapi import Depends, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import func, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import Camera, Frame, Panel, Robot
+from app.db.models import Camera, Panel, Robot
 from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized
 from app.security import hash_token
+from app.services import rate_limit
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
 from app.settings import Settings
@@ -216,33 +217,34 @@ async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo
     return found
 
 
-def _recent(request: Request, camera_id: str, since: datetime) -> tuple[int, datetime | None]:
+def _reserve(request: Request, camera_id: str, minute: datetime, limit: int) -> int:
     with get_sessionmaker(request)() as session:
-        row = session.execute(
-            select(func.count(), func.min(Frame.received_at)).where(
-                Frame.camera_id == camera_id, Frame.received_at >= since
-            )
-        ).one()
-    return int(row[0]), row[1]
+        return rate_limit.reserve(session, camera_id, minute, limit)
 
 
 async def _check_rate(request: Request, camera_id: str) -> None:
-    """At most ``rate_limit_per_minute`` frames per camera in any rolling minute, counted from
-    the frames table, so every process sees every other's; a camera flooding is refused before
-    its body is read and cannot crowd out the others."""
+    """At most ``rate_limit_per_minute`` frames per camera in each clock minute, over all
+    processes: budget reserved in the database in blocks (``app.services.rate_limit``), spent
+    here without a round trip. A camera flooding is refused before its body is read and cannot
+    crowd out the others."""
     limit: int = request.app.state.settings.rate_limit_per_minute
     if limit <= 0:
         return
     policy: Policy = request.app.state.policy
     now = policy.now()
-    count, oldest = await run_in_threadpool(_recent, request, camera_id, now - timedelta(minutes=1))
-    if count >= limit:
-        wait = 60 - (now - oldest).total_seconds() if oldest else 60
+    minute = rate_limit.minute_of(now)
+    budgets: rate_limit.LocalBudgets = request.app.state.rate_budgets
+    if budgets.take(camera_id, minute):
+        return
+    granted = await run_in_threadpool(_reserve, request, camera_id, minute, limit)
+    if granted <= 0:
+        wait = 60 - (now - minute).total_seconds()
         raise TooManyRequests(
-            f"camera {camera_id} posted {count} frames in the last minute; the limit is {limit}",
+            f"camera {camera_id} has posted its {limit} frames for this minute",
             retry_after=max(1, math.ceil(wait)),
             code="rate_limited",
         )
+    budgets.keep(camera_id, minute, granted - 1)
 
 
 UploadTargetDep = Annotated[CameraInfo, Depends(get_upload_target)]

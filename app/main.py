@@ -30,7 +30,7 @@ from app.routers import (
     vision,
 )
 from app.security import admin_token_hash
-from app.services import retention, webhooks
+from app.services import rate_limit, retention, webhooks
 from app.services.camera_info import TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
@@ -106,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.writer = GroupCommitWriter(app.state.sessionmaker)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
+    app.state.rate_budgets = rate_limit.LocalBudgets()
     app.state.policy = Policy(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )

@@ -54,8 +54,9 @@ class Settings(BaseSettings):
     rate_limit_per_minute: int = Field(
         default=600,
         ge=0,
-        description="Frames a camera may post per rolling minute, counted in the database "
-        "(so across processes); more → 429 with Retry-After. 0: no limit.",
+        description="Frames a camera may post per clock minute, over all processes (the "
+        "budget is reserved in the database in blocks of 1/20); more → 429 with Retry-After. "
+        "0: no limit.",
     )
     cleaning_debounce: int = Field(
         default=3, ge=1, description="Consecutive dirty verdicts that open a cleaning task."

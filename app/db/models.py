@@ -323,3 +323,19 @@ class Rig(Base):
     """cross or calibrated."""
     spec: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+
+
+class RateBudget(Base):
+    """How much of a camera's per-minute frame budget the processes have reserved: one row a
+    camera, reset when a new minute starts (see ``app.services.rate_limit``)."""
+
+    __tablename__ = "rate_budgets"
+
+    camera_id: Mapped[str] = mapped_column(
+        String(ID_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"), primary_key=True
+    )
+    window_start: Mapped[datetime] = mapped_column(UTCDateTime())
+    """The minute the reservations count against."""
+    used: Mapped[int] = mapped_column(Integer)
+    """Frames reserved in that minute, by all processes together (may pass the limit: the
+    excess was not granted)."""

@@ -431,3 +431,39 @@ class TestRateLimit:
         assert post("quiet", 1).status_code == 201  # the other camera is unaffected
         clock.advance(seconds=60)
         assert post("loud", 100).status_code == 201  # the minute has rolled on
+
+    def test_the_limit_holds_across_processes(
+        self, settings: Any, engine: Engine, admin: dict[str, str]
+    ) -> None:
+        """Two instances of the service on one database (each with its own reservations),
+        posting alternately: exactly the limit gets through in a minute, the rest is 429."""
+        from dataclasses import replace
+
+        from app.main import create_app
+        from tests.api.test_solar import Clock
+
+        clock = Clock()
+        limited = settings.model_copy(update={"rate_limit_per_minute": 40})  # blocks of 2
+        apps = [create_app(limited), create_app(limited)]
+        for a in apps:
+            a.state.policy = replace(a.state.policy, clock=clock)
+        before = table_counts(engine)["frames"]
+        with TestClient(apps[0]) as one, TestClient(apps[1]) as two:
+            token = one.post(
+                "/cameras", json={"id": "across", "kind": "rig"}, headers=admin
+            ).json()["token"]
+            headers = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+            codes = []
+            for i in range(50):
+                clock.advance(seconds=0.5)
+                c = (one, two)[i % 2]
+                codes.append(
+                    c.post("/cameras/across/frames", content=make_jpeg(seed=i), headers=headers)
+                )
+            statuses = [r.status_code for r in codes]
+            assert statuses.count(201) == 40
+            assert set(statuses[40:]) == {429}
+            assert table_counts(engine)["frames"] - before == 40
+            clock.advance(seconds=60)
+            r = two.post("/cameras/across/frames", content=make_jpeg(seed=99), headers=headers)
+            assert r.status_code == 201
