@@ -10,6 +10,35 @@ from numpy.typing import NDArray
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _camera(
+    rs: NDArray[np.float64], ts: NDArray[np.float64], k: int, p: NDArray[np.float64]
+) -> tuple[float, float, float]:
+    """Point ``p`` in camera k's frame: R p + t (eq. 2.14)."""
+    return (
+        rs[k, 0, 0] * p[0] + rs[k, 0, 1] * p[1] + rs[k, 0, 2] * p[2] + ts[k, 0],
+        rs[k, 1, 0] * p[0] + rs[k, 1, 1] * p[1] + rs[k, 1, 2] * p[2] + ts[k, 1],
+        rs[k, 2, 0] * p[0] + rs[k, 2, 1] * p[1] + rs[k, 2, 2] * p[2] + ts[k, 2],
+    )
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _accumulate(
+    m: NDArray[np.float64], b: NDArray[np.float64], row: NDArray[np.float64], rhs: float
+) -> None:
+    """Add the row ``row · X = rhs`` to the normal equations (m00, m01, m02, m11, m12, m22)
+    and their right-hand side."""
+    m[0] += row[0] * row[0]
+    m[1] += row[0] * row[1]
+    m[2] += row[0] * row[2]
+    m[3] += row[1] * row[1]
+    m[4] += row[1] * row[2]
+    m[5] += row[2] * row[2]
+    b[0] += row[0] * rhs
+    b[1] += row[1] * rhs
+    b[2] += row[2] * rhs
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _solve(
     rs: NDArray[np.float64],
     ts: NDArray[np.float64],
@@ -34,16 +63,7 @@ def _solve(
             obs = x[k] if axis == 0 else y[k]
             for j in range(3):
                 row[j] = obs * rs[k, 2, j] - rs[k, axis, j]
-            rhs = ts[k, axis] - obs * ts[k, 2]
-            m[0] += row[0] * row[0]
-            m[1] += row[0] * row[1]
-            m[2] += row[0] * row[2]
-            m[3] += row[1] * row[1]
-            m[4] += row[1] * row[2]
-            m[5] += row[2] * row[2]
-            b[0] += row[0] * rhs
-            b[1] += row[1] * rhs
-            b[2] += row[2] * rhs
+            _accumulate(m, b, row, ts[k, axis] - obs * ts[k, 2])
     return _adjugate(m, b, p)
 
 
@@ -90,9 +110,7 @@ def _refine(
         for k in range(rs.shape[0]):
             if not mask[k]:
                 continue
-            cx = rs[k, 0, 0] * p[0] + rs[k, 0, 1] * p[1] + rs[k, 0, 2] * p[2] + ts[k, 0]
-            cy = rs[k, 1, 0] * p[0] + rs[k, 1, 1] * p[1] + rs[k, 1, 2] * p[2] + ts[k, 1]
-            cz = rs[k, 2, 0] * p[0] + rs[k, 2, 1] * p[1] + rs[k, 2, 2] * p[2] + ts[k, 2]
+            cx, cy, cz = _camera(rs, ts, k, p)
             z = cz if abs(cz) > 1e-12 else 1e-12
             for axis in range(2):
                 obs = x[k] if axis == 0 else y[k]
@@ -101,15 +119,7 @@ def _refine(
                 # d(cam_axis/z)/dX = (r_axis − (cam_axis/z) r₃)/z
                 for j in range(3):
                     jac[j] = (rs[k, axis, j] - proj * rs[k, 2, j]) / z * fs[k]
-                m[0] += jac[0] * jac[0]
-                m[1] += jac[0] * jac[1]
-                m[2] += jac[0] * jac[2]
-                m[3] += jac[1] * jac[1]
-                m[4] += jac[1] * jac[2]
-                m[5] += jac[2] * jac[2]
-                b[0] += jac[0] * r
-                b[1] += jac[1] * r
-                b[2] += jac[2] * r
+                _accumulate(m, b, jac, r)
         if not _adjugate(m, b, step):
             return
         p -= step
@@ -127,9 +137,7 @@ def _error(
 ) -> float:
     """Distance [≈ px] in view k between the point's projection and the normalised observation
     (x, y), scaled by the focal length; inf behind the camera."""
-    cx = rs[k, 0, 0] * p[0] + rs[k, 0, 1] * p[1] + rs[k, 0, 2] * p[2] + ts[k, 0]
-    cy = rs[k, 1, 0] * p[0] + rs[k, 1, 1] * p[1] + rs[k, 1, 2] * p[2] + ts[k, 1]
-    cz = rs[k, 2, 0] * p[0] + rs[k, 2, 1] * p[1] + rs[k, 2, 2] * p[2] + ts[k, 2]
+    cx, cy, cz = _camera(rs, ts, k, p)
     if cz <= 0:
         return np.inf
     return float(np.hypot(cx / cz - x, cy / cz - y) * f)
@@ -212,9 +220,7 @@ def triangulate_all(
         for k in range(v):
             if not use[i, k]:
                 continue
-            cx = rs[k, 0, 0] * p[0] + rs[k, 0, 1] * p[1] + rs[k, 0, 2] * p[2] + ts[k, 0]
-            cy = rs[k, 1, 0] * p[0] + rs[k, 1, 1] * p[1] + rs[k, 1, 2] * p[2] + ts[k, 1]
-            cz = rs[k, 2, 0] * p[0] + rs[k, 2, 1] * p[1] + rs[k, 2, 2] * p[2] + ts[k, 2]
+            cx, cy, cz = _camera(rs, ts, k, p)
             xd, yd = _distort_one(cx / cz, cy / cz, dist[k])
             du = intrinsics[k, 0] * xd + intrinsics[k, 1] * yd + intrinsics[k, 2] - pixels[i, k, 0]
             dv = intrinsics[k, 3] * yd + intrinsics[k, 4] - pixels[i, k, 1]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from functools import partial
-from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, Request
@@ -145,23 +144,10 @@ def triangulate(
     )
 
 
-def _triangulator(row: Rig) -> Any:
+def _geometry(row: Rig) -> laser_grid.Geometry:
     if row.kind == "cross":
-        rig = _cross(row)
-
-        def cross(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            with np.errstate(all="ignore"):
-                r = triangulate_cross(rig, obs)
-            return r.points, r.reprojection_rms
-
-        return cross
-    views = _views(row)
-
-    def calibrated(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r = triangulate_views(views, obs)
-        return r.points, r.reprojection_rms
-
-    return calibrated
+        return laser_grid.cross_geometry(_cross(row))
+    return laser_grid.views_geometry(_views(row))
 
 
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
@@ -172,7 +158,7 @@ def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> La
         )
     candidates = [laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
     try:
-        dot = laser.locate(candidates, _triangulator(row))
+        dot = laser.locate(candidates, _geometry(row).triangulate)
     except ValueError as exc:
         raise Unprocessable(str(exc), code="dot_not_found") from None
     if not np.isfinite(dot.point).all():
@@ -202,12 +188,6 @@ async def laser_dot(
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
     form = await read_form(request, settings.max_upload_bytes, max_files=64)
     return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))
-
-
-def _geometry(row: Rig) -> laser_grid.Geometry:
-    if row.kind == "cross":
-        return laser_grid.cross_geometry(_cross(row))
-    return laser_grid.views_geometry(_views(row))
 
 
 @router.post(

@@ -2,35 +2,35 @@
 
 from __future__ import annotations
 
-import json
+from typing import TypeVar
 
 import numpy as np
+from pydantic import TypeAdapter, ValidationError
 
 from app.core import laser, laser_grid
 from app.core.laser_grid import Geometry
 from app.errors import Unprocessable
-from app.schemas import LaserGridOut
+from app.schemas import Finite, LaserGridOut
 from app.services import vision
 
 Files = list[tuple[str | None, bytes]]
+T = TypeVar("T")
 
 
-def _vector(raw: list[str], name: str, size: int) -> list[object] | None:
+_PIXELS = TypeAdapter(list[tuple[Finite, Finite] | None])
+_PLANE = TypeAdapter(tuple[Finite, Finite, Finite, Finite])
+
+
+def _field(raw: list[str], name: str, adapter: TypeAdapter[T]) -> T | None:
+    """A JSON form field checked by the schemas' own types; None when not sent."""
     if not raw:
         return None
     try:
-        value = json.loads(raw[0])
-    except ValueError:
-        raise Unprocessable(f"{name} must be JSON") from None
-    if not isinstance(value, list) or len(value) != size:
-        raise Unprocessable(f"{name} must be a list of {size}")
-    return value
-
-
-def _finite(value: object, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
-        raise Unprocessable(f"{name} must hold finite numbers")
-    return float(value)
+        return adapter.validate_json(raw[0])
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        where = "".join(f"[{p}]" for p in error["loc"])
+        raise Unprocessable(f"{name}{where}: {error['msg']}") from None
 
 
 def origin_from(
@@ -52,19 +52,18 @@ def origin_from(
         except ValueError as exc:
             raise Unprocessable(str(exc), code="dot_not_found") from None
         return dot.point, []
-    pixels = _vector(origin, "origin", n_cams)
+    pixels = _field(origin, "origin", _PIXELS)
     if pixels is None:
         return None, [
             "no laser dot (dot_files or origin): labels start anywhere, and a grid aligned "
             "with the rig's baselines may be matched a whole number of cells off"
         ]
+    if len(pixels) != n_cams:
+        raise Unprocessable(f"origin must be a list of {n_cams}: [u, v] or null per camera")
     obs = np.full((1, n_cams, 2), np.nan)
     for k, uv in enumerate(pixels):
-        if uv is None:
-            continue
-        if not isinstance(uv, list) or len(uv) != 2:
-            raise Unprocessable(f"origin: camera {k + 1} must be [u, v] or null")
-        obs[0, k] = [_finite(x, "origin") for x in uv]
+        if uv is not None:
+            obs[0, k] = uv
     if np.isfinite(obs[0]).all(axis=1).sum() < 2:
         raise Unprocessable("origin: the dot must be given in at least 2 cameras")
     point, _ = geo.triangulate(obs)
@@ -87,8 +86,8 @@ def measure(
         raise Unprocessable(
             f"send one grid image per camera, in camera order: {n_cams}, got {len(files)}"
         )
-    plane_raw = _vector(base_plane, "base_plane", 4)
-    plane = None if plane_raw is None else np.array([_finite(x, "base_plane") for x in plane_raw])
+    plane_raw = _field(base_plane, "base_plane", _PLANE)
+    plane = None if plane_raw is None else np.array(plane_raw)
     if plane is not None and np.linalg.norm(plane[:3]) == 0:
         raise Unprocessable("base_plane needs a non-zero normal (a, b, c)")
     point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels)

@@ -121,21 +121,28 @@ def render_views(
     return out
 
 
+CELL = {
+    "id": "cell",
+    "kind": "cross",
+    "f_px": RIG.f,
+    "ax": RIG.ax,
+    "ay": RIG.ay,
+    "principal_point": [RIG.cx, RIG.cy],
+}
+"""The cross of ``render_views``, registered."""
+
+
+def as_files(images: list[bytes]) -> list[tuple[str, tuple[str, bytes, str]]]:
+    return [("files", (f"{i}.png", im, "image/png")) for i, im in enumerate(images)]
+
+
 def test_laser_dot_within_1_mm_at_1_m(client: TestClient, admin: dict[str, str]) -> None:
-    body = {
-        "id": "cell",
-        "kind": "cross",
-        "f_px": 800,
-        "ax": 0.3,
-        "ay": 0.2,
-        "principal_point": [320, 240],
-    }
-    client.post("/rigs", json=body, headers=admin)
+    client.post("/rigs", json=CELL, headers=admin)
     truth = np.array([0.05, -0.03, 1.0])
     images = render_views(RIG, truth, distractor=True)
     r = client.post(
         "/rigs/cell/laser/dot",
-        files=[("files", (f"{i}.png", im, "image/png")) for i, im in enumerate(images)],
+        files=as_files(images),
         headers=admin,
     )
     assert r.status_code == 200, r.text
@@ -145,26 +152,16 @@ def test_laser_dot_within_1_mm_at_1_m(client: TestClient, admin: dict[str, str])
 
 
 def test_laser_dot_not_found(client: TestClient, admin: dict[str, str]) -> None:
-    body = {
-        "id": "cell",
-        "kind": "cross",
-        "f_px": 800,
-        "ax": 0.3,
-        "ay": 0.2,
-        "principal_point": [320, 240],
-    }
-    client.post("/rigs", json=body, headers=admin)
+    client.post("/rigs", json=CELL, headers=admin)
     images = render_views(RIG, np.array([5.0, 0.0, 1.0]))  # far off every image
     r = client.post(
         "/rigs/cell/laser/dot",
-        files=[("files", (f"{i}.png", im, "image/png")) for i, im in enumerate(images)],
+        files=as_files(images),
         headers=admin,
     )
     assert r.status_code == 422
     assert "camera(s) 1, 2, 3, 4" in r.json()["detail"]
-    r = client.post(
-        "/rigs/cell/laser/dot", files=[("files", ("0.png", images[0], "image/png"))], headers=admin
-    )
+    r = client.post("/rigs/cell/laser/dot", files=as_files(images[:1]), headers=admin)
     assert r.status_code == 422
 
 
@@ -302,7 +299,7 @@ class TestLaserGrid:
         cases = [
             ({"files": self.png(grid[:3], "files")}, "one grid image per camera"),
             (
-                {"files": self.png(grid, "files"), "data": {"origin": "[1, 2]"}},
+                {"files": self.png(grid, "files"), "data": {"origin": "[[1, 2], null]"}},
                 "origin must be a list of 4",
             ),
             (
