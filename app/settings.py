@@ -48,7 +48,7 @@ class Settings(BaseSettings):
     warm_up_triangulation: bool = Field(
         default=False,
         description="Compile the calibrated-rig triangulation loop (numba) at start, before "
-        "serving (~10 s the first time, a few seconds from its cache), instead of on the first "
+        "serving (10–12 s the first time, a few seconds from its cache), instead of on the first "
         "request that needs it. It costs ~100 MB a process: for robot cells.",
     )
     rate_limit_per_minute: int = Field(
