@@ -35,6 +35,7 @@ from app.routers.responses import (
 )
 from app.schemas import CameraCreate, CameraCreated, CameraOut, FrameOut
 from app.services import ingest, registry
+from app.services.writer import GroupCommitWriter
 from app.uploads import read_jpeg
 
 router = APIRouter(tags=["cameras"])
@@ -133,10 +134,12 @@ async def post_frame(
     start = time.perf_counter()
     when = _captured_at(captured_at)
     data = await read_jpeg(request, settings.max_body_bytes)
-    prepared = await run_in_threadpool(
-        partial(
-            ingest.prepare,
-            request.app.state.frame_store if settings.store_frames else None,
+    store = request.app.state.frame_store if settings.store_frames else None
+    writer: GroupCommitWriter = request.app.state.writer
+
+    def store_frame() -> ingest.Recorded:
+        prepared = ingest.prepare(
+            store,
             camera=target,
             data=data,
             captured_at=when,
@@ -144,10 +147,9 @@ async def post_frame(
             max_pixels=settings.max_pixels,
             idempotency_key=idempotency_key,
         )
-    )
-    done = await request.app.state.writer.submit(
-        partial(ingest.record, prepared=prepared, policy=policy)
-    )
+        return writer.run(partial(ingest.record, prepared=prepared, policy=policy))
+
+    done = await run_in_threadpool(store_frame)
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

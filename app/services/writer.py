@@ -12,11 +12,11 @@ the database they see. A caller's result (its 201) comes only after the commit h
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import queue
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -32,13 +32,10 @@ T = TypeVar("T")
 class _Job:
     fn: Callable[..., Any]
     """Called as fn(session), or fn(session, retry=True) when run again after a conflict."""
-    loop: asyncio.AbstractEventLoop
-    future: asyncio.Future[Any]
+    future: Future[Any]
 
 
-def _settle(future: asyncio.Future[Any], result: Any, error: BaseException | None) -> None:
-    if future.done():  # the caller went away (cancelled)
-        return
+def _settle(future: Future[Any], result: Any, error: BaseException | None) -> None:
     if error is not None:
         future.set_exception(error)
     else:
@@ -70,18 +67,22 @@ class GroupCommitWriter:
             self._queue.put(None)
             thread.join(timeout=30)
 
-    async def submit(self, fn: Callable[[Session], T]) -> T:
-        """Run ``fn(session)`` in the next batch; return its result once the batch committed.
-
-        ``fn`` must also accept ``retry=True``: it is run once more that way, alone, when its
-        batch hit a unique-constraint conflict.
-        """
+    def _enqueue(self, fn: Callable[[Session], T]) -> Future[T]:
         if self._thread is None:
             self.start()
-        loop = asyncio.get_running_loop()
-        future: asyncio.Future[T] = loop.create_future()
-        self._queue.put(_Job(fn, loop, future))
-        return await future
+        future: Future[T] = Future()
+        self._queue.put(_Job(fn, future))
+        return future
+
+    def run(self, fn: Callable[[Session], T]) -> T:
+        """Run ``fn(session)`` in the next batch; return its result once the batch committed.
+
+        Called from a worker thread, which it blocks (never the event loop): the ingest path
+        decodes and then waits here in the same worker, so a frame crosses between threads no
+        more often than a bare decode does. ``fn`` must also accept ``retry=True``: it is run
+        once more that way, alone, when its batch hit a unique-constraint conflict.
+        """
+        return self._enqueue(fn).result()
 
     def _take_batch(self) -> list[_Job] | None:
         first = self._queue.get()
@@ -103,7 +104,7 @@ class GroupCommitWriter:
         while (batch := self._take_batch()) is not None:
             outcomes = self._write(batch)
             for job, (result, error) in zip(batch, outcomes, strict=True):
-                job.loop.call_soon_threadsafe(_settle, job.future, result, error)
+                _settle(job.future, result, error)
 
     def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
         try:
