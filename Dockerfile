@@ -6,7 +6,7 @@ WORKDIR /srv/vantage
 
 COPY pyproject.toml README.md ./
 COPY app ./app
-RUN pip install --no-cache-dir .
+RUN pip install --no-cache-dir '.[s3]'
 
 COPY alembic.ini ./
 COPY migrations ./migrations

@@ -33,7 +33,7 @@ from app.security import admin_token_hash
 from app.services import rate_limit, retention, webhooks
 from app.services.camera_info import TokenCache
 from app.services.policy import Policy
-from app.services.storage import FrameStore
+from app.services.storage import StoreUnavailable, frame_store
 from app.services.writer import GroupCommitWriter
 from app.settings import Settings, get_settings
 
@@ -49,14 +49,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
         # files a killed process wrote without committing their rows
-        await asyncio.to_thread(
-            partial(
-                retention.sweep_orphans,
-                app.state.sessionmaker,
-                app.state.frame_store,
-                min_age_s=settings.orphan_min_age_seconds,
+        try:
+            await asyncio.to_thread(
+                partial(
+                    retention.sweep_orphans,
+                    app.state.sessionmaker,
+                    app.state.frame_store,
+                    min_age_s=settings.orphan_min_age_seconds,
+                )
             )
-        )
+        except StoreUnavailable as exc:
+            # serve anyway: /health says so, uploads get 503 until the store is back
+            log.error("orphan sweep skipped, frame store unreachable: %s", exc)
         app.state.writer.start()
         if settings.warm_up_triangulation:
             # before serving, not in a thread beside requests: numba's compiler and FastAPI's
@@ -110,7 +114,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.policy = Policy(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )
-    app.state.frame_store = FrameStore(settings.data_dir, fsync=settings.fsync_frames)
+    app.state.frame_store = frame_store(settings)
 
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)

@@ -177,6 +177,8 @@ class FrameOut(Out):
 class Health(Out):
     status: Literal["ok", "degraded"]
     database: Literal["ok", "unreachable"]
+    frame_store: Literal["ok", "unreachable"]
+    """The frame store (a directory or an S3 bucket) answers and, for a directory, is writable."""
     version: str
 
 

@@ -40,7 +40,18 @@ class Settings(BaseSettings):
         description="At start, delete unreferenced frame files older than this [s] (younger "
         "ones may belong to another process's upload in flight).",
     )
-    store_frames: bool = Field(default=True, description="Keep the JPEG bytes on disk.")
+    store_frames: bool = Field(default=True, description="Keep the JPEG bytes.")
+    frame_store: Literal["disk", "s3"] = Field(
+        default="disk",
+        description="Where frames go: 'disk' (data_dir/frames, a shared volume for several "
+        "processes) or 's3' (a bucket of an S3-compatible store, for several machines).",
+    )
+    s3_bucket: str | None = Field(default=None, description="The bucket (frame_store=s3).")
+    s3_prefix: str = Field(default="", description="Key prefix inside the bucket, e.g. 'city/'.")
+    s3_endpoint_url: str | None = Field(
+        default=None, description="An S3-compatible store's URL (MinIO, Ceph …); default: AWS."
+    )
+    s3_region: str | None = Field(default=None, description="The bucket's region.")
     fsync_frames: bool = Field(
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",
@@ -77,6 +88,8 @@ class Settings(BaseSettings):
         if self.env == "production" and self.admin_token is not None:
             if len(self.admin_token.get_secret_value()) < 24:
                 raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
+        if self.frame_store == "s3" and not self.s3_bucket:
+            raise ValueError("VANTAGE_FRAME_STORE=s3 needs VANTAGE_S3_BUCKET")
         return self
 
     @property
@@ -84,10 +97,6 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'vantage.db').resolve()}"
-
-    @property
-    def frames_dir(self) -> Path:
-        return self.data_dir / "frames"
 
 
 @lru_cache

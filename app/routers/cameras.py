@@ -9,7 +9,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import Response
 from sqlalchemy import select
 from sqlalchemy.orm import selectinload
 
@@ -35,6 +35,7 @@ from app.routers.responses import (
 )
 from app.schemas import CameraCreate, CameraCreated, CameraOut, FrameOut
 from app.services import ingest, registry
+from app.services.storage import FrameStore
 from app.services.writer import GroupCommitWriter
 from app.uploads import read_jpeg
 
@@ -193,17 +194,20 @@ def get_frame(frame_id: RecordId, session: SessionDep, _: Admin) -> FrameOut:
 
 @router.get(
     "/frames/{frame_id}/image",
-    response_class=FileResponse,
+    response_class=Response,
     responses={200: {"content": {"image/jpeg": {}}}, **AUTH_ERRORS, **NOT_FOUND},
 )
 def get_frame_image(
     frame_id: RecordId, session: SessionDep, _: Admin, request: Request
-) -> FileResponse:
+) -> Response:
     """The stored JPEG of a frame."""
     frame = session.get(Frame, frame_id)
     if frame is None or frame.stored_path is None:
         raise NotFound(f"no stored image for frame {frame_id!r}")
-    path = request.app.state.frame_store.path(frame.stored_path)
-    if not path.exists():
+    store: FrameStore = request.app.state.frame_store
+    data = store.read(frame.stored_path)
+    if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
-    return FileResponse(path, media_type="image/jpeg")
+    # content-addressed: the bytes behind this URL never change
+    headers = {"ETag": f'"{frame.sha256}"', "Cache-Control": "private, max-age=31536000, immutable"}
+    return Response(data, media_type="image/jpeg", headers=headers)

@@ -14,6 +14,7 @@ from app import __version__
 from app.deps import Admin, get_sessionmaker
 from app.schemas import Health
 from app.services import retention
+from app.services.storage import StoreUnavailable
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger("vantage.health")
@@ -21,7 +22,7 @@ log = logging.getLogger("vantage.health")
 
 @router.get("/health", response_model=Health, responses={503: {"model": Health}})
 def health(request: Request) -> JSONResponse:
-    """Whether the service and its database answer; the version."""
+    """Whether the service, its database and its frame store answer; the version."""
     try:
         with get_sessionmaker(request)() as session:
             session.execute(text("SELECT 1"))
@@ -29,10 +30,20 @@ def health(request: Request) -> JSONResponse:
     except SQLAlchemyError as exc:
         log.warning("database unreachable: %s", exc)
         database = "unreachable"
+    try:
+        request.app.state.frame_store.check()
+        store = "ok"
+    except StoreUnavailable as exc:
+        log.warning("frame store unreachable: %s", exc)
+        store = "unreachable"
+    ok = database == "ok" and store == "ok"
     body = Health(
-        status="ok" if database == "ok" else "degraded", database=database, version=__version__
+        status="ok" if ok else "degraded",
+        database=database,
+        frame_store=store,
+        version=__version__,
     )
-    return JSONResponse(body.model_dump(), status_code=200 if database == "ok" else 503)
+    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 
 @router.get("/metrics", include_in_schema=False)

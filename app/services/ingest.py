@@ -35,7 +35,7 @@ from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.services.camera_info import CameraInfo
 from app.services.policy import Policy
-from app.services.storage import FrameStore
+from app.services.storage import FrameStore, digest
 from app.services.verdicts import conclude
 
 
@@ -169,8 +169,8 @@ def prepare(
     removes; it is never deleted here, because an identical frame may share it.
     """
     decoded = analyse(data, camera=camera, max_pixels=max_pixels)
-    sha256 = FrameStore.digest(data)
-    stored_path = frames.put(data, sha256)[0] if frames is not None else None
+    sha256 = digest(data)
+    stored_path = frames.put(data, sha256) if frames is not None else None
     frame = Frame(
         id=str(uuid.uuid4()),
         camera_id=camera.id,

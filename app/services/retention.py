@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -85,8 +84,7 @@ def sweep_orphans(
     sessions: sessionmaker[Session], store: FrameStore, *, min_age_s: float = 600
 ) -> int:
     """Delete stored files no frame row refers to, if older than ``min_age_s``."""
-    now = time.time()
-    candidates = [p for p in store.files() if now - store.path(p).stat().st_mtime >= min_age_s]
+    candidates = store.older_than(min_age_s)
     removed = 0
     for start in range(0, len(candidates), 1000):
         chunk = candidates[start : start + 1000]

@@ -1,15 +1,69 @@
-"""Content-addressed frame store on local disk (a directory that several processes may share)."""
+"""Where frame bytes live: a directory that several processes may share, or an S3-compatible
+object store (AWS S3, MinIO, Ceph …) that several machines share. Both behind one interface.
+
+Frames are content-addressed (``frames/ab/<sha256>.jpg``): identical frames share one object,
+and writing the same frame twice is harmless. The database keeps the metadata and the relative
+path; nothing else refers to a stored frame.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import os
+import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from app.errors import ServiceUnavailable
+
+if TYPE_CHECKING:
+    from app.settings import Settings
 
 
-class FrameStore:
-    """JPEG bytes kept under ``root/frames/ab/<sha256>.jpg``; identical frames share one file.
+class StoreUnavailable(ServiceUnavailable):
+    """The frame store cannot be reached or written: 503, try again shortly."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail, headers={"Retry-After": "5"}, code="store_unavailable")
+
+
+def digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def relative_path(sha256: str) -> str:
+    return f"frames/{sha256[:2]}/{sha256}.jpg"
+
+
+class FrameStore(Protocol):
+    """Frame bytes by their relative path (``relative_path``)."""
+
+    def put(self, data: bytes, sha256: str) -> str:
+        """Store the bytes whole (a reader never sees part of them); return the relative path."""
+        ...
+
+    def read(self, relative: str) -> bytes | None:
+        """The stored bytes, or None when they are not (or no longer) kept."""
+        ...
+
+    def delete(self, relative: str) -> None:
+        """Remove the bytes; nothing happens when they are already gone."""
+        ...
+
+    def older_than(self, seconds: float) -> list[str]:
+        """Every stored frame written at least ``seconds`` ago, as relative paths."""
+        ...
+
+    def check(self) -> None:
+        """Raise StoreUnavailable unless the store answers."""
+        ...
+
+
+class DiskFrameStore:
+    """JPEG bytes kept under ``root/frames/ab/<sha256>.jpg``.
 
     One level of 256 directories: a second level would mean a new directory for most of the
     first 65,536 frames, which costs more than writing the frame.
@@ -20,38 +74,50 @@ class FrameStore:
         self.fsync = fsync
         self._made: set[Path] = set()  # directories known to exist
 
-    @staticmethod
-    def digest(data: bytes) -> str:
-        return hashlib.sha256(data).hexdigest()
-
-    @staticmethod
-    def relative_path(sha256: str) -> str:
-        return f"frames/{sha256[:2]}/{sha256}.jpg"
-
     def path(self, relative: str) -> Path:
         return self.root / relative
 
-    def put(self, data: bytes, sha256: str) -> tuple[str, bool]:
-        """Write the bytes atomically (temp file, rename); return (path, created).
+    def put(self, data: bytes, sha256: str) -> str:
+        """Write the bytes atomically (temp file, rename).
 
         The rename makes a file appear whole or not at all, which is what a process crash needs;
         ``fsync`` (off by default: it costs more than decoding the frame) adds power-loss safety.
         """
-        relative = self.relative_path(sha256)
+        relative = relative_path(sha256)
         target = self.path(relative)
         if target.exists():
-            return relative, False
+            return relative
+        try:
+            try:
+                self._write(target, data)
+            except FileNotFoundError:  # its directory went (emptied by hand, a new volume)
+                self._made.discard(target.parent)
+                self._write(target, data)
+        except OSError as exc:  # full, read-only, gone: the client should retry later
+            raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
+        return relative
+
+    def _write(self, target: Path, data: bytes) -> None:
         if target.parent not in self._made:
             target.parent.mkdir(parents=True, exist_ok=True)
             self._made.add(target.parent)
         tmp = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
-        with open(tmp, "wb") as f:
-            f.write(data)
-            if self.fsync:
-                f.flush()
-                os.fsync(f.fileno())
-        os.replace(tmp, target)
-        return relative, True
+        try:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                if self.fsync:
+                    f.flush()
+                    os.fsync(f.fileno())
+            os.replace(tmp, target)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    def read(self, relative: str) -> bytes | None:
+        try:
+            return self.path(relative).read_bytes()
+        except FileNotFoundError:
+            return None
 
     def delete(self, relative: str) -> None:
         self.path(relative).unlink(missing_ok=True)
@@ -62,3 +128,116 @@ class FrameStore:
         if not base.exists():
             return []
         return sorted(str(p.relative_to(self.root)) for p in base.glob("*/*.jpg"))
+
+    def older_than(self, seconds: float) -> list[str]:
+        now = time.time()
+        old = []
+        for relative in self.files():
+            try:
+                if now - self.path(relative).stat().st_mtime >= seconds:
+                    old.append(relative)
+            except FileNotFoundError:  # deleted meanwhile by another process
+                continue
+        return old
+
+    def check(self) -> None:
+        if not (self.root.is_dir() and os.access(self.root, os.W_OK)):
+            raise StoreUnavailable(f"{self.root} is missing or not writable")
+
+
+class S3FrameStore:
+    """Frames as objects ``<prefix>frames/ab/<sha256>.jpg`` in one bucket of an S3-compatible
+    store. An S3 PUT is atomic (the object appears whole or not at all), so no temporary object
+    is needed. Credentials come from boto3's usual chain (``AWS_ACCESS_KEY_ID`` …, a profile,
+    an instance role)."""
+
+    def __init__(
+        self,
+        bucket: str,
+        *,
+        prefix: str = "",
+        endpoint_url: str | None = None,
+        region: str | None = None,
+        client: Any = None,
+    ) -> None:
+        self.bucket = bucket
+        self.prefix = prefix
+        if client is None:
+            import boto3  # only deployments that use S3 need it (the `s3` extra)
+            from botocore.config import Config
+
+            client = boto3.client(
+                "s3",
+                endpoint_url=endpoint_url,
+                region_name=region,
+                # one client serves every worker thread (boto3 clients are thread-safe)
+                config=Config(max_pool_connections=50, retries={"mode": "standard"}),
+            )
+        self._s3 = client
+
+    def _key(self, relative: str) -> str:
+        return self.prefix + relative
+
+    @contextmanager
+    def _answering(self, doing: str) -> Iterator[None]:
+        """botocore's errors (refused connections, timeouts, access denied …) as one."""
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        try:
+            yield
+        except (BotoCoreError, ClientError) as exc:
+            raise StoreUnavailable(f"s3://{self.bucket}: {doing} failed: {exc}") from exc
+
+    def put(self, data: bytes, sha256: str) -> str:
+        relative = relative_path(sha256)
+        with self._answering("storing the frame"):
+            self._s3.put_object(
+                Bucket=self.bucket, Key=self._key(relative), Body=data, ContentType="image/jpeg"
+            )
+        return relative
+
+    def read(self, relative: str) -> bytes | None:
+        with self._answering("reading the frame"):
+            try:
+                response = self._s3.get_object(Bucket=self.bucket, Key=self._key(relative))
+            except self._s3.exceptions.NoSuchKey:
+                return None
+            data: bytes = response["Body"].read()
+        return data
+
+    def delete(self, relative: str) -> None:
+        with self._answering("deleting the frame"):
+            self._s3.delete_object(Bucket=self.bucket, Key=self._key(relative))
+
+    def older_than(self, seconds: float) -> list[str]:
+        now = time.time()
+        old = []
+        with self._answering("listing frames"):
+            pages = self._s3.get_paginator("list_objects_v2").paginate(
+                Bucket=self.bucket, Prefix=self._key("frames/")
+            )
+            for page in pages:
+                for obj in page.get("Contents", []):
+                    if now - obj["LastModified"].timestamp() >= seconds:
+                        old.append(obj["Key"][len(self.prefix) :])
+        return sorted(old)
+
+    def files(self) -> list[str]:
+        return self.older_than(float("-inf"))
+
+    def check(self) -> None:
+        with self._answering("reaching the bucket"):
+            self._s3.head_bucket(Bucket=self.bucket)
+
+
+def frame_store(settings: Settings) -> DiskFrameStore | S3FrameStore:
+    """The store the settings name."""
+    if settings.frame_store == "s3":
+        assert settings.s3_bucket is not None  # the settings' validator makes sure
+        return S3FrameStore(
+            settings.s3_bucket,
+            prefix=settings.s3_prefix,
+            endpoint_url=settings.s3_endpoint_url,
+            region=settings.s3_region,
+        )
+    return DiskFrameStore(settings.data_dir, fsync=settings.fsync_frames)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 from fastapi.testclient import TestClient
@@ -15,7 +16,22 @@ from app.settings import Settings
 def test_health_reports_database_and_version(client: TestClient) -> None:
     r = client.get("/health")
     assert r.status_code == 200
-    assert r.json() == {"status": "ok", "database": "ok", "version": __version__}
+    assert r.json() == {
+        "status": "ok",
+        "database": "ok",
+        "frame_store": "ok",
+        "version": __version__,
+    }
+
+
+def test_health_is_503_when_the_frame_directory_is_gone(
+    client: TestClient, settings: Settings
+) -> None:
+    shutil.rmtree(settings.data_dir)  # an unmounted volume
+    r = client.get("/health")
+    assert r.status_code == 503
+    assert r.json()["frame_store"] == "unreachable"
+    assert r.json()["database"] == "ok"
 
 
 def test_health_is_503_when_the_database_is_unreachable(settings: Settings) -> None:

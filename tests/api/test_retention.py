@@ -9,6 +9,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from app.services import retention
+from app.services.storage import digest
 from tests.api.test_solar import CLEAN_RGB, Clock, clean_set, panel_jpeg
 from tests.conftest import table_counts
 
@@ -67,7 +68,7 @@ def test_orphan_files_are_swept(
     assert r.status_code == 201
     store = app.state.frame_store
     orphan_bytes = panel_jpeg(CLEAN_RGB, seed=7)
-    orphan, _ = store.put(orphan_bytes, store.digest(orphan_bytes))  # as if killed before commit
+    orphan = store.put(orphan_bytes, digest(orphan_bytes))  # as if killed before the commit
     old = 10_000
     for path in store.files():
         os.utime(store.path(path), (old, old))

@@ -1,0 +1,250 @@
+"""Where frames are kept: a failing disk, and an S3-compatible object store
+(``VANTAGE_FRAME_STORE=s3``).
+
+The S3 store is moto's S3 server, reached over HTTP through ``s3_endpoint_url`` exactly as a MinIO
+or Ceph gateway would be: ingest, the image endpoint, retention, the orphan sweep, health, and
+what a client sees when the store is down (503, nothing half-stored).
+"""
+
+from __future__ import annotations
+
+import socket
+import uuid
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import boto3
+import httpx2 as httpx
+import pytest
+from fastapi.testclient import TestClient
+from moto.server import ThreadedMotoServer
+from sqlalchemy import Engine
+
+from app.main import create_app
+from app.services import retention
+from app.services.storage import S3FrameStore, digest
+from app.settings import Settings
+from tests.api.test_solar import CLEAN_RGB, Clock, panel_jpeg
+from tests.conftest import ADMIN_TOKEN, _empty_tables, table_counts
+from tests.servers import free_port, server_env, start_server
+
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+CREDENTIALS = {
+    "AWS_ACCESS_KEY_ID": "vantage-test",
+    "AWS_SECRET_ACCESS_KEY": "vantage-test-secret",
+    "AWS_SESSION_TOKEN": "",
+}
+
+
+@pytest.fixture(scope="module")
+def s3_url() -> Iterator[str]:
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    yield f"http://{host}:{port}"
+    server.stop()
+
+
+@pytest.fixture
+def bucket(s3_url: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    for key, value in CREDENTIALS.items():
+        monkeypatch.setenv(key, value)
+    s3 = boto3.resource("s3", endpoint_url=s3_url, region_name="eu-south-1")
+    b = s3.Bucket(f"frames-{uuid.uuid4().hex[:12]}")
+    b.create(CreateBucketConfiguration={"LocationConstraint": "eu-south-1"})
+    yield b
+    b.objects.all().delete()
+    b.delete()
+
+
+def s3_settings(settings: Settings, s3_url: str, bucket: str) -> Settings:
+    return settings.model_copy(
+        update={
+            "frame_store": "s3",
+            "s3_bucket": bucket,
+            "s3_prefix": "city/",
+            "s3_endpoint_url": s3_url,
+            "s3_region": "eu-south-1",
+        }
+    )
+
+
+@pytest.fixture
+def s3_client(
+    settings: Settings, s3_url: str, bucket: Any, engine: Engine, app: Any
+) -> Iterator[tuple[TestClient, Any]]:
+    # ``app`` (the disk one) only to empty the tables first
+    s3_app = create_app(s3_settings(settings, s3_url, bucket.name))
+    with TestClient(s3_app, raise_server_exceptions=False) as c:
+        yield c, s3_app
+
+
+def keys(bucket: Any) -> set[str]:
+    return {o.key for o in bucket.objects.all()}
+
+
+def rig_camera(client: TestClient, admin: dict[str, str]) -> dict[str, str]:
+    cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+    return {"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"}
+
+
+def test_frames_go_to_the_bucket_and_come_back(
+    s3_client: tuple[TestClient, Any], bucket: Any, admin: dict[str, str], settings: Settings
+) -> None:
+    client, _ = s3_client
+    headers = rig_camera(client, admin)
+    body = panel_jpeg(CLEAN_RGB, seed=1)
+    r = client.post("/cameras/c/frames", content=body, headers=headers)
+    assert r.status_code == 201, r.text
+    sha = r.json()["sha256"]
+    assert sha == digest(body)
+    assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
+    assert bucket.Object(f"city/frames/{sha[:2]}/{sha}.jpg").get()["Body"].read() == body
+    assert not (settings.data_dir / "frames").exists()  # nothing on the local disk
+
+    image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
+    assert image.status_code == 200
+    assert image.headers["content-type"] == "image/jpeg"
+    assert image.content == body
+    assert image.headers["etag"] == f'"{sha}"'
+
+    health = client.get("/health")
+    assert health.status_code == 200
+    assert health.json()["frame_store"] == "ok"
+
+
+def test_an_object_gone_from_the_bucket_is_404(
+    s3_client: tuple[TestClient, Any], bucket: Any, admin: dict[str, str]
+) -> None:
+    client, _ = s3_client
+    r = client.post(
+        "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB), headers=rig_camera(client, admin)
+    )
+    bucket.objects.all().delete()
+    image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
+    assert image.status_code == 404
+    assert image.headers["content-type"] == "application/problem+json"
+
+
+def test_retention_and_orphan_sweep_delete_objects(
+    s3_client: tuple[TestClient, Any], bucket: Any, admin: dict[str, str], engine: Engine
+) -> None:
+    client, s3_app = s3_client
+    clock = Clock()
+    s3_app.state.policy = replace(s3_app.state.policy, clock=clock)
+    headers = rig_camera(client, admin)
+    old = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=1), headers=headers)
+    clock.advance(days=40)
+    new = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=2), headers=headers)
+    assert len(keys(bucket)) == 2
+
+    assert client.post("/admin/retention/sweep", headers=admin).json() == {"frames": 1, "files": 1}
+    sha = new.json()["sha256"]
+    assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
+    assert client.get(f"/frames/{old.json()['frame_id']}", headers=admin).status_code == 404
+
+    store: S3FrameStore = s3_app.state.frame_store
+    orphan = panel_jpeg(CLEAN_RGB, seed=3)
+    store.put(orphan, digest(orphan))  # as if the process died before the commit
+    # too young: may be an upload in flight in another process
+    assert retention.sweep_orphans(s3_app.state.sessionmaker, store, min_age_s=600) == 0
+    assert retention.sweep_orphans(s3_app.state.sessionmaker, store, min_age_s=0) == 1
+    assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
+    assert table_counts(engine)["frames"] == 1
+
+
+def test_store_down_is_503_and_nothing_is_stored(
+    settings: Settings,
+    s3_url: str,
+    bucket: Any,
+    engine: Engine,
+    app: Any,
+    admin: dict[str, str],
+) -> None:
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        dead = f"http://127.0.0.1:{s.getsockname()[1]}"
+    down = s3_settings(settings, dead, bucket.name)
+    with TestClient(create_app(down), raise_server_exceptions=False) as client:
+        health = client.get("/health")
+        assert health.status_code == 503
+        assert health.json()["frame_store"] == "unreachable"
+        assert health.json()["database"] == "ok"
+        r = client.post(
+            "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB), headers=rig_camera(client, admin)
+        )
+        assert r.status_code == 503, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert r.json()["code"] == "store_unavailable"
+        assert r.headers["retry-after"] == "5"
+    counts = table_counts(engine)
+    assert counts["frames"] == 0
+    assert counts["verdicts"] == 0
+
+
+def test_s3_needs_a_bucket() -> None:
+    with pytest.raises(ValueError, match="VANTAGE_S3_BUCKET"):
+        Settings(frame_store="s3")
+
+
+def test_disk_that_cannot_take_the_frame_is_503_and_nothing_is_stored(
+    client: TestClient, admin: dict[str, str], settings: Settings, engine: Engine
+) -> None:
+    headers = rig_camera(client, admin)
+    body = panel_jpeg(CLEAN_RGB, seed=5)
+    sha = digest(body)
+    frames = settings.data_dir / "frames"
+    frames.mkdir(parents=True, exist_ok=True)
+    (frames / sha[:2]).write_bytes(b"")  # a file where the frame's directory should be
+    r = client.post("/cameras/c/frames", content=body, headers=headers)
+    assert r.status_code == 503, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["code"] == "store_unavailable"
+    assert table_counts(engine)["frames"] == 0
+    assert [p.name for p in frames.iterdir()] == [sha[:2]]  # no temporary file left
+
+    (frames / sha[:2]).unlink()
+    assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+
+
+def test_two_machines_share_one_bucket(
+    database_url: str, engine: Engine, bucket: Any, s3_url: str, tmp_path: Path
+) -> None:
+    """Two server processes with nothing on disk in common (as on two machines): a frame posted
+    to one is served by the other, each stored once."""
+    _empty_tables(engine)
+    s3 = {
+        "VANTAGE_FRAME_STORE": "s3",
+        "VANTAGE_S3_BUCKET": bucket.name,
+        "VANTAGE_S3_ENDPOINT_URL": s3_url,
+        "VANTAGE_S3_REGION": "eu-south-1",
+        **CREDENTIALS,
+    }
+    procs = []
+    try:
+        for machine in ("a", "b"):
+            port = free_port()
+            env = server_env(database_url, tmp_path / machine, **s3)
+            procs.append((f"http://127.0.0.1:{port}", start_server(env, port)))
+        (a, _), (b, _) = procs
+        with httpx.Client(headers=ADMIN, timeout=30) as c:
+            token = c.post(f"{a}/cameras", json={"id": "c", "kind": "rig"}).json()["token"]
+            camera = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+            bodies = [panel_jpeg(CLEAN_RGB, seed=i) for i in range(10)]
+            posted = []
+            for i, body in enumerate(bodies):
+                r = c.post(f"{(a, b)[i % 2]}/cameras/c/frames", content=body, headers=camera)
+                assert r.status_code == 201, r.text
+                posted.append(r.json())
+            for i, frame in enumerate(posted):  # each from the other machine
+                image = c.get(f"{(b, a)[i % 2]}/frames/{frame['frame_id']}/image")
+                assert image.status_code == 200
+                assert image.content == bodies[i]
+        assert keys(bucket) == {f"frames/{f['sha256'][:2]}/{f['sha256']}.jpg" for f in posted}
+        assert not any((tmp_path / m / "frames").exists() for m in ("a", "b"))
+    finally:
+        for _, p in procs:
+            p.terminate()
+            p.wait(10)
