@@ -195,19 +195,27 @@ def get_frame(frame_id: RecordId, session: SessionDep, _: Admin) -> FrameOut:
 @router.get(
     "/frames/{frame_id}/image",
     response_class=Response,
-    responses={200: {"content": {"image/jpeg": {}}}, **AUTH_ERRORS, **NOT_FOUND},
+    responses={
+        200: {"content": {"image/jpeg": {}}},
+        304: {"description": "The client already holds these bytes (If-None-Match)."},
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+    },
 )
 def get_frame_image(
     frame_id: RecordId, session: SessionDep, _: Admin, request: Request
 ) -> Response:
-    """The stored JPEG of a frame."""
+    """The stored JPEG of a frame (304 when the client's ``If-None-Match`` already names it)."""
     frame = session.get(Frame, frame_id)
     if frame is None or frame.stored_path is None:
         raise NotFound(f"no stored image for frame {frame_id!r}")
+    # content-addressed: the bytes behind this URL never change
+    etag = f'"{frame.sha256}"'
+    headers = {"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"}
+    if etag in request.headers.get("if-none-match", ""):
+        return Response(status_code=304, headers=headers)
     store: FrameStore = request.app.state.frame_store
     data = store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
-    # content-addressed: the bytes behind this URL never change
-    headers = {"ETag": f'"{frame.sha256}"', "Cache-Control": "private, max-age=31536000, immutable"}
     return Response(data, media_type="image/jpeg", headers=headers)

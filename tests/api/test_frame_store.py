@@ -109,6 +109,11 @@ def test_frames_go_to_the_bucket_and_come_back(
     assert image.headers["content-type"] == "image/jpeg"
     assert image.content == body
     assert image.headers["etag"] == f'"{sha}"'
+    again = client.get(
+        f"/frames/{r.json()['frame_id']}/image", headers={**admin, "If-None-Match": f'"{sha}"'}
+    )
+    assert again.status_code == 304
+    assert again.content == b""
 
     health = client.get("/health")
     assert health.status_code == 200
