@@ -10,6 +10,7 @@ from contextlib import asynccontextmanager
 from datetime import timedelta
 from functools import partial
 
+import anyio
 from fastapi import FastAPI
 
 from app import __version__
@@ -38,6 +39,9 @@ from app.services.writer import GroupCommitWriter
 from app.settings import Settings, get_settings
 
 log = logging.getLogger("vantage")
+
+INGEST_THREADS = 32
+"""Frame uploads decoding or waiting for their commit at once, per process."""
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -108,6 +112,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
     app.state.writer = GroupCommitWriter(app.state.sessionmaker)
+    # threads for frame uploads, apart from the shared pool (see routers/cameras.post_frame)
+    app.state.ingest_threads = anyio.CapacityLimiter(INGEST_THREADS)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
     app.state.rate_budgets = rate_limit.LocalBudgets()

@@ -7,8 +7,8 @@ from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Annotated
 
+import anyio
 from fastapi import APIRouter, Header, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from sqlalchemy import select
 from sqlalchemy.orm import selectinload
@@ -150,7 +150,11 @@ async def post_frame(
         )
         return writer.run(partial(ingest.record, prepared=prepared, policy=policy))
 
-    done = await run_in_threadpool(store_frame)
+    # frame uploads hold a worker thread until their rows are committed, under a limiter of
+    # their own: a stalled database (a failover) cannot take every thread of the shared pool
+    # and stall the other endpoints with it
+    limiter: anyio.CapacityLimiter = request.app.state.ingest_threads
+    done = await anyio.to_thread.run_sync(store_frame, limiter=limiter)
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

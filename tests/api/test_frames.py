@@ -467,3 +467,49 @@ class TestRateLimit:
             clock.advance(seconds=60)
             r = two.post("/cameras/across/frames", content=make_jpeg(seed=99), headers=headers)
             assert r.status_code == 201
+
+
+def test_a_stalled_database_does_not_starve_the_other_endpoints(
+    client: TestClient, app: Any, camera: dict[str, Any], admin: dict[str, str]
+) -> None:
+    """50 uploads wait for a commit that does not come (the writer is stalled, as in a database
+    failover): the shared thread pool (40 threads) must still serve other endpoints."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    writer = app.state.writer
+    release = threading.Event()
+    run = writer.run
+    waiting = threading.Semaphore(0)
+
+    def stalled(fn: Any) -> Any:
+        waiting.release()
+        release.wait(30)
+        return run(fn)
+
+    writer.run = stalled
+    body = make_jpeg(seed=4, noise=5)
+    with ThreadPoolExecutor(50) as pool:
+        uploads = [
+            pool.submit(
+                client.post,
+                "/cameras/cam-1/frames",
+                content=body,
+                headers=cam_headers(camera),
+                params={"captured_at": f"2026-01-01T00:00:{i:02d}Z"},
+            )
+            for i in range(50)
+        ]
+        try:
+            deadline = threading.Timer(10, release.set)  # never hang the suite
+            deadline.start()
+            for _ in range(32):  # as many uploads as may wait at once are waiting
+                assert waiting.acquire(timeout=10)
+            assert not any(u.done() for u in uploads)
+            r = client.get("/cameras/cam-1", headers=admin)  # a sync endpoint: a pool thread
+            assert r.status_code == 200
+            assert not release.is_set(), "answered only after the stall ended"
+        finally:
+            release.set()
+            deadline.cancel()
+        assert [u.result().status_code for u in uploads] == [201] * 50
