@@ -67,13 +67,6 @@ class GroupCommitWriter:
             self._queue.put(None)
             thread.join(timeout=30)
 
-    def _enqueue(self, fn: Callable[[Session], T]) -> Future[T]:
-        if self._thread is None:
-            self.start()
-        future: Future[T] = Future()
-        self._queue.put(_Job(fn, future))
-        return future
-
     def run(self, fn: Callable[[Session], T]) -> T:
         """Run ``fn(session)`` in the next batch; return its result once the batch committed.
 
@@ -82,7 +75,11 @@ class GroupCommitWriter:
         more often than a bare decode does. ``fn`` must also accept ``retry=True``: it is run
         once more that way, alone, when its batch hit a unique-constraint conflict.
         """
-        return self._enqueue(fn).result()
+        if self._thread is None:
+            self.start()
+        future: Future[T] = Future()
+        self._queue.put(_Job(fn, future))
+        return future.result()
 
     def _take_batch(self) -> list[_Job] | None:
         first = self._queue.get()
