@@ -11,6 +11,7 @@ through, in alternating rounds:
 Reported: process CPU per frame (every thread) and frames/s, medians over the rounds.
 
     python bench/ingest_parts.py [--data-root data] [--rounds 3] [--frames 2000]
+    python bench/ingest_parts.py --database-url postgresql+psycopg://postgres@127.0.0.1:5432/vantage_bench
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from app.services.camera_info import CameraInfo  # noqa: E402
 from app.services.policy import Policy  # noqa: E402
 from app.services.storage import DiskFrameStore  # noqa: E402
 from app.services.writer import GroupCommitWriter  # noqa: E402
-from bench.ingest import jpeg_640x480, unique  # noqa: E402
+from bench.ingest import jpeg_640x480, prepare_pg, unique  # noqa: E402
 
 MAX_PIXELS = 40_000_000
 
@@ -51,11 +52,18 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--frames", type=int, default=2000, help="frames per case and round")
     parser.add_argument("--threads", type=int, default=16)
+    parser.add_argument(
+        "--database-url",
+        help="e.g. postgresql+psycopg://postgres@127.0.0.1:5432/vantage_bench (emptied first); "
+        "default: SQLite in a temporary directory",
+    )
     args = parser.parse_args()
 
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="parts-") as tmp:
-        url = f"sqlite:///{tmp}/vantage.db"
+        url = args.database_url or f"sqlite:///{tmp}/vantage.db"
+        if url.startswith("postgresql"):
+            prepare_pg()  # the bench database, dropped and made anew
         subprocess.run(
             [sys.executable, "-m", "alembic", "upgrade", "head"],
             cwd=ROOT,
