@@ -10,7 +10,8 @@ ROI is the top 40 % of each photo (many show more city than sky). Methods, on th
   on the sky's modes, means, blue-to-red ratio, darkest-channel median and spread, and the
   contrast of the strip below the sky (distant objects fade in haze): ``airquality.sky_features``.
 Reported: Spearman's ρ between the predicted level and the measured AQI (negative is right: a
-high level is clean air) and the within-one-category accuracy.
+high level is clean air) and the within-one-category accuracy; and the regression's ρ within
+each location with at least 10 photos (the setting of a camera that stays where it is).
 Milan (16 frames of one fixed webcam, hourly PM2.5): leave-one-out, sky rows 3–35 % of the
 height (below the overlay ribbon), ρ against PM2.5.
 
@@ -137,6 +138,17 @@ def main() -> None:
     )
     report("modes, T² clusters", t2, level, aqi, "AQI")
     report("features, ridge", reg, level, aqi, "AQI")
+    # the same out-of-fold predictions, ranked within each location with ≥ 10 photos: how much
+    # of the pooled ρ is the ordering of places (class is confounded with location)
+    location = np.array([r["location_code_from_filename"] for r in rows])
+    for place in sorted(set(location)):
+        here = location == place
+        if here.sum() >= 10:
+            rho = spearmanr(reg[here], aqi[here])[0]
+            print(
+                f"    within {place:6s} ({here.sum()} photos, "
+                f"{len(set(groups[here]))} sessions): ρ(level, AQI) = {rho:+.3f}"
+            )
 
     root = args.data / "milan_webcam"
     with open(root / "labels.csv") as f:
