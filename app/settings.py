@@ -90,6 +90,10 @@ class Settings(BaseSettings):
                 raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
         if self.frame_store == "s3" and not self.s3_bucket:
             raise ValueError("VANTAGE_FRAME_STORE=s3 needs VANTAGE_S3_BUCKET")
+        if self.frame_store == "s3" and self.admin_token is None:
+            # a generated token is kept in the data directory, which machines sharing a bucket
+            # do not share: each would make its own
+            raise ValueError("VANTAGE_FRAME_STORE=s3 needs VANTAGE_ADMIN_TOKEN set")
         return self
 
     @property

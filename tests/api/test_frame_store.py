@@ -189,9 +189,13 @@ def test_store_down_is_503_and_nothing_is_stored(
     assert counts["verdicts"] == 0
 
 
-def test_s3_needs_a_bucket() -> None:
+def test_s3_needs_a_bucket_and_an_admin_token() -> None:
     with pytest.raises(ValueError, match="VANTAGE_S3_BUCKET"):
-        Settings(frame_store="s3")
+        Settings(frame_store="s3", admin_token="t" * 32)  # type: ignore[arg-type]
+    # machines sharing a bucket share no data directory to keep a generated token in
+    with pytest.raises(ValueError, match="VANTAGE_ADMIN_TOKEN"):
+        Settings(frame_store="s3", s3_bucket="frames", admin_token=None)
+    assert Settings(frame_store="s3", s3_bucket="frames", admin_token="t" * 32).s3_bucket  # type: ignore[arg-type]
 
 
 def test_disk_that_cannot_take_the_frame_is_503_and_nothing_is_stored(
