@@ -118,6 +118,8 @@ class DiskFrameStore:
             return self.path(relative).read_bytes()
         except FileNotFoundError:
             return None
+        except OSError as exc:  # unreadable: a failing disk, a lost mount
+            raise StoreUnavailable(f"{self.root}: reading the frame failed: {exc}") from exc
 
     def delete(self, relative: str) -> None:
         self.path(relative).unlink(missing_ok=True)
