@@ -74,9 +74,9 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
                 session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(paths)))
             )
             session.commit()
-        for path in paths - still:
-            store.delete(path)
-            files += 1
+        gone = sorted(paths - still)
+        store.delete(gone)
+        files += len(gone)
         frames += len(ids)
 
 
@@ -92,10 +92,9 @@ def sweep_orphans(
             used = set(
                 session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(chunk)))
             )
-        for p in chunk:
-            if p not in used:
-                store.delete(p)
-                removed += 1
+        unused = [p for p in chunk if p not in used]
+        store.delete(unused)
+        removed += len(unused)
     if removed:
         log.warning("removed %d frame files that no row referred to", removed)
     return removed

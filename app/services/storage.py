@@ -49,8 +49,8 @@ class FrameStore(Protocol):
         """The stored bytes, or None when they are not (or no longer) kept."""
         ...
 
-    def delete(self, relative: str) -> None:
-        """Remove the bytes; nothing happens when they are already gone."""
+    def delete(self, relatives: list[str]) -> None:
+        """Remove these frames' bytes; those already gone are skipped."""
         ...
 
     def older_than(self, seconds: float) -> list[str]:
@@ -121,8 +121,9 @@ class DiskFrameStore:
         except OSError as exc:  # unreadable: a failing disk, a lost mount
             raise StoreUnavailable(f"{self.root}: reading the frame failed: {exc}") from exc
 
-    def delete(self, relative: str) -> None:
-        self.path(relative).unlink(missing_ok=True)
+    def delete(self, relatives: list[str]) -> None:
+        for relative in relatives:
+            self.path(relative).unlink(missing_ok=True)
 
     def files(self) -> list[str]:
         """Every stored frame, as relative paths."""
@@ -207,9 +208,20 @@ class S3FrameStore:
             data: bytes = response["Body"].read()
         return data
 
-    def delete(self, relative: str) -> None:
-        with self._answering("deleting the frame"):
-            self._s3.delete_object(Bucket=self.bucket, Key=self._key(relative))
+    def delete(self, relatives: list[str]) -> None:
+        """Up to 1,000 objects a request (S3's DeleteObjects): retention deletes in bulk."""
+        for start in range(0, len(relatives), 1000):
+            keys = [{"Key": self._key(r)} for r in relatives[start : start + 1000]]
+            with self._answering("deleting frames"):
+                response = self._s3.delete_objects(
+                    Bucket=self.bucket, Delete={"Objects": keys, "Quiet": True}
+                )
+            if errors := response.get("Errors"):
+                first = errors[0]
+                raise StoreUnavailable(
+                    f"s3://{self.bucket}: {len(errors)} frames not deleted, e.g. "
+                    f"{first.get('Key')}: {first.get('Code')} {first.get('Message')}"
+                )
 
     def older_than(self, seconds: float) -> list[str]:
         now = time.time()

@@ -140,15 +140,19 @@ def test_retention_and_orphan_sweep_delete_objects(
     clock = Clock()
     s3_app.state.policy = replace(s3_app.state.policy, clock=clock)
     headers = rig_camera(client, admin)
-    old = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=1), headers=headers)
+    old = [
+        client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=s), headers=headers)
+        for s in (1, 2, 3)
+    ]
     clock.advance(days=40)
-    new = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=2), headers=headers)
-    assert len(keys(bucket)) == 2
+    new = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=4), headers=headers)
+    assert len(keys(bucket)) == 4
 
-    assert client.post("/admin/retention/sweep", headers=admin).json() == {"frames": 1, "files": 1}
+    assert client.post("/admin/retention/sweep", headers=admin).json() == {"frames": 3, "files": 3}
     sha = new.json()["sha256"]
     assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
-    assert client.get(f"/frames/{old.json()['frame_id']}", headers=admin).status_code == 404
+    for r in old:
+        assert client.get(f"/frames/{r.json()['frame_id']}", headers=admin).status_code == 404
 
     store: S3FrameStore = s3_app.state.frame_store
     orphan = panel_jpeg(CLEAN_RGB, seed=3)
