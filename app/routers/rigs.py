@@ -8,8 +8,9 @@ from functools import partial
 import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
+from sqlalchemy.orm import Session
 
-from app.core import laser, laser_grid, shapes
+from app.core import laser_grid, shapes
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
@@ -26,8 +27,9 @@ from app.schemas import (
     TriangulateIn,
     TriangulateOut,
 )
-from app.services import grid, vision
-from app.uploads import content_type, read_form
+from app.services import grid
+from app.settings import Settings
+from app.uploads import Form, content_type, read_form
 
 router = APIRouter(prefix="/rigs", tags=["stereo"])
 
@@ -150,19 +152,20 @@ def _geometry(row: Rig) -> laser_grid.Geometry:
     return laser_grid.views_geometry(_views(row))
 
 
+async def _rig_and_form(
+    rig_id: str, request: Request, session: Session, settings: Settings
+) -> tuple[Rig, Form]:
+    """The rig, and the images of a multipart upload to it."""
+    row = session.get(Rig, rig_id)
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send the images as multipart/form-data (files)")
+    return row, await read_form(request, settings.max_upload_bytes, max_files=64)
+
+
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
-    n_cams = 4 if row.kind == "cross" else len(row.spec["cameras"])
-    if len(files) != n_cams:
-        raise Unprocessable(
-            f"send one image per camera, in camera order: {n_cams}, got {len(files)}"
-        )
-    candidates = [laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
-    try:
-        dot = laser.locate(candidates, _geometry(row).triangulate)
-    except ValueError as exc:
-        raise Unprocessable(str(exc), code="dot_not_found") from None
-    if not np.isfinite(dot.point).all():
-        raise Unprocessable("the dot's views do not triangulate to a point", code="dot_not_found")
+    dot = grid.locate_dot(_geometry(row), files, max_pixels)
     return LaserDotOut(
         point=dot.point.tolist(),
         pixels=[list(p) if p is not None else None for p in dot.pixels],
@@ -181,12 +184,7 @@ async def laser_dot(
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
-    row = session.get(Rig, rig_id)
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
-    if content_type(request) != "multipart/form-data":
-        raise UnsupportedMediaType("send the images as multipart/form-data (files)")
-    form = await read_form(request, settings.max_upload_bytes, max_files=64)
+    row, form = await _rig_and_form(rig_id, request, session, settings)
     return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))
 
 
@@ -206,12 +204,7 @@ async def laser_grid_measure(
     grid's origin: its images (``dot_files``) or its pixels (``origin``, JSON, per camera
     [u, v] or null, e.g. from ``/laser/dot``). ``base_plane`` (JSON [a, b, c, d]) is fitted to
     the support surface when not given."""
-    row = session.get(Rig, rig_id)
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
-    if content_type(request) != "multipart/form-data":
-        raise UnsupportedMediaType("send the images as multipart/form-data (files)")
-    form = await read_form(request, settings.max_upload_bytes, max_files=64)
+    row, form = await _rig_and_form(rig_id, request, session, settings)
     return await run_in_threadpool(
         partial(
             grid.measure,

@@ -33,6 +33,24 @@ def _field(raw: list[str], name: str, adapter: TypeAdapter[T]) -> T | None:
         raise Unprocessable(f"{name}{where}: {error['msg']}") from None
 
 
+def locate_dot(geo: Geometry, files: Files, max_pixels: int) -> laser.Dot:
+    """The laser dot from one dot-mode image per camera, in camera order (``/laser/dot``, and
+    the grid's origin)."""
+    n_cams = len(geo.f)
+    if len(files) != n_cams:
+        raise Unprocessable(
+            f"send one image per camera, in camera order: {n_cams}, got {len(files)}"
+        )
+    spots = [laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
+    try:
+        dot = laser.locate(spots, geo.triangulate)
+    except ValueError as exc:
+        raise Unprocessable(str(exc), code="dot_not_found") from None
+    if not np.isfinite(dot.point).all():
+        raise Unprocessable("the dot's views do not triangulate to a point", code="dot_not_found")
+    return dot
+
+
 def origin_from(
     geo: Geometry,
     dot_files: Files,
@@ -42,16 +60,7 @@ def origin_from(
 ) -> tuple[np.ndarray | None, list[str]]:
     """The laser dot's 3-D point, from dot-mode images or from its pixels in each view."""
     if dot_files:
-        if len(dot_files) != n_cams:
-            raise Unprocessable(f"send one dot image per camera: {n_cams}, got {len(dot_files)}")
-        spots = [
-            laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in dot_files
-        ]
-        try:
-            dot = laser.locate(spots, geo.triangulate)
-        except ValueError as exc:
-            raise Unprocessable(str(exc), code="dot_not_found") from None
-        return dot.point, []
+        return locate_dot(geo, dot_files, max_pixels).point, []
     pixels = _field(origin, "origin", _PIXELS)
     if pixels is None:
         return None, [
