@@ -47,10 +47,12 @@ from scipy.spatial import cKDTree
 
 from app.core.triangulation import (
     CrossRig,
+    RigArrays,
     View,
     project_views,
     triangulate_cross,
     triangulate_views,
+    undistort,
 )
 
 Triangulator = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -942,20 +944,16 @@ def cross_geometry(rig: CrossRig) -> Geometry:
 def views_geometry(views: list[View]) -> Geometry:
     """Calibrated cameras (distortion removed by OpenCV) as a :class:`Geometry`."""
 
-    def normalise(k: int, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        v = views[k]
-        pts = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), v.K, v.dist)
-        return np.asarray(pts.reshape(-1, 2), dtype=np.float64)
-
     def tri(obs: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         res = triangulate_views(views, obs)
         return res.points, res.reprojection_rms
 
+    rig = RigArrays.of(views)
     return Geometry(
-        np.stack([np.asarray(v.R, dtype=np.float64) for v in views]),
-        np.stack([np.asarray(v.t, dtype=np.float64).ravel() for v in views]),
-        np.array([float(np.sqrt(v.K[0, 0] * v.K[1, 1])) for v in views]),
-        normalise,
+        rig.rs,
+        rig.ts,
+        rig.fs,
+        lambda k, uv: undistort(views[k], uv),
         tri,
         lambda points: project_views(views, points),
     )

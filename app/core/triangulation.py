@@ -224,13 +224,19 @@ class RigResult:
     """(N, V): the views each point was triangulated from (outliers rejected)."""
 
 
+def _dist5(dist: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distortion coefficients as k1, k2, p1, p2, k3 (missing ones zero)."""
+    k = np.zeros(5)
+    d = np.asarray(dist, dtype=np.float64).ravel()[:5]
+    k[: len(d)] = d
+    return k
+
+
 def distort(xn: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.float64]:
     """Normalised pinhole coordinates (..., 2) → distorted (eqs. 2.6–2.10), k = [k1, k2, p1,
     p2, k3] (2.7). Eq. 2.9 as printed drops the 2 of the y row's 2 k_t2 x y term; Bouguet's
     toolbox and OpenCV, whose calibrations we read, have it, and so do we."""
-    k = np.zeros(5)
-    d = np.asarray(dist, dtype=np.float64).ravel()[:5]
-    k[: len(d)] = d
+    k = _dist5(dist)
     x, y = xn[..., 0], xn[..., 1]
     r2 = x * x + y * y
     radial = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))  # eq. 2.8
@@ -255,15 +261,19 @@ def project_views(views: list[View], points: NDArray[np.float64]) -> NDArray[np.
     return out
 
 
-def _normalised(views: list[View], obs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Pixels (N, V, 2) → undistorted normalised coordinates; NaN stays NaN."""
+def undistort(view: View, uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Pixels (N, 2) of one view → undistorted normalised coordinates (N, 2) (OpenCV)."""
     import cv2
 
+    pts = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+    return np.asarray(cv2.undistortPoints(pts, view.K, view.dist).reshape(-1, 2))
+
+
+def _normalised(views: list[View], obs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Pixels (N, V, 2) → undistorted normalised coordinates; NaN stays NaN."""
     out = np.empty(obs.shape)
     for k, v in enumerate(views):
-        # OpenCV passes NaN (a missing view) through as NaN
-        pts = np.ascontiguousarray(obs[:, k], dtype=np.float64).reshape(-1, 1, 2)
-        out[:, k] = cv2.undistortPoints(pts, v.K, v.dist).reshape(-1, 2)
+        out[:, k] = undistort(v, obs[:, k])  # OpenCV passes NaN (a missing view) through
     out[~np.isfinite(obs).all(axis=-1)] = np.nan
     return out
 
@@ -286,7 +296,7 @@ def triangulate_views(
     n, v = obs.shape[0], len(views)
     if obs.ndim != 3 or obs.shape[1:] != (v, 2):
         raise ValueError(f"observations must have shape (N, {v}, 2); got {obs.shape}")
-    rig = _RigArrays.of(views)
+    rig = RigArrays.of(views)
     points = np.empty((n, 3))
     use = np.empty((n, v), np.bool_)
     rms = np.empty(n)
@@ -305,7 +315,9 @@ def triangulate_views(
 
 
 @dataclass(frozen=True, slots=True)
-class _RigArrays:
+class RigArrays:
+    """The views' parameters stacked for the compiled loop (and the laser grid's geometry)."""
+
     rs: NDArray[np.float64]
     ts: NDArray[np.float64]
     fs: NDArray[np.float64]
@@ -315,11 +327,8 @@ class _RigArrays:
     """(V, 5): k1, k2, p1, p2, k3."""
 
     @classmethod
-    def of(cls, views: list[View]) -> _RigArrays:
-        dist = np.zeros((len(views), 5))
-        for k, x in enumerate(views):
-            d = np.asarray(x.dist, dtype=np.float64).ravel()[:5]
-            dist[k, : len(d)] = d
+    def of(cls, views: list[View]) -> RigArrays:
+        dist = np.stack([_dist5(x.dist) for x in views])
         return cls(
             np.ascontiguousarray(np.stack([np.asarray(x.R, dtype=np.float64) for x in views])),
             np.ascontiguousarray(
@@ -337,7 +346,7 @@ class _RigArrays:
 def _chunk(
     rows: slice,
     views: list[View],
-    rig: _RigArrays,
+    rig: RigArrays,
     obs: NDArray[np.float64],
     outlier_px: float,
     iterations: int,
