@@ -236,9 +236,6 @@ class S3FrameStore:
                         old.append(obj["Key"][len(self.prefix) :])
         return sorted(old)
 
-    def files(self) -> list[str]:
-        return self.older_than(float("-inf"))
-
     def check(self) -> None:
         with self._answering("reaching the bucket"):
             self._s3.head_bucket(Bucket=self.bucket)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+from typing import Any
 
 import numpy as np
 import pytest
@@ -214,24 +215,37 @@ class TestLaserGrid:
             for i, im in enumerate(images)
         ]
 
-    def test_box_area_and_volume(self, client: TestClient, admin: dict[str, str]) -> None:
-        truth, grid, dots = grid_scene()
-        assert client.post("/rigs", json=self.CROSS, headers=admin).status_code == 201
+    def measure_box(
+        self,
+        client: TestClient,
+        admin: dict[str, str],
+        rig: str,
+        truth: Any,
+        grid: list[np.ndarray],
+        dots: list[np.ndarray],
+    ) -> dict[str, Any]:
+        """POST the grid and dot images; the volume and top area within 2 % of the box's."""
         r = client.post(
-            "/rigs/cell/laser/grid",
+            f"/rigs/{rig}/laser/grid",
             files=self.png(grid, "files") + self.png(dots, "dot_files"),
             headers=admin,
         )
         assert r.status_code == 200, r.text
-        out = r.json()
+        out: dict[str, Any] = r.json()
         # ground truth: the box's own dimensions
         assert out["volume"] == pytest.approx(truth.part.volume, rel=0.02)
         assert out["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+        return out
+
+    def test_box_area_and_volume(self, client: TestClient, admin: dict[str, str]) -> None:
+        truth, grid, dots = grid_scene()
+        assert client.post("/rigs", json=self.CROSS, headers=admin).status_code == 201
+        out = self.measure_box(client, admin, "cell", truth, grid, dots)
         np.testing.assert_allclose(out["base_plane"], truth.base_plane(), atol=0.005)
         assert len(out["points"]) == len(out["labels"]) == len(out["surfaces"]) > 1400
         assert min(out["nodes_per_view"]) > 1000
         # the dot's node is (0, 0), on the box's top
-        dot = r.json()["points"][out["labels"].index([0, 0])]
+        dot = out["points"][out["labels"].index([0, 0])]
         assert dot[2] == pytest.approx(0.92, abs=0.002)
 
         # the dot's pixels (as /laser/dot returns them) serve as the origin too
@@ -262,15 +276,7 @@ class TestLaserGrid:
             "/rigs", json={"id": "flat", "kind": "calibrated", "cameras": cameras}, headers=admin
         )
         assert r.status_code == 201, r.text
-        r = client.post(
-            "/rigs/flat/laser/grid",
-            files=self.png(grid, "files") + self.png(dots, "dot_files"),
-            headers=admin,
-        )
-        assert r.status_code == 200, r.text
-        out = r.json()
-        assert out["volume"] == pytest.approx(truth.part.volume, rel=0.02)
-        assert out["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+        out = self.measure_box(client, admin, "flat", truth, grid, dots)
         a, b, c, d = truth.base_plane()
         np.testing.assert_allclose(out["base_plane"], [a, -b, c, d], atol=0.005)
 
