@@ -1,14 +1,23 @@
-"""Inserting new ORM objects with Core statements: the hot ingest path skips the unit of work."""
+"""Inserting new ORM objects with Core statements: the hot ingest path skips the unit of work.
+
+Inside ``deferred_inserts`` (the group-commit writer's batches) the INSERTs are held back and
+sent as one executemany per table and column set: at the batch's end, or as soon as anything
+else is executed on the connection, so every statement still sees the rows inserted before it.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from typing import Any
 
-from sqlalchemy import Insert, insert, inspect
+from sqlalchemy import Connection, Engine, Insert, event, insert, inspect
 from sqlalchemy.orm import Session
 
 from app.db.base import Base
+
+_PENDING = "vantage.pending_inserts"
 
 
 @cache
@@ -25,6 +34,27 @@ def _plan(cls: type[Base]) -> tuple[tuple[Insert, tuple[tuple[str, str], ...]], 
     return tuple(plan)
 
 
+class _Pending:
+    """Rows waiting to be inserted: per statement (in the order first used), per column set.
+
+    Sending the tables in the order they were first used keeps foreign keys satisfied: a row
+    refers only to rows its own job inserted before it, so the table it refers to was used first.
+    """
+
+    def __init__(self) -> None:
+        self._rows: dict[Insert, dict[tuple[str, ...], list[dict[str, Any]]]] = {}
+
+    def add(self, statement: Insert, row: dict[str, Any]) -> None:
+        by_columns = self._rows.setdefault(statement, {})
+        by_columns.setdefault(tuple(row), []).append(row)
+
+    def send(self, connection: Connection) -> None:
+        rows, self._rows = self._rows, {}  # emptied first: these executes come back here
+        for statement, by_columns in rows.items():
+            for batch in by_columns.values():
+                connection.execute(statement, batch)
+
+
 def insert_rows(session: Session, *objs: Base) -> None:
     """INSERT each new object's rows (joined-inheritance tables included), in order.
 
@@ -32,8 +62,36 @@ def insert_rows(session: Session, *objs: Base) -> None:
     Only the attributes that were set are inserted, so column defaults apply as for the ORM.
     """
     connection = session.connection()
+    pending: _Pending | None = connection.info.get(_PENDING)
     for obj in objs:
         values: dict[str, Any] = obj.__dict__
         for statement, pairs in _plan(type(obj)):
             row = {col: values[attr] for col, attr in pairs if attr in values}
-            connection.execute(statement, row)
+            if pending is not None:
+                pending.add(statement, row)
+            else:
+                connection.execute(statement, row)
+
+
+@contextmanager
+def deferred_inserts(session: Session) -> Iterator[None]:
+    """Within the block, ``insert_rows`` collects rows and sends them together (before any
+    other statement on the session's connection, and at the block's end)."""
+    connection = session.connection()
+    pending = _Pending()
+    connection.info[_PENDING] = pending
+    try:
+        yield
+        pending.send(connection)
+    finally:
+        connection.info.pop(_PENDING, None)
+
+
+def send_pending_first(engine: Engine) -> None:
+    """Make every statement on ``engine`` send the held-back inserts of its connection first."""
+
+    @event.listens_for(engine, "before_execute")
+    def _send_pending(connection: Connection, *_: Any) -> None:
+        pending: _Pending | None = connection.info.get(_PENDING)
+        if pending is not None:
+            pending.send(connection)

@@ -7,9 +7,17 @@ from typing import Any
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.db.rows import send_pending_first
+
 
 def make_engine(url: str) -> Engine:
     """An engine tuned for the backend: WAL and a busy timeout on SQLite, a pool on PostgreSQL."""
+    engine = _engine(url)
+    send_pending_first(engine)  # app.db.rows.deferred_inserts
+    return engine
+
+
+def _engine(url: str) -> Engine:
     if url.startswith("sqlite"):
         # One connection per process: requests queue for it in Python (fair, no polling) rather
         # than in SQLite's busy handler, whose sleeps grow to 100 ms under contention. Every use

@@ -23,6 +23,8 @@ from typing import Any, TypeVar
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.db.rows import deferred_inserts
+
 log = logging.getLogger("vantage.writer")
 
 T = TypeVar("T")
@@ -106,7 +108,8 @@ class GroupCommitWriter:
     def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
         try:
             with self._sessions() as session:
-                result = job.fn(session, retry=True)
+                with deferred_inserts(session):
+                    result = job.fn(session, retry=True)
                 session.commit()
             return (result, None)
         except Exception:
@@ -115,7 +118,8 @@ class GroupCommitWriter:
     def _write(self, batch: list[_Job]) -> list[tuple[Any, BaseException | None]]:
         try:
             with self._sessions() as session:
-                results = [job.fn(session) for job in batch]
+                with deferred_inserts(session):  # one INSERT per table for the batch
+                    results = [job.fn(session) for job in batch]
                 session.commit()
             return [(r, None) for r in results]
         except IntegrityError as exc:

@@ -1,0 +1,158 @@
+"""The group-commit writer and its held-back inserts, on the test database (SQLite or
+PostgreSQL): rows sent together, still visible to every later statement of the batch, and a
+conflicting job failing alone."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from concurrent.futures import Future
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import pytest
+from sqlalchemy import Engine, event, func, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.db.models import Camera, CameraKind, Frame, Verdict
+from app.db.rows import deferred_inserts, insert_rows
+from app.db.session import make_engine, make_sessionmaker
+from app.services.writer import GroupCommitWriter, _Job
+from tests.conftest import _empty_tables
+
+T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
+
+
+@pytest.fixture
+def sessions(database_url: str, engine: Engine) -> Iterator[sessionmaker[Session]]:
+    _empty_tables(engine)
+    app_engine = make_engine(database_url)  # with the service's listeners
+    sm = make_sessionmaker(app_engine)
+    with sm() as s:
+        s.add(Camera(id="cam", kind=CameraKind.rig, token_hash="h"))
+        s.commit()
+    yield sm
+    app_engine.dispose()
+
+
+def frame_and_verdict(n: int, *, key: str | None = None, stored: bool = True) -> list[Any]:
+    frame = Frame(
+        id=f"f{n:04d}",
+        camera_id="cam",
+        captured_at=T0 + timedelta(seconds=n),
+        received_at=T0,
+        width=64,
+        height=48,
+        size_bytes=100,
+        sha256=f"{n:064d}",
+        idempotency_key=key,
+    )
+    if stored:  # a frame without a stored file leaves the column unset: another column set
+        frame.stored_path = f"frames/{n}.jpg"
+    verdict = Verdict(
+        frame_id=frame.id, camera_id="cam", mode_r=1, mode_g=2, mode_b=3,
+        mean_r=1.0, mean_g=2.0, mean_b=3.0,
+    )  # fmt: skip
+    return [frame, verdict]
+
+
+def inserts_sent(sm: sessionmaker[Session]) -> list[int]:
+    """Records the number of rows in each INSERT the engine executes (executemany counts all)."""
+    sent: list[int] = []
+    engine = sm.kw["bind"]
+
+    @event.listens_for(engine, "before_cursor_execute")
+    def count(_c: Any, _cur: Any, statement: str, params: Any, _ctx: Any, many: bool) -> None:
+        if statement.lstrip().upper().startswith("INSERT"):
+            sent.append(len(params) if many else 1)
+
+    return sent
+
+
+def test_held_back_inserts_go_as_one_statement_per_table_and_column_set(
+    sessions: sessionmaker[Session],
+) -> None:
+    sent = inserts_sent(sessions)
+    with sessions() as s:
+        with deferred_inserts(s):
+            for n in range(6):
+                insert_rows(s, *frame_and_verdict(n, stored=n % 3 != 0))
+            assert sent == []  # nothing sent yet
+        s.commit()
+    # frames with a stored path (4), frames without (2), verdicts (6): in the order first used,
+    # which keeps every verdict after its frame
+    assert sorted(sent) == [2, 4, 6] and sum(sent) == 12
+    with sessions() as s:
+        assert s.scalar(select(func.count()).select_from(Frame)) == 6
+        assert s.scalar(select(func.count()).select_from(Verdict)) == 6
+        unstored = s.scalars(select(Frame.id).where(Frame.stored_path.is_(None))).all()
+        assert sorted(unstored) == ["f0000", "f0003"]
+
+
+def test_a_read_in_the_batch_sees_the_rows_held_back(sessions: sessionmaker[Session]) -> None:
+    with sessions() as s:
+        with deferred_inserts(s):
+            insert_rows(s, *frame_and_verdict(1))
+            assert s.scalar(select(func.count()).select_from(Frame)) == 1
+            insert_rows(s, *frame_and_verdict(2))
+            assert s.scalar(select(func.count()).select_from(Verdict)) == 2
+        s.commit()
+
+
+def test_outside_a_batch_inserts_are_sent_at_once(sessions: sessionmaker[Session]) -> None:
+    sent = inserts_sent(sessions)
+    with sessions() as s:
+        insert_rows(s, *frame_and_verdict(1))
+        assert sent == [1, 1]
+        s.rollback()
+
+
+def test_a_conflicting_job_is_run_again_alone_and_the_rest_of_its_batch_is_stored(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions() as s:
+        insert_rows(s, *frame_and_verdict(7, key="k"))
+        s.commit()
+
+    def job(n: int, key: str | None = None) -> Any:
+        def fn(session: Session, retry: bool = False) -> str:
+            if retry:  # run again alone after a conflict: the stored frame with this key
+                return f"replay of {session.scalar(select(Frame.id).where(Frame.idempotency_key == key))}"
+            insert_rows(session, *frame_and_verdict(n, key=key))
+            return "stored"
+
+        return fn
+
+    writer = GroupCommitWriter(sessions)
+    # the middle job repeats the stored frame's idempotency key: only it conflicts, and only
+    # when the held-back rows are sent at the batch's end
+    batch = [_Job(job(1), Future()), _Job(job(8, key="k"), Future()), _Job(job(2), Future())]
+    outcomes = writer._write(batch)
+    assert outcomes == [("stored", None), ("replay of f0007", None), ("stored", None)]
+    with sessions() as s:
+        ids = s.scalars(select(Frame.id).order_by(Frame.id)).all()
+        assert ids == ["f0001", "f0002", "f0007"]
+        assert s.scalar(select(func.count()).select_from(Verdict)) == 3
+
+
+def test_jobs_posted_at_once_are_all_committed(sessions: sessionmaker[Session]) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    writer = GroupCommitWriter(sessions)
+    writer.start()
+    try:
+
+        def post(n: int) -> str:
+            def fn(session: Session, retry: bool = False) -> str:
+                insert_rows(session, *frame_and_verdict(n))
+                return f"f{n:04d}"
+
+            return writer.run(fn)
+
+        with ThreadPoolExecutor(16) as pool:
+            done = list(pool.map(post, range(200)))
+    finally:
+        writer.stop()
+    assert done == [f"f{n:04d}" for n in range(200)]
+    with sessions() as s:
+        assert s.scalar(select(func.count()).select_from(Frame)) == 200
+        assert s.scalar(select(func.count()).select_from(Verdict)) == 200
