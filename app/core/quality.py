@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.core.stats import ChannelStats
 
@@ -33,32 +32,39 @@ class QualityLimits:
 DEFAULT_LIMITS = QualityLimits()
 
 
-def _percentile(hist: NDArray[np.int64], q: float) -> NDArray[np.int64]:
-    """Per-channel level below which a fraction ``q`` of the pixels lie; hist (3, 256)."""
-    cdf = np.cumsum(hist, axis=1)
-    target = q * cdf[:, -1:]
-    return np.asarray((cdf < target).sum(axis=1), dtype=np.int64)
+_LEVELS_SQUARED = np.arange(256, dtype=np.float64) ** 2
 
 
 def unusable_reason(stats: ChannelStats, limits: QualityLimits = DEFAULT_LIMITS) -> str | None:
-    """Why the frame cannot be judged, or None when it can."""
+    """Why the frame cannot be judged, or None when it can.
+
+    Every reading comes from one cumulative histogram and one product per channel, and the
+    comparisons run on Python numbers: this runs for every frame, and NumPy's cost per call,
+    not the arithmetic, is what it spends.
+    """
     hist = stats.histograms
-    total = hist.sum(axis=1).astype(np.float64)
-    levels = np.arange(256, dtype=np.float64)
-    means = stats.means
-    std = np.sqrt((hist * (levels - means[:, None]) ** 2).sum(axis=1) / total)
-    p95 = _percentile(hist, 0.95)
-    if (p95 < limits.night_p95).all():
-        return f"too dark to judge (night?): 95% of pixels below level {int(p95.max()) + 1}"
-    if (std < limits.blank_std).all():
+    cdf = hist.cumsum(axis=1)
+    total = cdf[:, -1]
+    # the level below which 95 % of a channel's pixels lie
+    p95 = (cdf < 0.95 * total[:, None]).sum(axis=1).tolist()
+    if max(p95) < limits.night_p95:
+        return f"too dark to judge (night?): 95% of pixels below level {max(p95) + 1}"
+    n = total.tolist()
+    means = stats.means.tolist()
+    # variance as E[x²] − x̄², clipped at 0 against rounding
+    squares = (hist @ _LEVELS_SQUARED).tolist()
+    std = [max(0.0, s / c - m * m) ** 0.5 for s, c, m in zip(squares, n, means, strict=True)]
+    if max(std) < limits.blank_std:
         return "blank frame: no detail in any channel (lens covered or camera fault?)"
-    saturated = hist[:, 250:].sum(axis=1) / total
-    if saturated.max() > limits.glare_fraction:
-        return f"glare: {100 * saturated.max():.0f}% of the region is saturated"
-    spread = means.max() - means.min()
-    if spread < limits.grey_mean_diff and np.abs(hist[0] - hist[1]).sum() < 0.02 * total[0]:
+    saturated = max((c - below) / c for c, below in zip(n, cdf[:, 249].tolist(), strict=True))
+    if saturated > limits.glare_fraction:
+        return f"glare: {100 * saturated:.0f}% of the region is saturated"
+    if (
+        max(means) - min(means) < limits.grey_mean_diff
+        and int(np.abs(hist[0] - hist[1]).sum()) < 0.02 * n[0]
+    ):
         return "greyscale frame (camera in night mode?)"
-    dark = hist[:, :12].sum(axis=1) / total
-    if dark.min() > limits.occluded_dark_fraction:
-        return f"occluded: {100 * dark.min():.0f}% of the region is black"
+    dark = min(below / c for c, below in zip(n, cdf[:, 11].tolist(), strict=True))
+    if dark > limits.occluded_dark_fraction:
+        return f"occluded: {100 * dark:.0f}% of the region is black"
     return None
