@@ -84,13 +84,14 @@ class DiskFrameStore:
         them) and rare (a retried upload), where looking first would cost every frame a lookup.
         """
         relative = relative_path(sha256)
-        directory = f"{self.root}/{relative[:9]}"  # "frames/ab"
+        subdirectory, _, name = relative.rpartition("/")
+        directory = f"{self.root}/{subdirectory}"
         try:
             try:
-                self._write(directory, relative[10:], data)
+                self._write(directory, name, data)
             except FileNotFoundError:  # its directory is new, or went (emptied by hand)
                 os.makedirs(directory, exist_ok=True)
-                self._write(directory, relative[10:], data)
+                self._write(directory, name, data)
         except OSError as exc:  # full, read-only, gone: the client should retry later
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
         return relative

@@ -108,8 +108,7 @@ class GroupCommitWriter:
     def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
         try:
             with self._sessions() as session:
-                with deferred_inserts(session):
-                    result = job.fn(session, retry=True)
+                result = job.fn(session, retry=True)
                 session.commit()
             return (result, None)
         except Exception:
