@@ -98,6 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             with contextlib.suppress(asyncio.CancelledError):
                 await notifier
         app.state.writer.stop()
+        app.state.frame_store.close()
         engine.dispose()
 
     app = FastAPI(

@@ -138,8 +138,8 @@ async def post_frame(
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer
 
-    def store_frame() -> ingest.Recorded:
-        prepared = ingest.prepare(
+    def prepare() -> ingest.Prepared:
+        return ingest.prepare(
             store,
             camera=target,
             data=data,
@@ -148,13 +148,12 @@ async def post_frame(
             max_pixels=settings.max_pixels,
             idempotency_key=idempotency_key,
         )
-        return writer.run(partial(ingest.record, prepared=prepared, policy=policy))
 
-    # frame uploads hold a worker thread until their rows are committed, under a limiter of
-    # their own: a stalled database (a failover) cannot take every thread of the shared pool
-    # and stall the other endpoints with it
+    # decoding and the file write take a worker thread, under a limiter of their own; the wait
+    # for the commit takes none, so a stalled database (a failover) holds no thread at all
     limiter: anyio.CapacityLimiter = request.app.state.ingest_threads
-    done = await anyio.to_thread.run_sync(store_frame, limiter=limiter)
+    prepared = await anyio.to_thread.run_sync(prepare, limiter=limiter)
+    done = await writer.submit(partial(ingest.record, prepared=prepared, policy=policy))
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

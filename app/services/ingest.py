@@ -164,13 +164,14 @@ def prepare(
 ) -> Prepared:
     """Everything about a frame that needs no database, run in a worker thread.
 
-    The file is written here, before any transaction, so a committed row always has its file.
-    A transaction that then fails leaves at most an unreferenced file, which the retention sweep
-    removes; it is never deleted here, because an identical frame may share it.
+    The bytes are stored here, before any transaction, so a committed row always has them. A
+    transaction that then fails leaves bytes no row refers to, which retention removes (with
+    their pack, or as an orphan file); they are never deleted here, because in a store that
+    names frames by their SHA-256 an identical frame may share them.
     """
     decoded = analyse(data, camera=camera, max_pixels=max_pixels)
     sha256 = digest(data)
-    stored_path = frames.put(data, sha256) if frames is not None else None
+    stored_path = frames.put(data, sha256, received_at) if frames is not None else None
     frame = Frame(
         id=str(uuid.uuid4()),
         camera_id=camera.id,

@@ -1,9 +1,13 @@
-"""Frame retention: old frames go (rows and files); frames something still needs stay.
+"""Frame retention: old frames go (rows and bytes); frames something still needs stay.
 
 Kept whatever their age: frames a baseline or an air calibration was trained from, and frames
-an alert points at. A file goes when no frame row refers to it any more (identical frames share
-one file). At start-up, files that no row refers to (a process killed between writing a file
-and committing its row) are swept too, once they are old enough not to be in flight.
+an alert points at. On disk, frames live in packs, one per process and hour of reception
+(``app.services.storage``): once an hour has expired, the kept frames among its packs are
+copied into a current pack and the packs deleted, taking with them the frames whose rows went
+and any bytes a killed process wrote without committing their row. A frame stored as a file or
+object of its own goes when no frame row refers to it any more (identical frames share one);
+at start-up, such files that no row refers to are swept too, once they are old enough not to
+be in flight.
 """
 
 from __future__ import annotations
@@ -11,9 +15,9 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass
-from datetime import timedelta
+from datetime import datetime, timedelta
 
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import (
@@ -26,7 +30,7 @@ from app.db.models import (
     Verdict,
 )
 from app.services.policy import Policy
-from app.services.storage import FrameStore
+from app.services.storage import FrameStore, pack_of
 
 log = logging.getLogger("vantage.retention")
 
@@ -37,6 +41,7 @@ BATCH = 2000
 class Swept:
     frames: int
     files: int
+    """Frames' files or objects deleted, and packs."""
 
 
 def _kept(session: Session) -> set[str]:
@@ -50,7 +55,7 @@ def _kept(session: Session) -> set[str]:
 
 
 def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float) -> Swept:
-    """Delete frames received more than ``days`` ago, and their files."""
+    """Delete frames received more than ``days`` ago, their files, and the expired packs."""
     cutoff = policy.now() - timedelta(days=days)
     frames = files = 0
     while True:
@@ -64,7 +69,7 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
             ).all()
             doomed = [r for r in rows if r[0] not in keep][:BATCH]
             if not doomed:
-                return Swept(frames, files)
+                break
             ids = [r[0] for r in doomed]
             for table in (PanelVerdict, SkyVerdict, Verdict):
                 session.execute(delete(table).where(table.frame_id.in_(ids)))
@@ -74,10 +79,54 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
                 session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(paths)))
             )
             session.commit()
-        gone = sorted(paths - still)
+        gone = sorted(p for p in paths - still if pack_of(p) is None)
         store.delete(gone)
         files += len(gone)
         frames += len(ids)
+    if packs := store.expired_packs(cutoff):
+        _move_kept(sessions, store, policy, set(packs), cutoff)
+        store.delete_packs(packs)
+        files += len(packs)
+    return Swept(frames, files)
+
+
+def _move_kept(
+    sessions: sessionmaker[Session],
+    store: FrameStore,
+    policy: Policy,
+    packs: set[str],
+    cutoff: datetime,
+) -> int:
+    """Copy the frames still referred to out of ``packs`` (their hours expired) into a current
+    pack, and point their rows there. Every frame in such a pack was received before
+    ``cutoff``, so after the sweep of rows only kept frames are left to look at."""
+    with sessions() as session:
+        rows = session.execute(
+            select(Frame.id, Frame.stored_path, Frame.sha256).where(
+                Frame.received_at < cutoff, Frame.stored_path.like("packs/%")
+            )
+        ).all()
+    moves = []
+    now = policy.now()
+    for frame_id, path, sha256 in rows:
+        if path is None or pack_of(path) not in packs:
+            continue
+        data = store.read(path)
+        if data is None:  # another process moved it and deleted the pack meanwhile
+            continue
+        moves.append((frame_id, path, store.put(data, sha256, now)))
+    with sessions() as session:
+        for frame_id, old, new in moves:
+            # unless another process's sweep moved it first
+            session.execute(
+                update(Frame)
+                .where(Frame.id == frame_id, Frame.stored_path == old)
+                .values(stored_path=new)
+            )
+        session.commit()
+    if moves:
+        log.info("kept frames moved out of expired packs", extra={"frames": len(moves)})
+    return len(moves)
 
 
 def sweep_orphans(

@@ -12,10 +12,11 @@ the database they see. A caller's result (its 201) comes only after the commit h
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -34,14 +35,27 @@ T = TypeVar("T")
 class _Job:
     fn: Callable[..., Any]
     """Called as fn(session), or fn(session, retry=True) when run again after a conflict."""
-    future: Future[Any]
+    future: Future[Any] | asyncio.Future[Any]
+    loop: asyncio.AbstractEventLoop | None = None
+    """The event loop an asyncio ``future`` belongs to; None for a thread's future."""
 
 
-def _settle(future: Future[Any], result: Any, error: BaseException | None) -> None:
+Outcome = tuple[Any, BaseException | None]
+
+
+def _settle(future: Future[Any] | asyncio.Future[Any], outcome: Outcome) -> None:
+    result, error = outcome
+    if future.done():  # an asyncio future whose request was cancelled: nobody waits
+        return
     if error is not None:
         future.set_exception(error)
     else:
         future.set_result(result)
+
+
+def _settle_all(settled: Sequence[tuple[asyncio.Future[Any], Outcome]]) -> None:
+    for future, outcome in settled:
+        _settle(future, outcome)
 
 
 class GroupCommitWriter:
@@ -83,6 +97,19 @@ class GroupCommitWriter:
         self._queue.put(_Job(fn, future))
         return future.result()
 
+    def submit(self, fn: Callable[[Session], T]) -> asyncio.Future[T]:
+        """``run`` for the event loop: await the returned future, no thread waits.
+
+        The batch's results reach each event loop in one call: a batch costs the loop one
+        wake-up, where ``run`` wakes every waiting thread. Must be called on the loop.
+        """
+        if self._thread is None:
+            self.start()
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+        self._queue.put(_Job(fn, future, loop))
+        return future
+
     def _take_batch(self) -> list[_Job] | None:
         first = self._queue.get()
         if first is None:
@@ -102,10 +129,20 @@ class GroupCommitWriter:
     def _run(self) -> None:
         while (batch := self._take_batch()) is not None:
             outcomes = self._write(batch)
-            for job, (result, error) in zip(batch, outcomes, strict=True):
-                _settle(job.future, result, error)
+            to_loops: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future[Any], Outcome]]]
+            to_loops = {}
+            for job, outcome in zip(batch, outcomes, strict=True):
+                if job.loop is None:
+                    _settle(job.future, outcome)
+                else:
+                    to_loops.setdefault(job.loop, []).append((job.future, outcome))  # type: ignore[arg-type]
+            for loop, settled in to_loops.items():
+                try:
+                    loop.call_soon_threadsafe(_settle_all, settled)
+                except RuntimeError:  # the loop has closed: nobody waits for these
+                    log.warning("%d results for a closed event loop dropped", len(settled))
 
-    def _once(self, job: _Job, first: Exception) -> tuple[Any, BaseException | None]:
+    def _once(self, job: _Job, first: Exception) -> Outcome:
         try:
             with self._sessions() as session:
                 result = job.fn(session, retry=True)
@@ -114,7 +151,7 @@ class GroupCommitWriter:
         except Exception:
             return (None, first)
 
-    def _write(self, batch: list[_Job]) -> list[tuple[Any, BaseException | None]]:
+    def _write(self, batch: list[_Job]) -> list[Outcome]:
         try:
             with self._sessions() as session:
                 with deferred_inserts(session):  # one INSERT per table for the batch

@@ -1,5 +1,5 @@
 """Kill -9 a server while frames are posted: nothing that got a 201 is lost, nothing is
-half-stored, and the next start sweeps any file a killed upload left without its row."""
+half-stored, and the next process stores and serves frames beside what the killed one left."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine, text
 
+from app.services.storage import DiskFrameStore, digest
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
 from tests.servers import free_port, server_env, start_server
 
@@ -61,21 +62,37 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
         t.join()
 
     with engine.connect() as conn:
-        frames = dict(conn.execute(text("SELECT id, stored_path FROM frames")).all())
+        rows = conn.execute(text("SELECT id, stored_path, sha256 FROM frames")).all()
         verdicts = set(conn.execute(text("SELECT frame_id FROM verdicts")).scalars())
+    frames = {r[0]: r[1] for r in rows}
+    store = DiskFrameStore(tmp_path)
     assert len(acknowledged) >= 150
-    for out in acknowledged:  # every 201 is stored, with its verdict and its file
+    for out in acknowledged:  # every 201 is stored, with its verdict and its bytes
         assert out["frame_id"] in frames
         assert out["frame_id"] in verdicts
-        assert (tmp_path / frames[out["frame_id"]]).is_file()
     assert set(frames) == verdicts  # no frame without its verdict
-    for path in frames.values():  # no row without its file
-        assert (tmp_path / path).is_file()
+    for _, path, sha256 in rows:  # no row without its bytes, whole
+        data = store.read(path)
+        assert data is not None
+        assert digest(data) == sha256
 
-    proc = start_server(env, port)  # the start-up sweep removes files no row refers to
+    proc = start_server(env, port)  # a new process: a pack of its own beside the killed one's
     try:
-        on_disk = {str(p.relative_to(tmp_path)) for p in (tmp_path / "frames").rglob("*.jpg")}
-        assert on_disk == set(frames.values())
+        body = make_jpeg(160, 120, noise=20, seed=7)
+        r = httpx.post(
+            f"{base}/cameras/c/frames",
+            content=body,
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        for frame_id in [r.json()["frame_id"], *[a["frame_id"] for a in acknowledged[-20:]]]:
+            image = httpx.get(f"{base}/frames/{frame_id}/image", headers=ADMIN)
+            assert image.status_code == 200
+            assert digest(image.content) == image.headers["ETag"].strip('"')
+        assert (
+            httpx.get(f"{base}/frames/{r.json()['frame_id']}/image", headers=ADMIN).content == body
+        )
+        assert len(store.packs()) >= 2
     finally:
         proc.terminate()
         proc.wait(10)

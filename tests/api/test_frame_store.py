@@ -12,6 +12,7 @@ import socket
 import uuid
 from collections.abc import Iterator
 from dataclasses import replace
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -156,7 +157,7 @@ def test_retention_and_orphan_sweep_delete_objects(
 
     store: S3FrameStore = s3_app.state.frame_store
     orphan = panel_jpeg(CLEAN_RGB, seed=3)
-    store.put(orphan, digest(orphan))  # as if the process died before the commit
+    store.put(orphan, digest(orphan), datetime.now(UTC))  # as if killed before the commit
     # too young: may be an upload in flight in another process
     assert retention.sweep_orphans(s3_app.state.sessionmaker, store, min_age_s=600) == 0
     assert retention.sweep_orphans(s3_app.state.sessionmaker, store, min_age_s=0) == 1
@@ -207,19 +208,19 @@ def test_disk_that_cannot_take_the_frame_is_503_and_nothing_is_stored(
 ) -> None:
     headers = rig_camera(client, admin)
     body = panel_jpeg(CLEAN_RGB, seed=5)
-    sha = digest(body)
-    frames = settings.data_dir / "frames"
-    frames.mkdir(parents=True, exist_ok=True)
-    (frames / sha[:2]).write_bytes(b"")  # a file where the frame's directory should be
+    packs = settings.data_dir / "packs"
+    packs.write_bytes(b"")  # a file where the packs' directory should be
     r = client.post("/cameras/c/frames", content=body, headers=headers)
     assert r.status_code == 503, r.text
     assert r.headers["content-type"] == "application/problem+json"
     assert r.json()["code"] == "store_unavailable"
     assert table_counts(engine)["frames"] == 0
-    assert [p.name for p in frames.iterdir()] == [sha[:2]]  # no temporary file left
+    assert packs.read_bytes() == b""
 
-    (frames / sha[:2]).unlink()
-    assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+    packs.unlink()
+    r = client.post("/cameras/c/frames", content=body, headers=headers)
+    assert r.status_code == 201
+    assert client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin).content == body
 
 
 def test_two_machines_share_one_bucket(

@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
+from app.services.storage import PACK_HEADER
 from tests.conftest import make_jpeg, table_counts
 
 
@@ -41,8 +42,15 @@ def cam_headers(camera: dict[str, Any]) -> dict[str, str]:
     return {"Authorization": f"Bearer {camera['token']}", "Content-Type": "image/jpeg"}
 
 
-def stored_files(data_dir: Path) -> list[Path]:
-    return sorted((data_dir / "frames").rglob("*.jpg")) if (data_dir / "frames").exists() else []
+def stored_files(data_dir: Path) -> list[tuple[str, int]]:
+    """Every file of the frame store (packs, and frames stored as files of their own), with
+    its size: a pack that grew shows."""
+    return sorted(
+        (str(p.relative_to(data_dir)), p.stat().st_size)
+        for sub in ("packs", "frames")
+        for p in (data_dir / sub).rglob("*")
+        if p.is_file()
+    )
 
 
 class TestPostFrame:
@@ -65,8 +73,8 @@ class TestPostFrame:
         np.testing.assert_allclose(out["verdict"]["modes"], [90, 140, 200], atol=2)
         np.testing.assert_allclose(out["verdict"]["means"], [90, 140, 200], atol=2)
         files = stored_files(settings.data_dir)
-        assert len(files) == 1
-        assert files[0].read_bytes() == body
+        assert [size for _, size in files] == [PACK_HEADER.size + len(body)]  # one pack
+        assert (settings.data_dir / files[0][0]).read_bytes()[PACK_HEADER.size :] == body
         image = client.get(f"/frames/{out['frame_id']}/image", headers=admin)
         assert image.status_code == 200
         assert image.content == body
@@ -159,18 +167,22 @@ class TestPostFrame:
         assert r.status_code == 422
         assert "does not lie inside" in r.json()["detail"]
 
-    def test_identical_bytes_share_one_file(
-        self, client: TestClient, camera: dict[str, Any], settings: Any
+    def test_identical_bytes_are_two_frames_each_served(
+        self, client: TestClient, camera: dict[str, Any], admin: dict[str, str], settings: Any
     ) -> None:
         body = make_jpeg()
-        for _ in range(2):
-            assert (
-                client.post(
-                    "/cameras/cam-1/frames", content=body, headers=cam_headers(camera)
-                ).status_code
-                == 201
-            )
-        assert len(stored_files(settings.data_dir)) == 1
+        posted = [
+            client.post("/cameras/cam-1/frames", content=body, headers=cam_headers(camera))
+            for _ in range(2)
+        ]
+        assert [r.status_code for r in posted] == [201, 201]
+        assert len({r.json()["frame_id"] for r in posted}) == 2
+        for r in posted:
+            image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
+            assert image.content == body
+        assert [size for _, size in stored_files(settings.data_dir)] == [
+            2 * (PACK_HEADER.size + len(body))
+        ]
 
     def test_verdict_kind_follows_camera_kind(
         self, client: TestClient, admin: dict[str, str]
@@ -197,7 +209,7 @@ class TestBadInput:
 
     @pytest.fixture
     def snapshot(self, engine: Engine, settings: Any, camera: dict[str, Any]) -> Any:
-        def take() -> tuple[dict[str, int], list[Path]]:
+        def take() -> tuple[dict[str, int], list[tuple[str, int]]]:
             return table_counts(engine), stored_files(settings.data_dir)
 
         return take
@@ -472,23 +484,29 @@ class TestRateLimit:
 def test_a_stalled_database_does_not_starve_the_other_endpoints(
     client: TestClient, app: Any, camera: dict[str, Any], admin: dict[str, str]
 ) -> None:
-    """50 uploads wait for a commit that does not come (the writer is stalled, as in a database
-    failover): the shared thread pool (40 threads) must still serve other endpoints."""
+    """50 uploads wait for a commit that does not come (the writer's batch does not return, as
+    in a database failover): they hold no thread while they wait, so the shared thread pool
+    (40 threads) still serves the other endpoints, and every upload completes afterwards."""
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
     writer = app.state.writer
-    release = threading.Event()
-    run = writer.run
-    waiting = threading.Semaphore(0)
+    stuck, release = threading.Event(), threading.Event()
+    write = writer._write
 
-    def stalled(fn: Any) -> Any:
-        waiting.release()
-        release.wait(30)
-        return run(fn)
+    stalled_jobs: list[int] = []
 
-    writer.run = stalled
+    def stalled(batch: Any) -> Any:
+        if not stuck.is_set():
+            stalled_jobs.append(len(batch))
+            stuck.set()
+            release.wait(30)
+        return write(batch)
+
+    writer._write = stalled
     body = make_jpeg(seed=4, noise=5)
+    deadline = threading.Timer(20, release.set)  # never hang the suite
+    deadline.start()
     with ThreadPoolExecutor(50) as pool:
         uploads = [
             pool.submit(
@@ -501,10 +519,13 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
             for i in range(50)
         ]
         try:
-            deadline = threading.Timer(10, release.set)  # never hang the suite
-            deadline.start()
-            for _ in range(32):  # as many uploads as may wait at once are waiting
-                assert waiting.acquire(timeout=10)
+            # the first batch stalls; the other uploads are decoded and queued behind it
+            assert stuck.wait(10)
+            for _ in range(100):
+                if stalled_jobs[0] + writer._queue.qsize() == 50:
+                    break
+                threading.Event().wait(0.1)
+            assert stalled_jobs[0] + writer._queue.qsize() == 50
             assert not any(u.done() for u in uploads)
             r = client.get("/cameras/cam-1", headers=admin)  # a sync endpoint: a pool thread
             assert r.status_code == 200

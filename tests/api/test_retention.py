@@ -6,10 +6,10 @@ import os
 from typing import Any
 
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine
+from sqlalchemy import Engine, text
 
 from app.services import retention
-from app.services.storage import digest
+from app.services.storage import digest, relative_path
 from tests.api.test_solar import CLEAN_RGB, Clock, clean_set, panel_jpeg
 from tests.conftest import table_counts
 
@@ -42,36 +42,57 @@ def test_old_frames_go_frames_in_use_stay(
     fresh = client.post(
         "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=99), headers=headers
     )
-    files_before = len(list((settings.data_dir / "frames").rglob("*.jpg")))
-    assert files_before == 8
+    store = app.state.frame_store
+    # the hour of the seven, and the fresh frame's hour
+    assert [p.split("/")[1] for p in store.packs()] == ["2026-06-01T08", "2026-07-11T08"]
 
     r = client.post("/admin/retention/sweep", headers=admin)  # retention: 30 days
     assert r.status_code == 200
-    assert r.json() == {"frames": 2, "files": 2}
+    assert r.json() == {"frames": 2, "files": 1}  # the seven's pack, its hour expired
     kept = {f["frame_id"] for f in client.get("/cameras/c/frames", headers=admin).json()}
     assert kept == {*ids[:5], fresh.json()["frame_id"]}
     assert table_counts(engine)["verdicts"] == 6
-    assert len(list((settings.data_dir / "frames").rglob("*.jpg"))) == 6
+    # the baseline's frames were moved into the current hour's pack, bytes intact
+    assert [p.split("/")[1] for p in store.packs()] == ["2026-07-11T08"]
+    for frame_id, body in zip(ids[:5], clean_set(7), strict=False):
+        image = client.get(f"/frames/{frame_id}/image", headers=admin)
+        assert image.status_code == 200
+        assert image.content == body
     assert client.post("/admin/retention/sweep", headers=admin).json() == {"frames": 0, "files": 0}
     assert client.post("/admin/retention/sweep").status_code == 401
 
 
 def test_orphan_files_are_swept(
-    client: TestClient, admin: dict[str, str], app: Any, settings: Any
+    client: TestClient, admin: dict[str, str], app: Any, engine: Engine
 ) -> None:
+    """Frames stored as files of their own (as earlier versions did) are still served, and
+    swept when no row refers to them: a process killed between the file and its row."""
     cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+    body = panel_jpeg(CLEAN_RGB)
     r = client.post(
         "/cameras/c/frames",
-        content=panel_jpeg(CLEAN_RGB),
+        content=body,
         headers={"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"},
     )
     assert r.status_code == 201
     store = app.state.frame_store
+    legacy = relative_path(r.json()["sha256"])
+    store.path(legacy).parent.mkdir(parents=True)
+    store.path(legacy).write_bytes(body)
+    with engine.begin() as conn:
+        conn.execute(
+            text("UPDATE frames SET stored_path = :p WHERE id = :id"),
+            {"p": legacy, "id": r.json()["frame_id"]},
+        )
     orphan_bytes = panel_jpeg(CLEAN_RGB, seed=7)
-    orphan = store.put(orphan_bytes, digest(orphan_bytes))  # as if killed before the commit
+    orphan = relative_path(digest(orphan_bytes))
+    store.path(orphan).parent.mkdir(parents=True, exist_ok=True)
+    store.path(orphan).write_bytes(orphan_bytes)
+    assert retention.sweep_orphans(app.state.sessionmaker, store) == 0  # too young: in flight?
     old = 10_000
     for path in store.files():
         os.utime(store.path(path), (old, old))
     assert retention.sweep_orphans(app.state.sessionmaker, store) == 1
-    assert store.files() == [f"frames/{r.json()['sha256'][:2]}/{r.json()['sha256']}.jpg"]
-    assert orphan not in store.files()
+    assert store.files() == [legacy]
+    image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
+    assert image.content == body

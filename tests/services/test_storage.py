@@ -1,0 +1,124 @@
+"""The disk frame store: frames appended to packs, read back whole, packs by hour."""
+
+from __future__ import annotations
+
+import os
+import random
+from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import pytest
+
+from app.services import storage
+from app.services.storage import PACK_HEADER, DiskFrameStore, StoreUnavailable, digest, pack_of
+
+T0 = datetime(2026, 6, 1, 8, 59, 59, tzinfo=UTC)
+
+
+def frames(n: int, seed: int = 1) -> list[bytes]:
+    rng = random.Random(seed)
+    return [rng.randbytes(rng.randint(1, 50_000)) for _ in range(n)]
+
+
+def test_frames_from_16_threads_read_back_whole(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    bodies = frames(400)
+    with ThreadPoolExecutor(16) as pool:
+        locators = list(pool.map(lambda b: store.put(b, digest(b), T0), bodies))
+    assert len(set(locators)) == 400
+    assert [store.read(loc) for loc in locators] == bodies
+    (pack,) = store.packs()  # one process, one hour: one pack
+    assert {pack_of(loc) for loc in locators} == {pack}
+    size = sum(PACK_HEADER.size + len(b) for b in bodies)
+    assert (tmp_path / pack).stat().st_size == size  # no gaps, no overlaps
+
+
+def test_each_frame_is_preceded_by_its_sha256_and_length(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    body = b"\xff\xd8 a frame"
+    locator = store.put(body, digest(body), T0)
+    raw = (tmp_path / store.packs()[0]).read_bytes()
+    magic, sha, length = PACK_HEADER.unpack_from(raw)
+    assert (magic, sha.hex(), length) == (b"VFR1", digest(body), len(body))
+    assert locator == f"{store.packs()[0]}@{PACK_HEADER.size}+{len(body)}"
+
+
+def test_a_new_hour_starts_a_new_pack_and_a_late_frame_joins_the_newer(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    a, b, late = frames(3)
+    in_8 = store.put(a, digest(a), T0)
+    in_9 = store.put(b, digest(b), T0 + timedelta(seconds=1))
+    # a thread that took its time stamp before the hour turned, and writes after
+    straggler = store.put(late, digest(late), T0)
+    assert str(pack_of(in_8)).startswith("packs/2026-06-01T08/")
+    assert str(pack_of(in_9)).startswith("packs/2026-06-01T09/")
+    assert pack_of(straggler) == pack_of(in_9)  # expires after the frame's own hour
+    assert [store.read(x) for x in (in_8, in_9, straggler)] == [a, b, late]
+
+
+def test_a_full_pack_is_followed_by_a_new_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(storage, "PACK_MAX_BYTES", 100_000)
+    store = DiskFrameStore(tmp_path)
+    bodies = frames(20)
+    locators = [store.put(b, digest(b), T0) for b in bodies]
+    assert len(store.packs()) > 1
+    assert all(os.path.getsize(tmp_path / p) <= 100_000 for p in store.packs())
+    assert [store.read(x) for x in locators] == bodies
+
+
+def test_a_closed_store_starts_a_new_pack(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    a, b = frames(2)
+    first = store.put(a, digest(a), T0)
+    store.close()
+    second = store.put(b, digest(b), T0)
+    assert pack_of(first) != pack_of(second)
+    assert [store.read(first), store.read(second)] == [a, b]
+
+
+def test_reading_a_gone_pack_is_none_a_cut_one_unavailable(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    a, b = frames(2)
+    first, second = (store.put(x, digest(x), T0) for x in (a, b))
+    pack = tmp_path / store.packs()[0]
+    with open(pack, "r+b") as f:  # cut inside the second frame
+        f.truncate(pack.stat().st_size - 10)
+    assert store.read(first) == a
+    with pytest.raises(StoreUnavailable):
+        store.read(second)
+    bad = first.replace(f"@{PACK_HEADER.size}+", f"@{PACK_HEADER.size + 1}+")
+    with pytest.raises(StoreUnavailable):  # no frame header where the locator points
+        store.read(bad)
+    pack.unlink()
+    assert store.read(first) is None
+
+
+def test_packs_expire_with_their_hour(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    for k, body in enumerate(frames(3)):
+        store.put(body, digest(body), T0 + timedelta(hours=k))
+    assert [p.split("/")[1] for p in store.packs()] == [
+        "2026-06-01T08",
+        "2026-06-01T09",
+        "2026-06-01T10",
+    ]
+    end_of_9 = datetime(2026, 6, 1, 10, tzinfo=UTC)
+    assert store.expired_packs(end_of_9 - timedelta(microseconds=1)) == store.packs()[:1]
+    expired = store.expired_packs(end_of_9)
+    assert expired == store.packs()[:2]
+    store.delete_packs(expired)
+    assert [p.split("/")[1] for p in store.packs()] == ["2026-06-01T10"]
+    assert sorted(d.name for d in (tmp_path / "packs").iterdir()) == ["2026-06-01T10"]
+
+
+def test_a_store_that_cannot_write_raises_unavailable(tmp_path: Path) -> None:
+    (tmp_path / "packs").write_bytes(b"")  # a file where the packs' directory should be
+    store = DiskFrameStore(tmp_path)
+    with pytest.raises(StoreUnavailable):
+        store.put(b"x", digest(b"x"), T0)
+    (tmp_path / "packs").unlink()
+    locator = store.put(b"x", digest(b"x"), T0)
+    assert store.read(locator) == b"x"
