@@ -21,8 +21,9 @@ def frames(n: int, seed: int = 1) -> list[bytes]:
     return [rng.randbytes(rng.randint(1, 50_000)) for _ in range(n)]
 
 
-def test_frames_from_16_threads_read_back_whole(tmp_path: Path) -> None:
-    store = DiskFrameStore(tmp_path)
+@pytest.mark.parametrize("fsync", [False, True])
+def test_frames_from_16_threads_read_back_whole(tmp_path: Path, fsync: bool) -> None:
+    store = DiskFrameStore(tmp_path, fsync=fsync)
     bodies = frames(400)
     with ThreadPoolExecutor(16) as pool:
         locators = list(pool.map(lambda b: store.put(b, digest(b), T0), bodies))
