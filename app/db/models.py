@@ -181,9 +181,10 @@ class Frame(Base):
     height: Mapped[int] = mapped_column(Integer)
     """[px]"""
     size_bytes: Mapped[int] = mapped_column(BigInteger)
-    sha256: Mapped[str] = mapped_column(String(64), index=True)
+    sha256: Mapped[str] = mapped_column(String(64))
+    """Looked up only with the camera (``uq_frames_camera_sha_time``)."""
     stored_path: Mapped[str | None] = mapped_column(String(200))
-    """Path of the JPEG relative to the data directory (content-addressed), or none."""
+    """Where the frame store keeps the JPEG (the locator its ``put`` returned), or none."""
     idempotency_key: Mapped[str | None] = mapped_column(String(128))
     """The client's ``Idempotency-Key``: a retry with the same key gets the original frame."""
 

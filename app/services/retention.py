@@ -74,12 +74,16 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
             for table in (PanelVerdict, SkyVerdict, Verdict):
                 session.execute(delete(table).where(table.frame_id.in_(ids)))
             session.execute(delete(Frame).where(Frame.id.in_(ids)))
-            paths = {r[1] for r in doomed if r[1] is not None}
+            # files of their own, which identical frames may share (a frame in a pack goes
+            # with its pack)
+            paths = {r[1] for r in doomed if r[1] is not None and pack_of(r[1]) is None}
             still = set(
                 session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(paths)))
+                if paths
+                else ()
             )
             session.commit()
-        gone = sorted(p for p in paths - still if pack_of(p) is None)
+        gone = sorted(paths - still)
         store.delete(gone)
         files += len(gone)
         frames += len(ids)
