@@ -41,7 +41,8 @@ from app.settings import Settings, get_settings
 log = logging.getLogger("vantage")
 
 INGEST_THREADS = 32
-"""Frame uploads decoding or waiting for their commit at once, per process."""
+"""Frame uploads decoding and storing at once, per process (the wait for the commit takes no
+thread)."""
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

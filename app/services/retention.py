@@ -100,7 +100,7 @@ def _move_kept(
     policy: Policy,
     packs: set[str],
     cutoff: datetime,
-) -> int:
+) -> None:
     """Copy the frames still referred to out of ``packs`` (their hours expired) into a current
     pack, and point their rows there. Every frame in such a pack was received before
     ``cutoff``, so after the sweep of rows only kept frames are left to look at."""
@@ -130,7 +130,6 @@ def _move_kept(
         session.commit()
     if moves:
         log.info("kept frames moved out of expired packs", extra={"frames": len(moves)})
-    return len(moves)
 
 
 def sweep_orphans(
