@@ -10,10 +10,11 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
-from sqlalchemy import Engine, event, func, select
+from sqlalchemy import Engine, event, func, inspect, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import Camera, CameraKind, Frame, Verdict
+from app.db import rows
+from app.db.models import Camera, CameraKind, Frame, PanelVerdict, SkyVerdict, Verdict
 from app.db.rows import deferred_inserts, insert_rows
 from app.db.session import make_engine, make_sessionmaker
 from app.services.writer import GroupCommitWriter, _Job
@@ -55,8 +56,11 @@ def frame_and_verdict(n: int, *, key: str | None = None, stored: bool = True) ->
     return [frame, verdict]
 
 
-def inserts_sent(sm: sessionmaker[Session]) -> list[int]:
-    """Records the number of rows in each INSERT the engine executes (executemany counts all)."""
+def inserts_sent(
+    sm: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch, copies: list[int] | None = None
+) -> list[int]:
+    """Records the number of rows in each INSERT the engine executes (executemany counts all)
+    and in each COPY (PostgreSQL; also in ``copies``)."""
     sent: list[int] = []
     engine = sm.kw["bind"]
 
@@ -65,13 +69,23 @@ def inserts_sent(sm: sessionmaker[Session]) -> list[int]:
         if statement.lstrip().upper().startswith("INSERT"):
             sent.append(len(params) if many else 1)
 
+    copy = rows._copy
+
+    def count_copy(connection: Any, statement: Any, columns: Any, batch: list[Any]) -> None:
+        sent.append(len(batch))
+        if copies is not None:
+            copies.append(len(batch))
+        copy(connection, statement, columns, batch)
+
+    monkeypatch.setattr(rows, "_copy", count_copy)
     return sent
 
 
 def test_held_back_inserts_go_as_one_statement_per_table_and_column_set(
-    sessions: sessionmaker[Session],
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    sent = inserts_sent(sessions)
+    copies: list[int] = []
+    sent = inserts_sent(sessions, monkeypatch, copies)
     with sessions() as s:
         with deferred_inserts(s):
             for n in range(6):
@@ -81,6 +95,8 @@ def test_held_back_inserts_go_as_one_statement_per_table_and_column_set(
     # frames without a stored path (2, the first used), frames with one (4), then the verdicts
     # (6): by table in the order first used, which keeps every verdict after its frame
     assert sent == [2, 4, 6]
+    # PostgreSQL: each as one COPY
+    assert copies == ([2, 4, 6] if sessions.kw["bind"].dialect.name == "postgresql" else [])
     with sessions() as s:
         assert s.scalar(select(func.count()).select_from(Frame)) == 6
         assert s.scalar(select(func.count()).select_from(Verdict)) == 6
@@ -98,8 +114,10 @@ def test_a_read_in_the_batch_sees_the_rows_held_back(sessions: sessionmaker[Sess
         s.commit()
 
 
-def test_outside_a_batch_inserts_are_sent_at_once(sessions: sessionmaker[Session]) -> None:
-    sent = inserts_sent(sessions)
+def test_outside_a_batch_inserts_are_sent_at_once(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sent = inserts_sent(sessions, monkeypatch)
     with sessions() as s:
         insert_rows(s, *frame_and_verdict(1))
         assert sent == [1, 1]
@@ -157,3 +175,70 @@ def test_jobs_posted_at_once_are_all_committed(sessions: sessionmaker[Session]) 
     with sessions() as s:
         assert s.scalar(select(func.count()).select_from(Frame)) == 200
         assert s.scalar(select(func.count()).select_from(Verdict)) == 200
+
+
+def test_rows_sent_together_read_back_as_rows_sent_alone(sessions: sessionmaker[Session]) -> None:
+    """Every column type of the verdicts (joined tables, enum, JSON, NULLs, floats) the same
+    whichever way the rows went: together (COPY on PostgreSQL) or one INSERT each."""
+
+    def rows_for(prefix: str) -> list[Any]:
+        out: list[Any] = []
+        for n in range(3):
+            frame = Frame(
+                id=f"{prefix}{n}", camera_id="cam", captured_at=T0 + timedelta(seconds=n),
+                received_at=T0 + timedelta(microseconds=123456), width=64, height=48,
+                size_bytes=2**40, sha256=f"{prefix}{n:063d}",
+                stored_path=None if n == 0 else f"packs/x.pack@{n}+1",
+            )  # fmt: skip
+            common = dict(
+                frame_id=frame.id, camera_id="cam", mode_r=n, mode_g=255, mode_b=0,
+                mean_r=0.1 * n, mean_g=1e-300, mean_b=254.999,
+            )  # fmt: skip
+            verdict: Verdict
+            if n == 0:
+                verdict = PanelVerdict(
+                    **common, reason="night", details={"quality": {"dark": 0.9}, "ok": None}
+                )
+            elif n == 1:
+                verdict = PanelVerdict(
+                    **common, clean=False, t2=12.5, f_stat=3.25, p_value=1e-9, state="dirty",
+                    method="baseline", details=None,
+                )  # fmt: skip
+            else:
+                verdict = SkyVerdict(
+                    **common, level=7, category="Good", statistic=0.5, smoothed_level=6.75,
+                    details={"features": [1.5, -2.0, 3]},
+                )  # fmt: skip
+            out += [frame, verdict]
+        return out
+
+    with sessions() as s:
+        with deferred_inserts(s):
+            insert_rows(s, *rows_for("a"))
+        for obj in rows_for("b"):
+            insert_rows(s, obj)
+        s.commit()
+
+    def read(prefix: str) -> list[tuple[Any, ...]]:
+        with sessions() as s:
+            frames = s.scalars(select(Frame).where(Frame.id.startswith(prefix)).order_by(Frame.id))
+            verdicts = s.scalars(
+                select(Verdict)
+                .where(Verdict.frame_id.startswith(prefix))
+                .order_by(Verdict.frame_id)
+            )
+            out = []
+            for obj in [*frames, *verdicts]:
+                values = {
+                    c.key: getattr(obj, c.key)
+                    for c in inspect(obj).mapper.column_attrs
+                    if c.key not in ("id", "frame_id", "sha256")
+                }
+                out.append((type(obj).__name__, values))
+            return out
+
+    batched, alone = read("a"), read("b")
+    assert len(batched) == 6
+    assert batched == alone
+    assert batched[3][1]["details"] == {"quality": {"dark": 0.9}, "ok": None}
+    assert batched[0][1]["received_at"] == T0 + timedelta(microseconds=123456)
