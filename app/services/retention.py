@@ -29,6 +29,7 @@ from app.db.models import (
     SkyVerdict,
     Verdict,
 )
+from app.services.background import in_thread
 from app.services.policy import Policy
 from app.services.storage import FrameStore, pack_of
 
@@ -159,7 +160,7 @@ async def run(
     while True:
         await asyncio.sleep(every)
         try:
-            swept = await asyncio.to_thread(sweep, sessions, store, policy, days)
+            swept = await in_thread(sweep, sessions, store, policy, days)
             if swept.frames:
                 log.info("retention sweep", extra={"frames": swept.frames, "files": swept.files})
         except Exception:

@@ -18,6 +18,7 @@ from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import AirAlert
+from app.services.background import in_thread
 from app.services.policy import Policy
 
 log = logging.getLogger("vantage.webhooks")
@@ -85,7 +86,7 @@ async def run(sessions: sessionmaker[Session], url: str, policy: Policy, every: 
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
     while True:
         try:
-            await asyncio.to_thread(sweep, sessions, url, policy)
+            await in_thread(sweep, sessions, url, policy)
         except Exception:
             log.exception("webhook sweep failed")
         await asyncio.sleep(every)
