@@ -24,4 +24,8 @@ def create_bench_app() -> FastAPI:
         data = await read_capped(request, settings.max_body_bytes)
         return {"modes": await run_in_threadpool(_decode, data)}
 
+    # first in the route table. Added last, it was matched after every route of the service:
+    # 69 µs a request against 14 µs for the frame upload's route, a cost the ceiling should
+    # not pay. First, it costs 1.5 µs (the upload keeps its 14: the bias is now against it).
+    app.router.routes.insert(0, app.router.routes.pop())
     return app
