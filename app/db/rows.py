@@ -126,12 +126,13 @@ def deferred_inserts(session: Session) -> Iterator[None]:
     other statement on the session's connection, and at the block's end)."""
     connection = session.connection()
     pending = _Pending()
-    connection.info[_PENDING] = pending
+    info = connection.info  # kept: a connection lost meanwhile refuses to give it again
+    info[_PENDING] = pending
     try:
         yield
         pending.send(connection)
     finally:
-        connection.info.pop(_PENDING, None)
+        info.pop(_PENDING, None)
 
 
 def send_pending_first(engine: Engine) -> None:

@@ -10,7 +10,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
-from sqlalchemy import Engine, event, func, inspect, select
+from sqlalchemy import Engine, event, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import rows
@@ -242,3 +242,35 @@ def test_rows_sent_together_read_back_as_rows_sent_alone(sessions: sessionmaker[
     assert batched == alone
     assert batched[3][1]["details"] == {"quality": {"dark": 0.9}, "ok": None}
     assert batched[0][1]["received_at"] == T0 + timedelta(microseconds=123456)
+
+
+def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None:
+    """PostgreSQL: the writer keeps its connection from batch to batch; when the server drops
+    it (a restart, an idle timeout), the next batch runs again on a new connection."""
+    engine = sessions.kw["bind"]
+    if engine.dialect.name != "postgresql":
+        pytest.skip("the writer keeps a connection only on PostgreSQL")
+
+    def backend_pid(session: Session, retry: bool = False) -> int:
+        return int(session.scalar(text("SELECT pg_backend_pid()")))
+
+    def store(n: int) -> Any:
+        def fn(session: Session, retry: bool = False) -> int:
+            insert_rows(session, *frame_and_verdict(n))
+            return backend_pid(session)
+
+        return fn
+
+    writer = GroupCommitWriter(sessions)
+    writer.start()
+    try:
+        first = writer.run(backend_pid)
+        assert writer.run(backend_pid) == first  # the same connection, kept
+        with engine.connect() as other:
+            assert other.scalar(text("SELECT pg_terminate_backend(:pid)"), {"pid": first})
+        second = writer.run(store(1))
+        assert second != first
+    finally:
+        writer.stop()
+    with sessions() as s:
+        assert s.scalars(select(Frame.id)).all() == ["f0001"]
