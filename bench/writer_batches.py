@@ -1,0 +1,90 @@
+"""CPU of the group-commit writer per batch on PostgreSQL, without HTTP or threads.
+
+Frames prepared up front (decoded, measured, no file), then committed through the writer's
+batch path in batches of ``--batch`` frames, one after another on this thread; reports this
+thread's CPU per batch (user + system: the driver's round trips included). Run it in two
+checkouts, alternating, to compare writer changes side by side:
+
+    python bench/writer_batches.py --batch 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import time
+from concurrent.futures import Future
+from datetime import UTC, datetime
+from functools import partial
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.db.models import Camera, CameraKind  # noqa: E402
+from app.db.session import make_engine, make_sessionmaker  # noqa: E402
+from app.services import ingest  # noqa: E402
+from app.services.camera_info import CameraInfo  # noqa: E402
+from app.services.policy import Policy  # noqa: E402
+from app.services.writer import GroupCommitWriter, _Job  # noqa: E402
+from bench.ingest import PG_BENCH_URL, jpeg_640x480, prepare_pg, unique  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=2, help="frames per batch")
+    parser.add_argument("--batches", type=int, default=400, help="batches per round")
+    parser.add_argument("--rounds", type=int, default=4, help="the first is a warm-up")
+    args = parser.parse_args()
+
+    prepare_pg()  # the bench database, dropped and made anew
+    env = {**os.environ, "VANTAGE_DATABASE_URL": PG_BENCH_URL}
+    alembic = [sys.executable, "-m", "alembic", "upgrade", "head"]
+    subprocess.run(alembic, cwd=ROOT, env=env, check=True, capture_output=True)
+    engine = make_engine(PG_BENCH_URL)
+    sessions = make_sessionmaker(engine)
+    with sessions() as session:
+        session.add(Camera(id="c", kind=CameraKind.rig, token_hash="-"))
+        session.commit()
+    writer = GroupCommitWriter(sessions)
+    writer._holding = True  # as on the writer's own thread (a connection kept between batches)
+    camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
+    policy = Policy()
+    jpeg = jpeg_640x480()
+    total = args.batch * args.batches * args.rounds
+    prepared = iter(
+        [
+            ingest.prepare(
+                None,
+                camera=camera,
+                data=unique(jpeg, n),
+                captured_at=None,
+                received_at=datetime.now(UTC),
+                max_pixels=10**8,
+            )
+            for n in range(total)
+        ]
+    )
+    cpu: list[float] = []
+    for _ in range(args.rounds):
+        t0 = time.thread_time()
+        for _ in range(args.batches):
+            batch = [
+                _Job(partial(ingest.record, prepared=next(prepared), policy=policy), Future())
+                for _ in range(args.batch)
+            ]
+            outcomes = writer._write(batch)
+            assert all(error is None for _, error in outcomes), outcomes
+        cpu.append((time.thread_time() - t0) / args.batches * 1e6)
+    release = getattr(writer, "_release", None)  # absent before the writer kept a connection
+    if release is not None:
+        release()
+    engine.dispose()
+    print(f"batch of {args.batch}: CPU {statistics.median(cpu[1:]):.0f} µs a batch")
+
+
+if __name__ == "__main__":
+    main()
