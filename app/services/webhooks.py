@@ -10,9 +10,11 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import threading
 import urllib.error
 import urllib.request
 from datetime import timedelta
+from functools import partial
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -39,8 +41,16 @@ def _post(url: str, body: dict[str, object]) -> None:
             raise urllib.error.HTTPError(url, response.status, "not 2xx", response.headers, None)
 
 
-def sweep(sessions: sessionmaker[Session], url: str, policy: Policy, *, batch: int = 20) -> int:
-    """Try every due alert once; returns how many were delivered."""
+def sweep(
+    sessions: sessionmaker[Session],
+    url: str,
+    policy: Policy,
+    *,
+    batch: int = 20,
+    stopping: threading.Event | None = None,
+) -> int:
+    """Try every due alert once; returns how many were delivered. Once ``stopping`` is set (a
+    shutdown waiting for this sweep), the alerts not yet tried are left for the next one."""
     now = policy.now()
     delivered = 0
     with sessions() as session:
@@ -56,6 +66,8 @@ def sweep(sessions: sessionmaker[Session], url: str, policy: Policy, *, batch: i
             .with_for_update(skip_locked=True)
         ).all()
         for alert in alerts:
+            if stopping is not None and stopping.is_set():
+                break
             body = {
                 "alert_id": alert.id,
                 "camera_id": alert.camera_id,
@@ -84,9 +96,12 @@ def sweep(sessions: sessionmaker[Session], url: str, policy: Policy, *, batch: i
 
 async def run(sessions: sessionmaker[Session], url: str, policy: Policy, every: float) -> None:
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
+    stopping = threading.Event()  # a shutdown waits for the post under way, not for all
     while True:
         try:
-            await in_thread(sweep, sessions, url, policy)
+            await in_thread(
+                partial(sweep, sessions, url, policy, stopping=stopping), on_cancel=stopping.set
+            )
         except Exception:
             log.exception("webhook sweep failed")
         await asyncio.sleep(every)

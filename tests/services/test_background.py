@@ -6,17 +6,22 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import text
+from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.db.models import AirAlert, Camera, CameraKind, Frame
+from app.db.session import make_engine, make_sessionmaker
 from app.main import create_app
 from app.services import webhooks
 from app.services.background import in_thread
+from app.services.policy import Policy
 from app.settings import Settings
+from tests.conftest import _empty_tables
 
 
 def test_a_cancelled_wait_still_waits_for_the_thread() -> None:
@@ -56,7 +61,7 @@ def test_shutdown_waits_for_a_webhook_sweep_holding_a_connection(
     started = threading.Event()
     events: list[str] = []
 
-    def slow_sweep(sessions: sessionmaker[Session], url: str, policy: Any) -> int:
+    def slow_sweep(sessions: sessionmaker[Session], url: str, policy: Any, **_: Any) -> int:
         with sessions() as session:
             session.execute(text("SELECT 1"))
             started.set()
@@ -77,3 +82,72 @@ def test_shutdown_waits_for_a_webhook_sweep_holding_a_connection(
     with TestClient(app):
         assert started.wait(10)
     assert events == ["sweep done", "dispose with 0 checked out"]
+
+
+def test_a_cancelled_wait_asks_the_work_to_stop_early() -> None:
+    stop = threading.Event()
+    rounds: list[int] = []
+
+    def work() -> None:
+        for n in range(100):  # 10 s unless asked to stop
+            if stop.is_set():
+                return
+            rounds.append(n)
+            time.sleep(0.1)
+
+    async def main() -> float:
+        task = asyncio.ensure_future(in_thread(work, on_cancel=stop.set))
+        await asyncio.sleep(0.25)
+        t0 = time.monotonic()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        return time.monotonic() - t0
+
+    waited = asyncio.run(main())
+    assert waited < 1.0
+    assert 2 <= len(rounds) <= 5
+
+
+def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
+    database_url: str, engine: Engine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A shutdown waits for the alert being posted, not for every due one (each post may take
+    its whole timeout when the receiver does not answer)."""
+    _empty_tables(engine)
+    t0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
+    with Session(engine) as s:
+        s.add(Camera(id="sky", kind=CameraKind.sky, token_hash="h"))
+        s.add(
+            Frame(
+                id="f", camera_id="sky", captured_at=t0, received_at=t0, width=1, height=1,
+                size_bytes=1, sha256="0" * 64,
+            )
+        )  # fmt: skip
+        s.flush()  # the camera and frame first: no relationship tells the flush their order
+        for n in range(3):
+            s.add(
+                AirAlert(
+                    id=f"a{n}", camera_id="sky", frame_id="f",
+                    created_at=t0 + timedelta(seconds=n), smoothed_level=2.0, category="Poor",
+                )
+            )  # fmt: skip
+        s.commit()
+    stopping = threading.Event()
+    posted: list[str] = []
+
+    def post(url: str, body: dict[str, object]) -> None:
+        posted.append(str(body["alert_id"]))
+        stopping.set()  # the shutdown comes while the first alert is being posted
+
+    monkeypatch.setattr(webhooks, "_post", post)
+    app_engine = make_engine(database_url)
+    try:
+        sessions = make_sessionmaker(app_engine)
+        assert webhooks.sweep(sessions, "http://hook", Policy(), stopping=stopping) == 1
+    finally:
+        app_engine.dispose()
+    assert posted == ["a0"]
+    with Session(engine) as s:
+        alerts = {a.id: (a.attempts, a.delivered) for a in s.scalars(select(AirAlert))}
+    assert alerts == {"a0": (1, True), "a1": (0, False), "a2": (0, False)}
