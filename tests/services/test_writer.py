@@ -14,7 +14,15 @@ from sqlalchemy import Engine, event, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import rows
-from app.db.models import Camera, CameraKind, Frame, PanelVerdict, SkyVerdict, Verdict
+from app.db.models import (
+    AirAlert,
+    Camera,
+    CameraKind,
+    Frame,
+    PanelVerdict,
+    SkyVerdict,
+    Verdict,
+)
 from app.db.rows import deferred_inserts, insert_rows
 from app.db.session import make_engine, make_sessionmaker
 from app.services.writer import GroupCommitWriter, _Job
@@ -274,3 +282,32 @@ def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None
         writer.stop()
     with sessions() as s:
         assert s.scalars(select(Frame.id)).all() == ["f0001"]
+
+
+def test_rows_leaving_out_a_python_default_are_inserted_with_it(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """COPY applies only the database's own defaults: rows that leave out a column whose
+    default SQLAlchemy computes go as an INSERT, which applies it."""
+    copies: list[int] = []
+    sent = inserts_sent(sessions, monkeypatch, copies)
+    with sessions() as s:
+        insert_rows(s, *frame_and_verdict(1))
+        s.commit()
+    sent.clear()
+    with sessions() as s:
+        with deferred_inserts(s):
+            for n in range(3):  # delivered and attempts left out: defaults False and 0
+                insert_rows(
+                    s,
+                    AirAlert(
+                        id=f"a{n}", camera_id="cam", frame_id="f0001", created_at=T0,
+                        smoothed_level=2.0, category="Poor",
+                    ),
+                )  # fmt: skip
+        s.commit()
+    assert sent == [3]
+    assert copies == []  # an INSERT (executemany), not a COPY
+    with sessions() as s:
+        alerts = s.scalars(select(AirAlert).order_by(AirAlert.id)).all()
+        assert [(a.delivered, a.attempts) for a in alerts] == [(False, 0)] * 3
