@@ -12,10 +12,11 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING, Any, cast
 
-from sqlalchemy import Connection, Engine, Insert, event, insert, inspect
+from sqlalchemy import Connection, Dialect, Engine, Insert, event, insert, inspect
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 from sqlalchemy.sql.type_api import _BindProcessorType
@@ -61,44 +62,50 @@ class _Pending:
         copy = connection.dialect.name == "postgresql" and connection.dialect.driver == "psycopg"
         for statement, by_columns in rows.items():
             for columns, batch in by_columns.items():
-                if copy and len(batch) > 1 and _copyable(statement, columns):
-                    _copy(connection, statement, columns, batch)
+                plan = _copy_plan(statement, columns, connection.dialect) if copy else None
+                if plan is not None and len(batch) > 1:
+                    _copy(connection, plan, batch)
                 else:
                     connection.execute(statement, batch)
 
 
+@dataclass(frozen=True, slots=True)
+class _CopyPlan:
+    sql: str
+    processors: tuple[_BindProcessorType[Any] | None, ...]
+    """Each column's bind processor (its SQLAlchemy type's conversion), in order."""
+
+
 @cache
-def _copyable(statement: Insert, columns: tuple[str, ...]) -> bool:
-    """Whether COPY gives these rows what INSERT would: no column left out has a default
-    computed in Python (COPY applies only the database's own)."""
-    return all(c.key in columns or c.default is None for c in statement.table.columns)
-
-
-def _copy(
-    connection: Connection, statement: Insert, columns: tuple[str, ...], rows: list[dict[str, Any]]
-) -> None:
-    """The rows in one COPY, their values converted by the columns' types as an INSERT would.
-
-    A failure (a unique violation) raises SQLAlchemy's exception for it, as ``execute`` does.
-    """
+def _copy_plan(statement: Insert, columns: tuple[str, ...], dialect: Dialect) -> _CopyPlan | None:
+    """The COPY for rows of ``statement``'s table with these columns, or None when COPY would
+    not give them what INSERT does: a column left out has a default computed in Python (COPY
+    applies only the database's own)."""
     table = statement.table
-    preparer = connection.dialect.identifier_preparer
-    processors: list[_BindProcessorType[Any] | None] = [
-        table.c[c].type._cached_bind_processor(connection.dialect) for c in columns
-    ]
+    if any(c.key not in columns and c.default is not None for c in table.columns):
+        return None
+    preparer = dialect.identifier_preparer
     sql = (
         f"COPY {preparer.format_table(table)} "
         f"({', '.join(preparer.quote(c) for c in columns)}) FROM STDIN"
     )
+    return _CopyPlan(sql, tuple(table.c[c].type._cached_bind_processor(dialect) for c in columns))
+
+
+def _copy(connection: Connection, plan: _CopyPlan, rows: list[dict[str, Any]]) -> None:
+    """The rows in one COPY, their values converted by the columns' types as an INSERT would.
+
+    A failure (a unique violation) raises SQLAlchemy's exception for it, as ``execute`` does.
+    """
     dbapi = cast("psycopg.Connection[Any]", connection.connection.dbapi_connection)
     try:
-        with dbapi.cursor() as cursor, cursor.copy(sql) as copy:
+        with dbapi.cursor() as cursor, cursor.copy(plan.sql) as copy:
             for row in rows:
-                values = zip(row.values(), processors, strict=True)
+                values = zip(row.values(), plan.processors, strict=True)
                 copy.write_row([v if p is None else p(v) for v, p in values])
     except connection.dialect.loaded_dbapi.Error as exc:
         raise DBAPIError.instance(
-            sql, None, exc, connection.dialect.loaded_dbapi.Error, dialect=connection.dialect
+            plan.sql, None, exc, connection.dialect.loaded_dbapi.Error, dialect=connection.dialect
         ) from exc
 
 

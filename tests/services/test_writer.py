@@ -79,11 +79,11 @@ def inserts_sent(
 
     copy = rows._copy
 
-    def count_copy(connection: Any, statement: Any, columns: Any, batch: list[Any]) -> None:
+    def count_copy(connection: Any, plan: Any, batch: list[Any]) -> None:
         sent.append(len(batch))
         if copies is not None:
             copies.append(len(batch))
-        copy(connection, statement, columns, batch)
+        copy(connection, plan, batch)
 
     monkeypatch.setattr(rows, "_copy", count_copy)
     return sent
