@@ -196,19 +196,16 @@ class GroupCommitWriter:
                     results = [job.fn(session) for job in batch]
                 session.commit()
             return [(r, None) for r in results]
-        except DBAPIError as exc:
+        except Exception as exc:
             held = self._held is not None
-            self._release()
-            if again and held and exc.connection_invalidated:
+            self._release()  # the next attempt checks out a pinged connection
+            lost = isinstance(exc, DBAPIError) and exc.connection_invalidated
+            if again and held and lost:
                 return self._write(batch, again=False)  # the kept connection was lost
             if len(batch) == 1 and isinstance(exc, IntegrityError):
                 # another process stored the same frame meanwhile: once more, the job now sees
                 # it (an idempotent replay) or fails for good
                 return [self._once(batch[0], exc)]
-            if len(batch) == 1:
-                return [(None, exc)]
-        except Exception as exc:
-            self._release()
             if len(batch) == 1:
                 return [(None, exc)]
         # isolate the failure: one transaction per job
