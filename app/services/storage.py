@@ -253,7 +253,7 @@ class DiskFrameStore:
         return sorted(
             f"packs/{d.name}/{p.name}"
             for d in base.iterdir()
-            if _is_bucket(d.name) and bucket_end(d.name) <= cutoff
+            if (end := _bucket_end_of(d.name)) is not None and end <= cutoff
             for p in d.glob("*.pack")
         )
 
@@ -294,12 +294,12 @@ class DiskFrameStore:
             raise StoreUnavailable(f"{self.root} is missing or not writable")
 
 
-def _is_bucket(name: str) -> bool:
+def _bucket_end_of(name: str) -> datetime | None:
+    """``bucket_end`` of a directory named as an hour's bucket; None for any other name."""
     try:
-        datetime.strptime(name, PACK_BUCKET)
+        return bucket_end(name)
     except ValueError:
-        return False
-    return True
+        return None
 
 
 class S3FrameStore:
