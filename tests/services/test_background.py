@@ -105,8 +105,8 @@ def test_a_cancelled_wait_asks_the_work_to_stop_early() -> None:
         return time.monotonic() - t0
 
     waited = asyncio.run(main())
-    assert waited < 1.0
-    assert 2 <= len(rounds) <= 5
+    assert rounds  # it was under way when cancelled
+    assert waited < 1.0  # one 0.1 s step, not the 10 s it would take to run out
 
 
 def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
