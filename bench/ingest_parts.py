@@ -32,6 +32,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from sqlalchemy import Engine  # noqa: E402
+from sqlalchemy.orm import Session, sessionmaker  # noqa: E402
+
 from app.core.jpeg import decode_rgb  # noqa: E402
 from app.core.stats import channel_stats  # noqa: E402
 from app.db.models import Camera, CameraKind  # noqa: E402
@@ -44,6 +47,26 @@ from app.services.writer import GroupCommitWriter  # noqa: E402
 from bench.ingest import jpeg_640x480, prepare_pg, unique  # noqa: E402
 
 MAX_PIXELS = 40_000_000
+
+
+def bench_database(url: str) -> tuple[Engine, sessionmaker[Session]]:
+    """The database at ``url`` migrated (PostgreSQL's bench database dropped and made anew
+    first), with the rig camera ``c`` registered."""
+    if url.startswith("postgresql"):
+        prepare_pg()
+    subprocess.run(
+        [sys.executable, "-m", "alembic", "upgrade", "head"],
+        cwd=ROOT,
+        env={**os.environ, "VANTAGE_DATABASE_URL": url},
+        check=True,
+        capture_output=True,
+    )
+    engine = make_engine(url)
+    sessions = make_sessionmaker(engine)
+    with sessions() as session:
+        session.add(Camera(id="c", kind=CameraKind.rig, token_hash="-"))
+        session.commit()
+    return engine, sessions
 
 
 def main() -> None:
@@ -61,21 +84,7 @@ def main() -> None:
 
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="parts-") as tmp:
-        url = args.database_url or f"sqlite:///{tmp}/vantage.db"
-        if url.startswith("postgresql"):
-            prepare_pg()  # the bench database, dropped and made anew
-        subprocess.run(
-            [sys.executable, "-m", "alembic", "upgrade", "head"],
-            cwd=ROOT,
-            env={**os.environ, "VANTAGE_DATABASE_URL": url},
-            check=True,
-            capture_output=True,
-        )
-        engine = make_engine(url)
-        sessions = make_sessionmaker(engine)
-        with sessions() as session:
-            session.add(Camera(id="c", kind=CameraKind.rig, token_hash="-"))
-            session.commit()
+        engine, sessions = bench_database(args.database_url or f"sqlite:///{tmp}/vantage.db")
         writer = GroupCommitWriter(sessions)
         writer.start()
         store = DiskFrameStore(Path(tmp))

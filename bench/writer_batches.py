@@ -11,9 +11,7 @@ checkouts, alternating, to compare writer changes side by side:
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
-import subprocess
 import sys
 import time
 from concurrent.futures import Future
@@ -24,13 +22,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.db.models import Camera, CameraKind  # noqa: E402
-from app.db.session import make_engine, make_sessionmaker  # noqa: E402
+from app.db.models import CameraKind  # noqa: E402
 from app.services import ingest  # noqa: E402
 from app.services.camera_info import CameraInfo  # noqa: E402
 from app.services.policy import Policy  # noqa: E402
 from app.services.writer import GroupCommitWriter, _Job  # noqa: E402
-from bench.ingest import PG_BENCH_URL, jpeg_640x480, prepare_pg, unique  # noqa: E402
+from bench.ingest import PG_BENCH_URL, jpeg_640x480, unique  # noqa: E402
+from bench.ingest_parts import bench_database  # noqa: E402
 
 
 def main() -> None:
@@ -40,15 +38,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4, help="the first is a warm-up")
     args = parser.parse_args()
 
-    prepare_pg()  # the bench database, dropped and made anew
-    env = {**os.environ, "VANTAGE_DATABASE_URL": PG_BENCH_URL}
-    alembic = [sys.executable, "-m", "alembic", "upgrade", "head"]
-    subprocess.run(alembic, cwd=ROOT, env=env, check=True, capture_output=True)
-    engine = make_engine(PG_BENCH_URL)
-    sessions = make_sessionmaker(engine)
-    with sessions() as session:
-        session.add(Camera(id="c", kind=CameraKind.rig, token_hash="-"))
-        session.commit()
+    engine, sessions = bench_database(PG_BENCH_URL)  # dropped and made anew
     writer = GroupCommitWriter(sessions)
     writer._holding = True  # as on the writer's own thread (a connection kept between batches)
     camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
