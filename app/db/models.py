@@ -183,8 +183,9 @@ class Frame(Base):
     size_bytes: Mapped[int] = mapped_column(BigInteger)
     sha256: Mapped[str] = mapped_column(String(64))
     """Looked up only with the camera (``uq_frames_camera_sha_time``)."""
-    stored_path: Mapped[str | None] = mapped_column(String(200))
-    """Where the frame store keeps the JPEG (the locator its ``put`` returned), or none."""
+    stored_path: Mapped[str | None] = mapped_column(String(200), index=True)
+    """Where the frame store keeps the JPEG (the locator its ``put`` returned), or none.
+    Indexed: the sweeps ask which of a store's files and packs some row still refers to."""
     idempotency_key: Mapped[str | None] = mapped_column(String(128))
     """The client's ``Idempotency-Key``: a retry with the same key gets the original frame."""
 

@@ -5,9 +5,9 @@ an alert points at. On disk, frames live in packs, one per process and hour of r
 (``app.services.storage``): once an hour has expired, the kept frames among its packs are
 copied into a current pack and the packs deleted, taking with them the frames whose rows went
 and any bytes a killed process wrote without committing their row. A frame stored as a file or
-object of its own goes when no frame row refers to it any more (identical frames share one);
-at start-up, such files that no row refers to are swept too, once they are old enough not to
-be in flight.
+object of its own goes when no frame row refers to it any more (identical frames share one).
+At start-up, files that no row refers to are swept too, once they are old enough not to be in
+flight, and so are packs that no row refers to and no live process holds open.
 """
 
 from __future__ import annotations
@@ -136,21 +136,42 @@ def _move_kept(
 def sweep_orphans(
     sessions: sessionmaker[Session], store: FrameStore, *, min_age_s: float = 600
 ) -> int:
-    """Delete stored files no frame row refers to, if older than ``min_age_s``."""
+    """Delete stored files no frame row refers to, if older than ``min_age_s``: files and
+    objects of their own, and packs that no live process writes to and none of whose frames
+    has a row (a process killed before the first commit into a new pack)."""
     candidates = store.older_than(min_age_s)
     removed = 0
     for start in range(0, len(candidates), 1000):
         chunk = candidates[start : start + 1000]
-        with sessions() as session:
-            used = set(
-                session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(chunk)))
-            )
+        used = _referenced(sessions, chunk)
         unused = [p for p in chunk if p not in used]
         store.delete(unused)
         removed += len(unused)
+    packs = [
+        pack
+        for pack in store.idle_packs(min_age_s)
+        if not _any_referenced(sessions, store.pack_locators(pack))
+    ]
+    store.delete_packs(packs)
+    removed += len(packs)
     if removed:
-        log.warning("removed %d frame files that no row referred to", removed)
+        log.warning("removed %d frame files or packs that no row referred to", removed)
     return removed
+
+
+def _referenced(sessions: sessionmaker[Session], locators: list[str]) -> set[str]:
+    """Those of ``locators`` some frame row refers to (``ix_frames_stored_path``)."""
+    with sessions() as session:
+        return set(
+            session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(locators)))
+        )
+
+
+def _any_referenced(sessions: sessionmaker[Session], locators: list[str]) -> bool:
+    return any(
+        _referenced(sessions, locators[start : start + 1000])
+        for start in range(0, len(locators), 1000)
+    )
 
 
 async def run(

@@ -9,6 +9,7 @@ else refers to a stored frame.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import re
@@ -72,6 +73,15 @@ class FrameStore(Protocol):
         """Every stored frame written at least ``seconds`` ago, as relative paths."""
         ...
 
+    def idle_packs(self, seconds: float) -> list[str]:
+        """Packs no live process writes to, unchanged for ``seconds`` (none in a store
+        without)."""
+        ...
+
+    def pack_locators(self, pack: str) -> list[str]:
+        """The locators of the frames whose bytes a pack holds whole."""
+        ...
+
     def check(self) -> None:
         """Raise StoreUnavailable unless the store answers."""
         ...
@@ -130,7 +140,8 @@ class DiskFrameStore:
     Each process appends to packs of its own (never two writers in one file), one per hour of
     reception, a new one every ``PACK_MAX_BYTES``. A frame's row is committed only after its
     bytes are written, so a row always has its bytes; a process killed mid-write leaves at most
-    the tail of a pack that no row refers to, which goes with the pack. Retention deletes a pack
+    the tail of a pack that no row refers to, which goes with the pack, or a pack no row refers
+    to at all, which the start-up sweep deletes (``idle_packs``). Retention deletes a pack
     once its hour has expired, after moving out the frames that are kept regardless of age
     (``app.services.retention``).
 
@@ -192,6 +203,9 @@ class DiskFrameStore:
         os.makedirs(directory, exist_ok=True)
         name = f"{time.time_ns()}-{os.getpid()}-{os.urandom(4).hex()}.pack"
         fd = os.open(f"{directory}/{name}", os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC)
+        # held while the pack is open: the start-up sweep leaves locked packs alone
+        # (``idle_packs``); the kernel drops it when the process dies, even by kill -9
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         pack = _Pack(bucket, f"packs/{bucket}/{name}", fd)
         if self._pack is not None:
             self._retire(self._pack)
@@ -288,6 +302,54 @@ class DiskFrameStore:
             except FileNotFoundError:  # deleted meanwhile by another process
                 continue
         return old
+
+    def idle_packs(self, seconds: float) -> list[str]:
+        """Packs unchanged for ``seconds`` that no process holds open for writing: a process
+        locks its pack (``flock``) from creating it until it retires it.
+
+        Over NFS, ``flock`` is only as good as the server's locking (NFSv4: whole-file locks
+        work); the age is the second guard, for a pack retired while its last frames' rows were
+        still being committed.
+        """
+        now = time.time()
+        idle = []
+        for relative in self.packs():
+            try:
+                fd = os.open(self.path(relative), os.O_RDONLY | os.O_CLOEXEC)
+            except FileNotFoundError:  # deleted meanwhile by another process
+                continue
+            try:
+                if now - os.fstat(fd).st_mtime < seconds:
+                    continue
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:  # a live process's
+                continue
+            finally:
+                os.close(fd)  # and with it the lock just taken
+            idle.append(relative)
+        return idle
+
+    def pack_locators(self, pack: str) -> list[str]:
+        """The locators of the frames a pack holds whole, in order: header by header, up to
+        the first that is cut off or not a header (the tail a killed process left)."""
+        locators = []
+        try:
+            fd = os.open(self.path(pack), os.O_RDONLY | os.O_CLOEXEC)
+        except FileNotFoundError:
+            return []
+        try:
+            end = os.fstat(fd).st_size
+            offset = 0
+            while offset + PACK_HEADER.size <= end:
+                magic, _, length = PACK_HEADER.unpack(os.pread(fd, PACK_HEADER.size, offset))
+                start = offset + PACK_HEADER.size
+                if magic != PACK_MAGIC or start + length > end:
+                    break
+                locators.append(f"{pack}@{start}+{length}")
+                offset = start + length
+        finally:
+            os.close(fd)
+        return locators
 
     def check(self) -> None:
         if not (self.root.is_dir() and os.access(self.root, os.W_OK)):
@@ -395,6 +457,12 @@ class S3FrameStore:
                     if now - obj["LastModified"].timestamp() >= seconds:
                         old.append(obj["Key"][len(self.prefix) :])
         return sorted(old)
+
+    def idle_packs(self, seconds: float) -> list[str]:
+        return []  # an object per frame: ``older_than`` finds the orphans
+
+    def pack_locators(self, pack: str) -> list[str]:
+        return []
 
     def check(self) -> None:
         with self._answering("reaching the bucket"):

@@ -13,7 +13,7 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine, text
 
-from app.services.storage import DiskFrameStore, digest
+from app.services.storage import DiskFrameStore, digest, pack_of
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
 from tests.servers import free_port, server_env, start_server
 
@@ -93,6 +93,12 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
             httpx.get(f"{base}/frames/{r.json()['frame_id']}/image", headers=ADMIN).content == body
         )
         assert len(store.packs()) >= 2
+        # after the start-up sweep, no file that no row refers to
+        with engine.connect() as conn:
+            paths = set(conn.execute(text("SELECT stored_path FROM frames")).scalars())
+        referenced = {pack_of(p) for p in paths if p is not None}
+        assert set(store.packs()) <= referenced
+        assert store.files() == []
     finally:
         proc.terminate()
         proc.wait(10)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
+from datetime import UTC, datetime
 from typing import Any
 
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.services import retention
-from app.services.storage import digest, relative_path
+from app.services.storage import DiskFrameStore, digest, pack_of, relative_path
 from tests.api.test_solar import CLEAN_RGB, Clock, clean_set, panel_jpeg
 from tests.conftest import table_counts
 
@@ -96,3 +97,49 @@ def test_orphan_files_are_swept(
     assert store.files() == [legacy]
     image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
     assert image.content == body
+
+
+def test_packs_no_row_refers_to_are_swept(
+    client: TestClient, admin: dict[str, str], app: Any, engine: Engine
+) -> None:
+    """Packs left by a process killed before any of their frames' rows was committed go; a
+    pack a live process writes to stays, and so does one with a single frame a row refers to."""
+    cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+    headers = {"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"}
+    posted = [
+        client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=k), headers=headers)
+        for k in range(2)
+    ]
+    assert [r.status_code for r in posted] == [201, 201]
+    store = app.state.frame_store
+    (live,) = store.packs()
+    now = datetime.now(UTC)
+
+    def dead_process_pack(bodies: list[bytes]) -> tuple[str, list[str]]:
+        other = DiskFrameStore(store.root)  # another process's store, then that process gone
+        locators = [other.put(b, digest(b), now) for b in bodies]
+        other.close()
+        return str(pack_of(locators[0])), locators
+
+    orphan, _ = dead_process_pack([b"\xff\xd8 one", b"\xff\xd8 two"])
+    cut, _ = dead_process_pack([b"\xff\xd8 cut short"])
+    with open(store.path(cut), "r+b") as f:
+        f.truncate(10)
+    partial, (unreferenced, referenced) = dead_process_pack([b"\xff\xd8 a", b"\xff\xd8 b"])
+    with engine.begin() as conn:  # the second frame's row was committed, the first's not
+        conn.execute(
+            text("UPDATE frames SET stored_path = :p WHERE id = :id"),
+            {"p": referenced, "id": posted[1].json()["frame_id"]},
+        )
+    assert retention.sweep_orphans(app.state.sessionmaker, store) == 0  # too young: in flight?
+    for pack in store.packs():
+        os.utime(store.path(pack), (10_000, 10_000))
+    assert retention.sweep_orphans(app.state.sessionmaker, store) == 2
+    assert store.packs() == sorted([live, partial])
+    store.close()  # the live pack is retired, but a row refers to its frame: it stays
+    assert retention.sweep_orphans(app.state.sessionmaker, store, min_age_s=0) == 0
+    assert store.packs() == sorted([live, partial])
+    first = client.get(f"/frames/{posted[0].json()['frame_id']}/image", headers=admin)
+    assert first.content == posted[0].request.content
+    second = client.get(f"/frames/{posted[1].json()['frame_id']}/image", headers=admin)
+    assert second.content == b"\xff\xd8 b"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import random
+import subprocess
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -123,3 +125,59 @@ def test_a_store_that_cannot_write_raises_unavailable(tmp_path: Path) -> None:
     (tmp_path / "packs").unlink()
     locator = store.put(b"x", digest(b"x"), T0)
     assert store.read(locator) == b"x"
+
+
+def test_a_pack_is_idle_once_its_process_is_gone_and_it_has_aged(tmp_path: Path) -> None:
+    """A live process's pack is never idle, however old; once the process is killed (-9: no
+    chance to close anything), its pack is idle when old enough."""
+    store = DiskFrameStore(tmp_path)
+    with subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from datetime import datetime, UTC; "
+            "from app.services.storage import DiskFrameStore, digest; "
+            f"s = DiskFrameStore(__import__('pathlib').Path({str(tmp_path)!r})); "
+            "s.put(b'frame', digest(b'frame'), datetime.now(UTC)); "
+            "print('written', flush=True); sys.stdin.read()",
+        ],
+        cwd=Path(__file__).resolve().parents[2],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    ) as child:
+        try:
+            assert child.stdout is not None
+            assert child.stdout.readline() == "written\n"
+            (pack,) = store.packs()
+            os.utime(tmp_path / pack, (10_000, 10_000))  # old
+            assert store.idle_packs(600) == []  # locked by its live writer
+        finally:
+            child.kill()
+    assert store.idle_packs(600) == [pack]
+    os.utime(tmp_path / pack)  # touched just now: maybe still being written
+    assert store.idle_packs(600) == []
+    assert store.idle_packs(0) == [pack]
+
+
+def test_this_process_s_own_pack_is_not_idle_until_the_store_closes(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    store.put(b"x", digest(b"x"), T0)
+    assert store.idle_packs(0) == []
+    store.close()
+    assert store.idle_packs(0) == store.packs()
+
+
+def test_a_pack_s_locators_stop_at_a_cut_tail(tmp_path: Path) -> None:
+    store = DiskFrameStore(tmp_path)
+    bodies = frames(3)
+    locators = [store.put(b, digest(b), T0) for b in bodies]
+    (pack,) = store.packs()
+    assert store.pack_locators(pack) == locators
+    with open(tmp_path / pack, "r+b") as f:  # a killed process's last write, cut short
+        f.truncate((tmp_path / pack).stat().st_size - 1)
+    assert store.pack_locators(pack) == locators[:2]
+    with open(tmp_path / pack, "r+b") as f:  # not even a whole header
+        f.truncate(PACK_HEADER.size - 1)
+    assert store.pack_locators(pack) == []
+    assert store.pack_locators("packs/2026-06-01T08/gone.pack") == []
