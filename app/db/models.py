@@ -166,7 +166,6 @@ class Frame(Base):
     __tablename__ = "frames"
     __table_args__ = (
         Index("ix_frames_camera_id_captured_at", "camera_id", "captured_at"),
-        Index("ix_frames_camera_id_received_at", "camera_id", "received_at"),
         # a camera retrying an upload: the same bytes taken at the same instant are one frame
         UniqueConstraint("camera_id", "sha256", "captured_at", name="uq_frames_camera_sha_time"),
         UniqueConstraint("camera_id", "idempotency_key", name="uq_frames_camera_idempotency"),
