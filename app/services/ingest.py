@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import uuid
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -30,6 +29,7 @@ from app.core.stats import (
     crop,
     polygon_pixels,
 )
+from app.db.ids import time_ordered_id
 from app.db.models import CameraKind, Frame, Verdict
 from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
@@ -173,7 +173,7 @@ def prepare(
     sha256 = digest(data)
     stored_path = frames.put(data, sha256, received_at) if frames is not None else None
     frame = Frame(
-        id=str(uuid.uuid4()),
+        id=time_ordered_id(),
         camera_id=camera.id,
         captured_at=captured_at or received_at,
         received_at=received_at,
