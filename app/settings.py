@@ -37,8 +37,8 @@ class Settings(BaseSettings):
     orphan_min_age_seconds: float = Field(
         default=600.0,
         ge=0,
-        description="At start, delete unreferenced frame files older than this [s] (younger "
-        "ones may belong to another process's upload in flight).",
+        description="At start, delete frame files and packs no row refers to once older "
+        "than this [s] (younger ones may belong to another process's upload in flight).",
     )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes.")
     frame_store: Literal["disk", "s3"] = Field(
