@@ -204,8 +204,11 @@ class DiskFrameStore:
         name = f"{time.time_ns()}-{os.getpid()}-{os.urandom(4).hex()}.pack"
         fd = os.open(f"{directory}/{name}", os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC)
         # held while the pack is open: the start-up sweep leaves locked packs alone
-        # (``idle_packs``); the kernel drops it when the process dies, even by kill -9
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        # (``idle_packs``); the kernel drops it when the process dies, even by kill -9. On a
+        # file system without locks (NFSv3 without lockd) writing goes on, and the sweep,
+        # which cannot take a lock there either, deletes no pack.
+        with suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         pack = _Pack(bucket, f"packs/{bucket}/{name}", fd)
         if self._pack is not None:
             self._retire(self._pack)
@@ -322,7 +325,7 @@ class DiskFrameStore:
                 if now - os.fstat(fd).st_mtime < seconds:
                     continue
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:  # a live process's
+            except OSError:  # a live process's, or no locks here to prove it is not
                 continue
             finally:
                 os.close(fd)  # and with it the lock just taken

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import random
 import subprocess
@@ -181,3 +182,20 @@ def test_a_pack_s_locators_stop_at_a_cut_tail(tmp_path: Path) -> None:
         f.truncate(PACK_HEADER.size - 1)
     assert store.pack_locators(pack) == []
     assert store.pack_locators("packs/2026-06-01T08/gone.pack") == []
+
+
+def test_without_file_locks_frames_are_stored_and_no_pack_is_idle(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file system that refuses locks (ENOLCK): uploads go on, and the sweep, unable to
+    prove a pack is not being written, leaves every pack alone."""
+
+    def no_locks(fd: int, operation: int) -> None:
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(storage.fcntl, "flock", no_locks)
+    store = DiskFrameStore(tmp_path)
+    locator = store.put(b"x", digest(b"x"), T0)
+    assert store.read(locator) == b"x"
+    store.close()
+    assert store.idle_packs(0) == []
