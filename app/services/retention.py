@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Generator
+from contextlib import closing
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from itertools import islice
 
 from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
@@ -167,11 +170,18 @@ def _referenced(sessions: sessionmaker[Session], locators: list[str]) -> set[str
         )
 
 
-def _any_referenced(sessions: sessionmaker[Session], locators: list[str]) -> bool:
-    return any(
-        _referenced(sessions, locators[start : start + 1000])
-        for start in range(0, len(locators), 1000)
-    )
+PACK_CHUNK = 100
+"""A pack's frames are looked up this many at a time. Its first frames nearly always have
+rows, so most packs are answered by their first headers, not read through (a full pack holds
+thousands of frames, and the sweep runs at every start)."""
+
+
+def _any_referenced(sessions: sessionmaker[Session], locators: Generator[str, None, None]) -> bool:
+    with closing(locators):
+        while chunk := list(islice(locators, PACK_CHUNK)):
+            if _referenced(sessions, chunk):
+                return True
+    return False
 
 
 async def run(

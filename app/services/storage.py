@@ -16,7 +16,7 @@ import re
 import struct
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -78,8 +78,8 @@ class FrameStore(Protocol):
         without)."""
         ...
 
-    def pack_locators(self, pack: str) -> list[str]:
-        """The locators of the frames whose bytes a pack holds whole."""
+    def pack_locators(self, pack: str) -> Generator[str, None, None]:
+        """The locators of the frames whose bytes a pack holds whole, read as asked for."""
         ...
 
     def check(self) -> None:
@@ -107,6 +107,11 @@ def bucket_of(when: datetime) -> str:
 
 def bucket_end(bucket: str) -> datetime:
     return datetime.strptime(bucket, PACK_BUCKET).replace(tzinfo=UTC) + timedelta(hours=1)
+
+
+def locator_in(pack: str, start: int, length: int) -> str:
+    """The locator of the ``length`` bytes at ``start`` in ``pack`` (what ``_LOCATOR`` reads)."""
+    return f"{pack}@{start}+{length}"
 
 
 def pack_of(locator: str) -> str | None:
@@ -181,7 +186,7 @@ class DiskFrameStore:
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
         finally:
             self._release(pack)
-        return f"{pack.relative}@{offset + PACK_HEADER.size}+{len(data)}"
+        return locator_in(pack.relative, offset + PACK_HEADER.size, len(data))
 
     def _reserve(self, bucket: str, size: int) -> tuple[_Pack, int]:
         """The pack to append ``size`` bytes to, and where; a new pack for a new hour or when
@@ -332,14 +337,14 @@ class DiskFrameStore:
             idle.append(relative)
         return idle
 
-    def pack_locators(self, pack: str) -> list[str]:
-        """The locators of the frames a pack holds whole, in order: header by header, up to
-        the first that is cut off or not a header (the tail a killed process left)."""
-        locators = []
+    def pack_locators(self, pack: str) -> Generator[str, None, None]:
+        """The locators of the frames a pack holds whole, in order, read header by header as
+        they are asked for, up to the first that is cut off or not a header (the tail a killed
+        process left)."""
         try:
             fd = os.open(self.path(pack), os.O_RDONLY | os.O_CLOEXEC)
         except FileNotFoundError:
-            return []
+            return
         try:
             end = os.fstat(fd).st_size
             offset = 0
@@ -348,11 +353,10 @@ class DiskFrameStore:
                 start = offset + PACK_HEADER.size
                 if magic != PACK_MAGIC or start + length > end:
                     break
-                locators.append(f"{pack}@{start}+{length}")
+                yield locator_in(pack, start, length)
                 offset = start + length
         finally:
             os.close(fd)
-        return locators
 
     def check(self) -> None:
         if not (self.root.is_dir() and os.access(self.root, os.W_OK)):
@@ -464,8 +468,8 @@ class S3FrameStore:
     def idle_packs(self, seconds: float) -> list[str]:
         return []  # an object per frame: ``older_than`` finds the orphans
 
-    def pack_locators(self, pack: str) -> list[str]:
-        return []
+    def pack_locators(self, pack: str) -> Generator[str, None, None]:
+        yield from ()
 
     def check(self) -> None:
         with self._answering("reaching the bucket"):
