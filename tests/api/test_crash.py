@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 
 import httpx2 as httpx
@@ -76,6 +77,11 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
         assert data is not None
         assert digest(data) == sha256
 
+    # and a pack with no row at all, as a process killed before its first commit leaves
+    dead, lost = DiskFrameStore(tmp_path), b"\xff\xd8 never committed"
+    orphan = pack_of(dead.put(lost, digest(lost), datetime.now(UTC)))
+    dead.close()
+
     proc = start_server(env, port)  # a new process: a pack of its own beside the killed one's
     try:
         body = make_jpeg(160, 120, noise=20, seed=7)
@@ -98,6 +104,7 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
             paths = set(conn.execute(text("SELECT stored_path FROM frames")).scalars())
         referenced = {pack_of(p) for p in paths if p is not None}
         assert set(store.packs()) <= referenced
+        assert orphan not in store.packs()
         assert store.files() == []
     finally:
         proc.terminate()

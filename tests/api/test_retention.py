@@ -103,7 +103,7 @@ def test_packs_no_row_refers_to_are_swept(
     client: TestClient, admin: dict[str, str], app: Any, engine: Engine
 ) -> None:
     """Packs left by a process killed before any of their frames' rows was committed go; a
-    pack a live process writes to stays, and so does one with a single frame a row refers to."""
+    pack a live process writes to stays, and so does one whose last frame alone has a row."""
     cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
     headers = {"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"}
     posted = [
@@ -125,8 +125,11 @@ def test_packs_no_row_refers_to_are_swept(
     cut, _ = dead_process_pack([b"\xff\xd8 cut short"])
     with open(store.path(cut), "r+b") as f:
         f.truncate(10)
-    partial, (unreferenced, referenced) = dead_process_pack([b"\xff\xd8 a", b"\xff\xd8 b"])
-    with engine.begin() as conn:  # the second frame's row was committed, the first's not
+    # the rows of all but its last frame were not committed: found past the first chunk
+    many = [b"\xff\xd8 %d" % k for k in range(retention.PACK_CHUNK + 5)]
+    partial, locators = dead_process_pack(many)
+    referenced = locators[-1]
+    with engine.begin() as conn:
         conn.execute(
             text("UPDATE frames SET stored_path = :p WHERE id = :id"),
             {"p": referenced, "id": posted[1].json()["frame_id"]},
@@ -142,4 +145,4 @@ def test_packs_no_row_refers_to_are_swept(
     first = client.get(f"/frames/{posted[0].json()['frame_id']}/image", headers=admin)
     assert first.content == posted[0].request.content
     second = client.get(f"/frames/{posted[1].json()['frame_id']}/image", headers=admin)
-    assert second.content == b"\xff\xd8 b"
+    assert second.content == many[-1]
