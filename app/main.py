@@ -10,7 +10,6 @@ from contextlib import asynccontextmanager
 from datetime import timedelta
 from functools import partial
 
-import anyio
 from fastapi import FastAPI
 
 from app import __version__
@@ -113,9 +112,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
-    app.state.writer = GroupCommitWriter(app.state.sessionmaker)
-    # threads for frame uploads, apart from the shared pool (see routers/cameras.post_frame)
-    app.state.ingest_threads = anyio.CapacityLimiter(INGEST_THREADS)
+    # frame uploads decode in the writer's own threads, apart from the shared pool
+    app.state.writer = GroupCommitWriter(app.state.sessionmaker, preparers=INGEST_THREADS)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
     app.state.rate_budgets = rate_limit.LocalBudgets()

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Annotated
 
-import anyio
 from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import Response
 from sqlalchemy import select
-from sqlalchemy.orm import selectinload
+from sqlalchemy.orm import Session, selectinload
 
 from app.db.models import Frame
 from app.deps import (
@@ -140,8 +140,8 @@ async def post_frame(
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer
 
-    def prepare() -> ingest.Prepared:
-        return ingest.prepare(
+    def prepare() -> Callable[[Session], ingest.Recorded]:
+        prepared = ingest.prepare(
             store,
             camera=target,
             data=data,
@@ -150,12 +150,12 @@ async def post_frame(
             max_pixels=settings.max_pixels,
             idempotency_key=idempotency_key,
         )
+        return partial(ingest.record, prepared=prepared, policy=policy)
 
-    # decoding and the file write take a worker thread, under a limiter of their own; the wait
-    # for the commit takes none, so a stalled database (a failover) holds no thread at all
-    limiter: anyio.CapacityLimiter = request.app.state.ingest_threads
-    prepared = await anyio.to_thread.run_sync(prepare, limiter=limiter)
-    done = await writer.submit(partial(ingest.record, prepared=prepared, policy=policy))
+    # decoding and the file write take one of the writer's preparing threads, which then queues
+    # the database part itself; the wait for the commit takes no thread, so a stalled database
+    # (a failover) holds none
+    done = await writer.submit_after(prepare)
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

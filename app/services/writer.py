@@ -13,11 +13,12 @@ the database they see. A caller's result (its 201) comes only after the commit h
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import queue
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -62,9 +63,14 @@ def _settle_all(settled: Sequence[tuple[asyncio.Future[Any], Outcome]]) -> None:
 class GroupCommitWriter:
     """Runs write jobs ``fn(session)`` on one thread, committing each batch once."""
 
-    def __init__(self, sessions: sessionmaker[Session], *, max_batch: int = 64) -> None:
+    def __init__(
+        self, sessions: sessionmaker[Session], *, max_batch: int = 64, preparers: int = 32
+    ) -> None:
         self._sessions = sessions
         self._max_batch = max_batch
+        self._preparers = preparers
+        self._pool: ThreadPoolExecutor | None = None
+        """Threads that run ``submit_after``'s preparation (decoding, the file write)."""
         engine: Engine = sessions.kw["bind"]
         # The writer keeps one connection checked out from batch to batch, where a checkout per
         # batch would ping the server first (pool_pre_ping): a round trip and ~80 µs of CPU
@@ -88,10 +94,15 @@ class GroupCommitWriter:
                     target=self._run, name="vantage-writer", daemon=True
                 )
                 self._thread.start()
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self._preparers, "vantage-prepare")
 
     def stop(self) -> None:
         with self._lock:
             thread, self._thread = self._thread, None
+            pool, self._pool = self._pool, None
+        if pool is not None:  # first: a preparation that finishes still queues its job
+            pool.shutdown(wait=True)
         if thread is not None:
             self._queue.put(None)
             thread.join(timeout=30)
@@ -121,6 +132,35 @@ class GroupCommitWriter:
         loop = asyncio.get_running_loop()
         future: asyncio.Future[T] = loop.create_future()
         self._queue.put(_Job(fn, future, loop))
+        return future
+
+    def submit_after(self, prepare: Callable[[], Callable[[Session], T]]) -> asyncio.Future[T]:
+        """``submit`` the job that ``prepare()`` returns, running ``prepare`` first on one of
+        the writer's preparing threads (at most ``preparers`` at once, the rest queue).
+
+        The preparing thread queues the job itself, so a frame wakes the event loop once, with
+        its batch's results, instead of once more when its preparation is done. When
+        ``prepare`` raises, the future gets its exception. A request cancelled before its
+        preparation ends queues no job. Must be called on the loop.
+        """
+        if self._pool is None:
+            self.start()
+        assert self._pool is not None
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+
+        def work() -> None:
+            try:
+                job = prepare()
+            except Exception as exc:
+                outcome: Outcome = (None, exc)
+                with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
+                    loop.call_soon_threadsafe(_settle, future, outcome)
+                return
+            if not future.done():  # a read only: the loop alone settles or cancels it
+                self._queue.put(_Job(job, future, loop))
+
+        self._pool.submit(work)
         return future
 
     def _take_batch(self) -> list[_Job] | None:

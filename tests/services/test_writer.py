@@ -4,9 +4,13 @@ conflicting job failing alone."""
 
 from __future__ import annotations
 
+import asyncio
+import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import Future
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from typing import Any
 
 import pytest
@@ -183,6 +187,114 @@ def test_jobs_posted_at_once_are_all_committed(sessions: sessionmaker[Session]) 
     with sessions() as s:
         assert s.scalar(select(func.count()).select_from(Frame)) == 200
         assert s.scalar(select(func.count()).select_from(Verdict)) == 200
+
+
+def _storing(n: int) -> Any:
+    def fn(session: Session, retry: bool = False) -> str:
+        insert_rows(session, *frame_and_verdict(n))
+        return f"f{n:04d}"
+
+    return fn
+
+
+def test_jobs_prepared_in_the_writers_threads_are_committed_and_answered(
+    sessions: sessionmaker[Session],
+) -> None:
+    writer = GroupCommitWriter(sessions, preparers=4)
+    prepared_in: set[str] = set()
+
+    def prepare(n: int) -> Any:
+        prepared_in.add(threading.current_thread().name)
+        return _storing(n)
+
+    async def post_all() -> list[str]:
+        return await asyncio.gather(*(writer.submit_after(partial(prepare, n)) for n in range(60)))
+
+    try:
+        done = asyncio.run(post_all())
+    finally:
+        writer.stop()
+    assert done == [f"f{n:04d}" for n in range(60)]
+    assert prepared_in
+    assert all(name.startswith("vantage-prepare") for name in prepared_in)
+    assert len(prepared_in) <= 4
+    with sessions() as s:
+        assert s.scalar(select(func.count()).select_from(Frame)) == 60
+
+
+def test_a_failed_preparation_reaches_its_caller_and_stores_nothing(
+    sessions: sessionmaker[Session],
+) -> None:
+    writer = GroupCommitWriter(sessions)
+
+    def broken() -> Any:
+        raise ValueError("not a JPEG")
+
+    async def post() -> tuple[BaseException | str, ...]:
+        results = await asyncio.gather(
+            writer.submit_after(broken),
+            writer.submit_after(lambda: _storing(1)),
+            return_exceptions=True,
+        )
+        return tuple(results)
+
+    try:
+        failed, stored = asyncio.run(post())
+    finally:
+        writer.stop()
+    assert isinstance(failed, ValueError)
+    assert str(failed) == "not a JPEG"
+    assert stored == "f0001"
+    with sessions() as s:
+        assert s.scalars(select(Frame.id)).all() == ["f0001"]
+
+
+def test_a_request_cancelled_while_preparing_queues_no_job(
+    sessions: sessionmaker[Session],
+) -> None:
+    writer = GroupCommitWriter(sessions)
+    release = threading.Event()
+
+    def slow() -> Any:
+        release.wait(10)
+        return _storing(1)
+
+    async def post_then_cancel() -> None:
+        future = writer.submit_after(slow)
+        await asyncio.sleep(0.05)
+        future.cancel()
+        release.set()
+
+    try:
+        asyncio.run(post_then_cancel())
+    finally:
+        writer.stop()  # waits for the preparation, then for the queue to drain
+    with sessions() as s:
+        assert s.scalar(select(func.count()).select_from(Frame)) == 0
+
+
+def test_stop_lets_preparations_in_flight_finish_and_commits_their_jobs(
+    sessions: sessionmaker[Session],
+) -> None:
+    writer = GroupCommitWriter(sessions)
+    started = threading.Event()
+
+    def slow() -> Any:
+        started.set()
+        time.sleep(0.2)
+        return _storing(3)
+
+    async def post_then_stop() -> asyncio.Future[Any]:
+        future = writer.submit_after(slow)
+        await asyncio.to_thread(started.wait, 10)
+        await asyncio.to_thread(writer.stop)
+        await asyncio.sleep(0)  # the batch's results reach the loop
+        return future
+
+    future = asyncio.run(post_then_stop())
+    assert future.result() == "f0003"
+    with sessions() as s:
+        assert s.scalars(select(Frame.id)).all() == ["f0003"]
 
 
 def test_rows_sent_together_read_back_as_rows_sent_alone(sessions: sessionmaker[Session]) -> None:
