@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -89,7 +90,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 settings.retention_sweep_seconds,
             )
         )
+        # what start-up built lives as long as the process: out of the cyclic collector's way,
+        # a full collection walks ~9,000 objects instead of ~170,000 (measured: a pause of the
+        # GIL of ~130 ms every few thousand frames; see bench/README.md)
+        gc.collect()
+        gc.freeze()
         yield
+        gc.unfreeze()
         sweeper.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await sweeper

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import shutil
 
@@ -83,3 +84,14 @@ def test_triangulation_warm_up_at_start_is_a_setting(
     with TestClient(app) as c:
         assert c.get("/health").status_code == 200
     assert calls == ([1] if warm else [])
+
+
+def test_start_up_objects_are_kept_out_of_the_collector_while_serving(settings: Settings) -> None:
+    """A full collection then walks only what requests create, not every module and route."""
+    gc.unfreeze()
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/health").status_code == 200
+        frozen = gc.get_freeze_count()
+        assert frozen > 10_000
+        assert frozen > len(gc.get_objects())
+    assert gc.get_freeze_count() == 0
