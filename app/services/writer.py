@@ -110,10 +110,9 @@ class GroupCommitWriter:
     def run(self, fn: Callable[[Session], T]) -> T:
         """Run ``fn(session)`` in the next batch; return its result once the batch committed.
 
-        Called from a worker thread, which it blocks (never the event loop): the ingest path
-        decodes and then waits here in the same worker, so a frame crosses between threads no
-        more often than a bare decode does. ``fn`` must also accept ``retry=True``: it is run
-        once more that way, alone, when its batch hit a unique-constraint conflict.
+        Called from a thread, which it blocks (never the event loop; the ingest path uses
+        ``submit_after``). ``fn`` must also accept ``retry=True``: it is run once more that
+        way, alone, when its batch hit a unique-constraint conflict.
         """
         if self._thread is None:
             self.start()
