@@ -40,10 +40,6 @@ from app.settings import Settings, get_settings
 
 log = logging.getLogger("vantage")
 
-INGEST_THREADS = 32
-"""Frame uploads decoding and storing at once, per process (the wait for the commit takes no
-thread)."""
-
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service. The database schema must already be at the migrations' head."""
@@ -120,7 +116,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
     # frame uploads decode in the writer's own threads, apart from the shared pool
-    app.state.writer = GroupCommitWriter(app.state.sessionmaker, preparers=INGEST_THREADS)
+    app.state.writer = GroupCommitWriter(app.state.sessionmaker)
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
     app.state.rate_budgets = rate_limit.LocalBudgets()

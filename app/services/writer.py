@@ -32,6 +32,10 @@ log = logging.getLogger("vantage.writer")
 
 T = TypeVar("T")
 
+PREPARERS = 32
+"""Frames decoding and storing at once, per process (``submit_after``; the wait for the commit
+takes no thread)."""
+
 
 @dataclass(slots=True)
 class _Job:
@@ -64,7 +68,7 @@ class GroupCommitWriter:
     """Runs write jobs ``fn(session)`` on one thread, committing each batch once."""
 
     def __init__(
-        self, sessions: sessionmaker[Session], *, max_batch: int = 64, preparers: int = 32
+        self, sessions: sessionmaker[Session], *, max_batch: int = 64, preparers: int = PREPARERS
     ) -> None:
         self._sessions = sessions
         self._max_batch = max_batch
@@ -120,31 +124,21 @@ class GroupCommitWriter:
         self._queue.put(_Job(fn, future))
         return future.result()
 
-    def submit(self, fn: Callable[[Session], T]) -> asyncio.Future[T]:
-        """``run`` for the event loop: await the returned future, no thread waits.
-
-        The batch's results reach each event loop in one call: a batch costs the loop one
-        wake-up, where ``run`` wakes every waiting thread. Must be called on the loop.
-        """
-        if self._thread is None:
-            self.start()
-        loop = asyncio.get_running_loop()
-        future: asyncio.Future[T] = loop.create_future()
-        self._queue.put(_Job(fn, future, loop))
-        return future
-
     def submit_after(self, prepare: Callable[[], Callable[[Session], T]]) -> asyncio.Future[T]:
-        """``submit`` the job that ``prepare()`` returns, running ``prepare`` first on one of
-        the writer's preparing threads (at most ``preparers`` at once, the rest queue).
+        """Run ``prepare()`` on one of the writer's preparing threads (at most ``preparers`` at
+        once, the rest queue), then the job it returns in the next batch; await the returned
+        future for the job's result once its batch committed. No thread waits for the commit.
 
-        The preparing thread queues the job itself, so a frame wakes the event loop once, with
-        its batch's results, instead of once more when its preparation is done. When
-        ``prepare`` raises, the future gets its exception. A request cancelled before its
-        preparation ends queues no job. Must be called on the loop.
+        The preparing thread queues the job itself, and each batch's results reach an event
+        loop in one call, so a frame wakes the loop once. When ``prepare`` raises, the future
+        gets its exception. A request cancelled before its preparation ends queues no job.
+        Must be called on the loop.
         """
-        if self._pool is None:
+        pool = self._pool
+        if pool is None:
             self.start()
-        assert self._pool is not None
+            pool = self._pool
+            assert pool is not None
         loop = asyncio.get_running_loop()
         future: asyncio.Future[T] = loop.create_future()
 
@@ -159,7 +153,7 @@ class GroupCommitWriter:
             if not future.done():  # a read only: the loop alone settles or cancels it
                 self._queue.put(_Job(job, future, loop))
 
-        self._pool.submit(work)
+        pool.submit(work)
         return future
 
     def _take_batch(self) -> list[_Job] | None:
