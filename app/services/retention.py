@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Generator
+from collections.abc import Collection, Generator, Iterable, Iterator
 from contextlib import closing
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -81,11 +81,7 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
             # files of their own, which identical frames may share (a frame in a pack goes
             # with its pack)
             paths = {r[1] for r in doomed if r[1] is not None and pack_of(r[1]) is None}
-            still = set(
-                session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(paths)))
-                if paths
-                else ()
-            )
+            still = _referenced(session, paths)
             session.commit()
         gone = sorted(paths - still)
         store.delete(gone)
@@ -142,11 +138,10 @@ def sweep_orphans(
     """Delete stored files no frame row refers to, if older than ``min_age_s``: files and
     objects of their own, and packs that no live process writes to and none of whose frames
     has a row (a process killed before the first commit into a new pack)."""
-    candidates = store.older_than(min_age_s)
     removed = 0
-    for start in range(0, len(candidates), 1000):
-        chunk = candidates[start : start + 1000]
-        used = _referenced(sessions, chunk)
+    for chunk in _chunks(store.older_than(min_age_s), FILE_CHUNK):
+        with sessions() as session:
+            used = _referenced(session, chunk)
         unused = [p for p in chunk if p not in used]
         store.delete(unused)
         removed += len(unused)
@@ -162,13 +157,8 @@ def sweep_orphans(
     return removed
 
 
-def _referenced(sessions: sessionmaker[Session], locators: list[str]) -> set[str]:
-    """Those of ``locators`` some frame row refers to (``ix_frames_stored_path``)."""
-    with sessions() as session:
-        return set(
-            session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(locators)))
-        )
-
+FILE_CHUNK = 1000
+"""Files of their own are looked up this many at a time."""
 
 PACK_CHUNK = 100
 """A pack's frames are looked up this many at a time. Its first frames nearly always have
@@ -176,12 +166,22 @@ rows, so most packs are answered by their first headers, not read through (a ful
 thousands of frames, and the sweep runs at every start)."""
 
 
+def _chunks(items: Iterable[str], size: int) -> Iterator[list[str]]:
+    it = iter(items)
+    while chunk := list(islice(it, size)):
+        yield chunk
+
+
+def _referenced(session: Session, locators: Collection[str]) -> set[str]:
+    """Those of ``locators`` some frame row refers to (``ix_frames_stored_path``)."""
+    if not locators:
+        return set()
+    return set(session.scalars(select(Frame.stored_path).where(Frame.stored_path.in_(locators))))
+
+
 def _any_referenced(sessions: sessionmaker[Session], locators: Generator[str, None, None]) -> bool:
-    with closing(locators):
-        while chunk := list(islice(locators, PACK_CHUNK)):
-            if _referenced(sessions, chunk):
-                return True
-    return False
+    with closing(locators), sessions() as session:
+        return any(_referenced(session, chunk) for chunk in _chunks(locators, PACK_CHUNK))
 
 
 async def run(
