@@ -69,10 +69,14 @@ def frame_and_verdict(n: int, *, key: str | None = None, stored: bool = True) ->
 
 
 def inserts_sent(
-    sm: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch, copies: list[int] | None = None
+    sm: sessionmaker[Session],
+    monkeypatch: pytest.MonkeyPatch,
+    copies: list[int] | None = None,
+    multirow: list[int] | None = None,
 ) -> list[int]:
-    """Records the number of rows in each INSERT the engine executes (executemany counts all)
-    and in each COPY (PostgreSQL; also in ``copies``)."""
+    """Records the number of rows in each INSERT the engine executes (executemany counts all),
+    in each COPY (PostgreSQL; also in ``copies``) and in each multi-row INSERT sent on the
+    driver's cursor (SQLite; also in ``multirow``)."""
     sent: list[int] = []
     engine = sm.kw["bind"]
 
@@ -81,7 +85,7 @@ def inserts_sent(
         if statement.lstrip().upper().startswith("INSERT"):
             sent.append(len(params) if many else 1)
 
-    copy = rows._copy
+    copy, values = rows._copy, rows._values
 
     def count_copy(connection: Any, plan: Any, batch: list[Any]) -> None:
         sent.append(len(batch))
@@ -89,7 +93,14 @@ def inserts_sent(
             copies.append(len(batch))
         copy(connection, plan, batch)
 
+    def count_values(connection: Any, plan: Any, batch: list[Any]) -> None:
+        sent.append(len(batch))
+        if multirow is not None:
+            multirow.append(len(batch))
+        values(connection, plan, batch)
+
     monkeypatch.setattr(rows, "_copy", count_copy)
+    monkeypatch.setattr(rows, "_values", count_values)
     return sent
 
 
@@ -97,7 +108,8 @@ def test_held_back_inserts_go_as_one_statement_per_table_and_column_set(
     sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     copies: list[int] = []
-    sent = inserts_sent(sessions, monkeypatch, copies)
+    multirow: list[int] = []
+    sent = inserts_sent(sessions, monkeypatch, copies, multirow)
     with sessions() as s:
         with deferred_inserts(s):
             for n in range(6):
@@ -107,8 +119,10 @@ def test_held_back_inserts_go_as_one_statement_per_table_and_column_set(
     # frames without a stored path (2, the first used), frames with one (4), then the verdicts
     # (6): by table in the order first used, which keeps every verdict after its frame
     assert sent == [2, 4, 6]
-    # PostgreSQL: each as one COPY
-    assert copies == ([2, 4, 6] if sessions.kw["bind"].dialect.name == "postgresql" else [])
+    # PostgreSQL: each as one COPY; SQLite: each as one multi-row INSERT
+    dialect = sessions.kw["bind"].dialect.name
+    assert copies == ([2, 4, 6] if dialect == "postgresql" else [])
+    assert multirow == ([2, 4, 6] if dialect == "sqlite" else [])
     with sessions() as s:
         assert s.scalar(select(func.count()).select_from(Frame)) == 6
         assert s.scalar(select(func.count()).select_from(Verdict)) == 6
@@ -299,7 +313,8 @@ def test_stop_lets_preparations_in_flight_finish_and_commits_their_jobs(
 
 def test_rows_sent_together_read_back_as_rows_sent_alone(sessions: sessionmaker[Session]) -> None:
     """Every column type of the verdicts (joined tables, enum, JSON, NULLs, floats) the same
-    whichever way the rows went: together (COPY on PostgreSQL) or one INSERT each."""
+    whichever way the rows went: together (COPY on PostgreSQL, one multi-row INSERT on SQLite)
+    or one INSERT each."""
 
     def rows_for(prefix: str) -> list[Any]:
         out: list[Any] = []
@@ -399,10 +414,12 @@ def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None
 def test_rows_leaving_out_a_python_default_are_inserted_with_it(
     sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """COPY applies only the database's own defaults: rows that leave out a column whose
-    default SQLAlchemy computes go as an INSERT, which applies it."""
+    """COPY and a hand-built multi-row INSERT apply only the database's own defaults: rows that
+    leave out a column whose default SQLAlchemy computes go as SQLAlchemy's INSERT, which
+    applies it."""
     copies: list[int] = []
-    sent = inserts_sent(sessions, monkeypatch, copies)
+    multirow: list[int] = []
+    sent = inserts_sent(sessions, monkeypatch, copies, multirow)
     with sessions() as s:
         insert_rows(s, *frame_and_verdict(1))
         s.commit()
@@ -419,7 +436,32 @@ def test_rows_leaving_out_a_python_default_are_inserted_with_it(
                 )  # fmt: skip
         s.commit()
     assert sent == [3]
-    assert copies == []  # an INSERT (executemany), not a COPY
+    assert copies == multirow == []  # SQLAlchemy's INSERT (executemany)
     with sessions() as s:
         alerts = s.scalars(select(AirAlert).order_by(AirAlert.id)).all()
         assert [(a.delivered, a.attempts) for a in alerts] == [(False, 0)] * 3
+
+
+def test_more_rows_than_one_sqlite_statement_may_bind_go_in_several(
+    sessions: sessionmaker[Session],
+) -> None:
+    """SQLite (before 3.32) binds at most 999 parameters a statement: 200 frames of 10 columns
+    go as three INSERTs (99, 99 and 2 rows), and all are stored."""
+    if sessions.kw["bind"].dialect.name != "sqlite":
+        pytest.skip("multi-row INSERTs are SQLite's way; PostgreSQL copies")
+    executed: list[str] = []
+    with sessions() as s:
+        dbapi = s.connection().connection.dbapi_connection
+        assert dbapi is not None
+        dbapi.set_trace_callback(executed.append)  # type: ignore[attr-defined]
+        try:
+            with deferred_inserts(s):
+                for n in range(200):
+                    insert_rows(s, frame_and_verdict(n)[0])
+            s.commit()
+        finally:
+            dbapi.set_trace_callback(None)  # type: ignore[attr-defined]
+    inserts = [sql for sql in executed if sql.startswith("INSERT INTO frames")]
+    assert [sql.count("), (") + 1 for sql in inserts] == [99, 99, 2]
+    with sessions() as s:
+        assert s.scalar(select(func.count()).select_from(Frame)) == 200
