@@ -1,11 +1,12 @@
-"""CPU of the group-commit writer per batch on PostgreSQL, without HTTP or threads.
+"""CPU of the group-commit writer per batch, without HTTP or threads.
 
 Frames prepared up front (decoded, measured, no file), then committed through the writer's
 batch path in batches of ``--batch`` frames, one after another on this thread; reports this
 thread's CPU per batch (user + system: the driver's round trips included). Run it in two
 checkouts, alternating, to compare writer changes side by side:
 
-    python bench/writer_batches.py --batch 2
+    python bench/writer_batches.py --batch 2                       # PostgreSQL
+    python bench/writer_batches.py --batch 3 --database-url sqlite:///data/writer-bench.db
 """
 
 from __future__ import annotations
@@ -36,9 +37,14 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=2, help="frames per batch")
     parser.add_argument("--batches", type=int, default=400, help="batches per round")
     parser.add_argument("--rounds", type=int, default=4, help="the first is a warm-up")
+    parser.add_argument(
+        "--database-url",
+        default=PG_BENCH_URL,
+        help="PostgreSQL's bench database (dropped and made anew) or a new SQLite file",
+    )
     args = parser.parse_args()
 
-    engine, sessions = bench_database(PG_BENCH_URL)  # dropped and made anew
+    engine, sessions = bench_database(args.database_url)
     writer = GroupCommitWriter(sessions)
     writer._holding = True  # as on the writer's own thread (a connection kept between batches)
     camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
