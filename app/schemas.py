@@ -153,6 +153,11 @@ class SkyVerdictOut(VerdictBase):
     level: int | None
     category: str | None
     message: str | None
+    calibration_id: str | None = Field(
+        default=None,
+        description="The calibration that graded the frame (the camera's own or "
+        "the city-wide one).",
+    )
 
 
 class RigVerdictOut(VerdictBase):
@@ -327,6 +332,9 @@ class AirCalibrationOut(Out):
     clusters: list[AirClusterOut]
     warnings: list[str] = Field(description="Levels pooled for want of images, and the like.")
     method: str = Field(description="clusters (T², the dissertation) or regression.")
+    camera_ids: list[str] = Field(
+        description="The sky cameras it grades; empty: every camera without one of its own."
+    )
 
 
 class AirLatest(Out):

@@ -281,6 +281,23 @@ class AirCalibration(Base):
     """{mean, scale, coef, intercept} of the ridge regression on the sky features."""
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
 
+    cameras: Mapped[list[AirCalibrationCamera]] = relationship(lazy="raise")
+    """The sky cameras this calibration grades; none: every camera without one of its own."""
+
+    @property
+    def camera_ids(self) -> list[str]:
+        return sorted(c.camera_id for c in self.cameras)
+
+
+class AirCalibrationCamera(Base):
+    """A sky camera graded by a calibration of its own (its view, its white balance) rather
+    than by the city-wide one."""
+
+    __tablename__ = "air_calibration_cameras"
+
+    calibration_id: Mapped[str] = mapped_column(ForeignKey("air_calibrations.id"), primary_key=True)
+    camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"), primary_key=True, index=True)
+
 
 class AirAlert(Base):
     """A camera's smoothed level entered Poor or Very Poor."""

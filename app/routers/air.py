@@ -10,11 +10,12 @@ import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
+from pydantic import StringConstraints
 from sqlalchemy.orm import Session
 
 from app.core import airquality, isopleths
 from app.db.models import CameraKind
-from app.deps import Admin, CameraId, IdFilter, PolicyDep, SessionDep, SettingsDep
+from app.deps import ID_PATTERN, Admin, CameraId, IdFilter, PolicyDep, SessionDep, SettingsDep
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.schemas import (
@@ -50,6 +51,7 @@ def _from_files(
     max_pixels: int,
     policy: Policy,
     method: str,
+    applies_to: list[str],
 ) -> AirCalibrationOut:
     camera = CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
     if camera_id is not None:
@@ -66,6 +68,7 @@ def _from_files(
         now=policy.now(),
         method=method,
         features=feats,
+        camera_ids=applies_to,
     )
     return _calibration_out(row)
 
@@ -77,6 +80,7 @@ def _from_frames(
     shrinkage: float,
     policy: Policy,
     method: str,
+    applies_to: list[str],
 ) -> AirCalibrationOut:
     if len(body.frame_ids) != len(body.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
@@ -91,6 +95,7 @@ def _from_frames(
         now=policy.now(),
         method=method,
         features=feats,
+        camera_ids=applies_to,
     )
     return _calibration_out(row)
 
@@ -110,6 +115,16 @@ async def calibrate(
     significance: Significance = 0.05,
     shrinkage: Shrinkage = 0.0,
     camera_id: Annotated[str | None, Query(description="Whose ROI applies to uploads.")] = None,
+    applies_to: Annotated[
+        list[Annotated[str, StringConstraints(pattern=ID_PATTERN)]] | None,
+        Query(
+            max_length=10_000,
+            description="Sky cameras this calibration grades from now on (repeat the "
+            "parameter). Without it, it is the city-wide calibration of every camera that has "
+            "none of its own: calibrate a camera from its own labelled frames where its view "
+            "or white balance differs from the rest.",
+        ),
+    ] = None,
     method: Annotated[
         Literal["clusters", "regression"],
         Query(
@@ -147,12 +162,22 @@ async def calibrate(
                 settings.max_pixels,
                 policy,
                 method,
+                applies_to or [],
             )
         )
     if kind == "application/json":
         body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
         return await run_in_threadpool(
-            partial(_from_frames, session, body, significance, shrinkage, policy, method)
+            partial(
+                _from_frames,
+                session,
+                body,
+                significance,
+                shrinkage,
+                policy,
+                method,
+                applies_to or [],
+            )
         )
     raise UnsupportedMediaType(
         "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"
@@ -160,12 +185,15 @@ async def calibrate(
 
 
 @router.get("/calibration", response_model=AirCalibrationOut, responses=NOT_FOUND)
-def current_calibration(session: SessionDep) -> AirCalibrationOut:
-    """The calibration in use."""
-    row = air.latest_calibration(session)
+def current_calibration(session: SessionDep, camera_id: IdFilter = None) -> AirCalibrationOut:
+    """The calibration in use: the city-wide one, or the one that grades ``camera_id``'s
+    frames (its own, else the city-wide one)."""
+    if camera_id is not None:
+        air.sky_camera(session, camera_id)
+    row = air.calibration_for(session, camera_id)
     if row is None:
         raise NotFound("no air-quality calibration yet")
-    return _calibration_out(row)
+    return _calibration_out(air.with_cameras(session, row))
 
 
 @router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)

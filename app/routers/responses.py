@@ -68,6 +68,7 @@ def verdict_out(verdict: Verdict) -> VerdictOut:
             level=verdict.level,
             category=verdict.category,
             message=category_message(verdict.category),
+            calibration_id=verdict.calibration_id,
             **common,
         )
     return RigVerdictOut(**common)

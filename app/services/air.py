@@ -14,7 +14,15 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.core import airquality, soiling
-from app.db.models import AirAlert, AirCalibration, Camera, CameraKind, Frame, SkyVerdict
+from app.db.models import (
+    AirAlert,
+    AirCalibration,
+    AirCalibrationCamera,
+    Camera,
+    CameraKind,
+    Frame,
+    SkyVerdict,
+)
 from app.errors import NotFound, Unprocessable
 from app.services.policy import Policy
 from app.services.verdicts import stats_columns
@@ -23,12 +31,32 @@ if TYPE_CHECKING:
     from app.services.ingest import Prepared
 
 
-def latest_calibration(session: Session) -> AirCalibration | None:
+def calibration_for(session: Session, camera_id: str | None) -> AirCalibration | None:
+    """The calibration that grades a camera's frames: the newest made for that camera, else
+    the newest city-wide one (made for no camera in particular). ``None``: the city-wide one."""
+    newest = (AirCalibration.created_at.desc(), AirCalibration.id)
+    if camera_id is not None:
+        own = session.scalars(
+            select(AirCalibration)
+            .join(AirCalibrationCamera)
+            .where(AirCalibrationCamera.camera_id == camera_id)
+            .order_by(*newest)
+            .limit(1)
+        ).first()
+        if own is not None:
+            return own
+    scoped = select(AirCalibrationCamera.calibration_id).where(
+        AirCalibrationCamera.calibration_id == AirCalibration.id
+    )
     return session.scalars(
-        select(AirCalibration)
-        .order_by(AirCalibration.created_at.desc(), AirCalibration.id)
-        .limit(1)
+        select(AirCalibration).where(~scoped.exists()).order_by(*newest).limit(1)
     ).first()
+
+
+def with_cameras(session: Session, row: AirCalibration) -> AirCalibration:
+    """The calibration with the cameras it was made for loaded (for its ``camera_ids``)."""
+    session.refresh(row, ["cameras"])
+    return row
 
 
 def as_core(row: AirCalibration) -> airquality.Calibration:
@@ -93,8 +121,18 @@ def calibrate(
     now: datetime,
     method: str = "clusters",
     features: NDArray[np.float64] | None = None,
+    camera_ids: Sequence[str] = (),
 ) -> AirCalibration:
-    """The level clusters (always) and, for ``method="regression"``, the regression too."""
+    """The level clusters (always) and, for ``method="regression"``, the regression too.
+
+    Made for ``camera_ids`` (sky cameras), it grades those cameras' frames from now on; made for
+    none, it is the city-wide calibration of every camera without one of its own.
+    """
+    cameras = sorted(set(camera_ids))
+    for camera_id in cameras:
+        camera = session.get(Camera, camera_id)
+        if camera is None or camera.kind != CameraKind.sky:
+            raise Unprocessable(f"applies_to: no sky camera {camera_id!r}", code="not_a_sky_camera")
     regression = None
     if method == "regression":
         if features is None:
@@ -128,6 +166,7 @@ def calibrate(
         frame_ids=frame_ids,
         method=method,
         regression=regression,
+        cameras=[AirCalibrationCamera(camera_id=c) for c in cameras],
     )
     session.add(row)
     session.flush()
@@ -170,7 +209,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     )
     if decoded.features is not None:
         verdict.details = {"features": decoded.features.tolist()}
-    cal_row = latest_calibration(session)
+    cal_row = calibration_for(session, camera.id)
     regression = as_regression(cal_row) if cal_row is not None else None
     if decoded.quality is not None:
         verdict.reason = decoded.quality

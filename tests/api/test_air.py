@@ -52,20 +52,28 @@ def city(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
     return {"tokens": tokens, "clock": clock}
 
 
-def calibrate(client: TestClient, admin: dict[str, str], camera: str = "sky0") -> Any:
+def calibrate(
+    client: TestClient,
+    admin: dict[str, str],
+    camera: str = "sky0",
+    *,
+    label: Any = None,
+    applies_to: list[str] | None = None,
+) -> Any:
+    """Calibrate from synthetic skies of levels 1, 3, 5, 7 and 10, each labelled ``label(level)``
+    (the level itself by default)."""
     files, levels = [], []
     for level in (1, 3, 5, 7, 10):
         for k in range(8):
             files.append(
                 ("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed=100 * level + k), "image/jpeg"))
             )
-            levels.append(str(level))
+            levels.append(str(label(level) if label else level))
+    params: dict[str, Any] = {"camera_id": camera, "significance": 0.01}
+    if applies_to is not None:
+        params["applies_to"] = applies_to
     return client.post(
-        "/air/calibration",
-        files=files,
-        data={"levels": levels},
-        headers=admin,
-        params={"camera_id": camera, "significance": 0.01},
+        "/air/calibration", files=files, data={"levels": levels}, headers=admin, params=params
     )
 
 
@@ -308,3 +316,56 @@ def test_regression_calibration(
         params={"method": "regression"},
     )
     assert r.status_code == 422
+
+
+def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibration(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """sky1 sees the city's skies with the opposite meaning (a view whose clear sky looks like
+    the others' haze): calibrated for it alone, it grades sky1's frames and no other's."""
+    own = calibrate(client, admin, "sky1", label=lambda level: 11 - level, applies_to=["sky1"])
+    assert own.status_code == 201, own.text
+    assert own.json()["camera_ids"] == ["sky1"]
+    # no city-wide calibration yet: the other cameras are not graded
+    assert "not calibrated" in post(client, city, "sky0", 10, seed=1)["reason"]
+    assert client.get("/air/calibration").status_code == 404
+
+    city_wide = calibrate(client, admin)
+    assert city_wide.status_code == 201, city_wide.text
+    assert city_wide.json()["camera_ids"] == []
+
+    for seed in range(10, 13):
+        mine, other = post(client, city, "sky1", 10, seed), post(client, city, "sky0", 10, seed)
+        assert (mine["level"], mine["calibration_id"]) == (1, own.json()["id"])
+        assert (other["level"], other["calibration_id"]) == (10, city_wide.json()["id"])
+
+    assert client.get("/air/calibration").json()["id"] == city_wide.json()["id"]
+    got = client.get("/air/calibration", params={"camera_id": "sky1"}).json()
+    assert (got["id"], got["camera_ids"]) == (own.json()["id"], ["sky1"])
+    got = client.get("/air/calibration", params={"camera_id": "sky2"}).json()
+    assert got["id"] == city_wide.json()["id"]
+    assert client.get("/air/calibration", params={"camera_id": "nope"}).status_code == 404
+
+    # a newer city-wide calibration does not replace a camera's own
+    assert calibrate(client, admin).status_code == 201
+    assert post(client, city, "sky1", 10, seed=9)["calibration_id"] == own.json()["id"]
+
+
+@pytest.mark.parametrize(
+    ("applies_to", "status"),
+    [(["nope"], 422), (["rig0"], 422), (["sky0", "a/b"], 422), (["sky0", "nope"], 422)],
+)
+def test_a_calibration_for_cameras_that_are_not_sky_cameras_is_refused_and_stores_nothing(
+    client: TestClient,
+    admin: dict[str, str],
+    city: dict[str, Any],
+    applies_to: list[str],
+    status: int,
+) -> None:
+    r = client.post("/cameras", json={"id": "rig0", "kind": "rig"}, headers=admin)
+    assert r.status_code == 201, r.text
+    r = calibrate(client, admin, applies_to=applies_to)
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith("application/problem+json")
+    assert client.get("/air/calibration", params={"camera_id": "sky0"}).status_code == 404
+    assert client.get("/air/calibration").status_code == 404
