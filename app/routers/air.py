@@ -196,6 +196,27 @@ def current_calibration(session: SessionDep, camera_id: IdFilter = None) -> AirC
     return _calibration_out(air.with_cameras(session, row))
 
 
+@router.get(
+    "/calibrations",
+    response_model=list[AirCalibrationOut],
+    responses={**NOT_FOUND, **UNPROCESSABLE},
+)
+def list_calibrations(
+    session: SessionDep,
+    camera_id: Annotated[
+        str | None,
+        Query(pattern=ID_PATTERN, description="Only those made for this sky camera."),
+    ] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+) -> list[AirCalibrationOut]:
+    """Every calibration, newest first, with the cameras each was made for (none: city-wide)."""
+    if camera_id is not None:
+        air.sky_camera(session, camera_id)
+    rows = air.calibrations(session, camera_id=camera_id, limit=limit, offset=offset)
+    return [_calibration_out(r) for r in rows]
+
+
 @router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
 def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
     """A sky camera's latest reading: level, category, message, and the smoothed level."""

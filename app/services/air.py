@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, soiling
 from app.db.models import (
@@ -51,6 +51,18 @@ def calibration_for(session: Session, camera_id: str | None) -> AirCalibration |
     return session.scalars(
         select(AirCalibration).where(~scoped.exists()).order_by(*newest).limit(1)
     ).first()
+
+
+def calibrations(
+    session: Session, *, camera_id: str | None, limit: int, offset: int
+) -> Sequence[AirCalibration]:
+    """Calibrations, newest first (only those made for ``camera_id`` when given), with the
+    cameras each was made for loaded."""
+    q = select(AirCalibration).options(selectinload(AirCalibration.cameras))
+    if camera_id is not None:
+        q = q.join(AirCalibrationCamera).where(AirCalibrationCamera.camera_id == camera_id)
+    q = q.order_by(AirCalibration.created_at.desc(), AirCalibration.id)
+    return session.scalars(q.limit(limit).offset(offset)).all()
 
 
 def with_cameras(session: Session, row: AirCalibration) -> AirCalibration:

@@ -330,6 +330,7 @@ def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibratio
     assert "not calibrated" in post(client, city, "sky0", 10, seed=1)["reason"]
     assert client.get("/air/calibration").status_code == 404
 
+    city["clock"].advance(hours=1)
     city_wide = calibrate(client, admin)
     assert city_wide.status_code == 201, city_wide.text
     assert city_wide.json()["camera_ids"] == []
@@ -347,8 +348,23 @@ def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibratio
     assert client.get("/air/calibration", params={"camera_id": "nope"}).status_code == 404
 
     # a newer city-wide calibration does not replace a camera's own
-    assert calibrate(client, admin).status_code == 201
+    city["clock"].advance(hours=1)
+    newer = calibrate(client, admin)
+    assert newer.status_code == 201
     assert post(client, city, "sky1", 10, seed=9)["calibration_id"] == own.json()["id"]
+
+    listed = client.get("/air/calibrations").json()  # public, newest first
+    assert [(c["id"], c["camera_ids"]) for c in listed] == [
+        (newer.json()["id"], []),
+        (city_wide.json()["id"], []),
+        (own.json()["id"], ["sky1"]),
+    ]
+    only = client.get("/air/calibrations", params={"camera_id": "sky1"}).json()
+    assert [c["id"] for c in only] == [own.json()["id"]]
+    assert client.get("/air/calibrations", params={"camera_id": "sky2"}).json() == []
+    assert client.get("/air/calibrations", params={"camera_id": "nope"}).status_code == 404
+    page = client.get("/air/calibrations", params={"limit": 1, "offset": 1}).json()
+    assert [c["id"] for c in page] == [city_wide.json()["id"]]
 
 
 @pytest.mark.parametrize(
