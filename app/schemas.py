@@ -332,9 +332,11 @@ class AirCalibrationOut(Out):
     clusters: list[AirClusterOut]
     warnings: list[str] = Field(description="Levels pooled for want of images, and the like.")
     method: str = Field(description="clusters (T², the dissertation) or regression.")
-    camera_ids: list[str] = Field(
-        description="The sky cameras it grades; empty: every camera without one of its own."
+    city_wide: bool = Field(
+        description="Made for no camera in particular: it grades every camera without one of "
+        "its own."
     )
+    camera_ids: list[str] = Field(description="The sky cameras it was made for and still grades.")
 
 
 class AirLatest(Out):

@@ -19,6 +19,7 @@ from sqlalchemy import (
     String,
     UniqueConstraint,
     false,
+    true,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
@@ -280,9 +281,11 @@ class AirCalibration(Base):
     regression: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """{mean, scale, coef, intercept} of the ridge regression on the sky features."""
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
+    city_wide: Mapped[bool] = mapped_column(Boolean, default=True, server_default=true())
+    """Made for no camera in particular: it grades every camera without one of its own."""
 
     cameras: Mapped[list[AirCalibrationCamera]] = relationship(lazy="raise")
-    """The sky cameras this calibration grades; none: every camera without one of its own."""
+    """The sky cameras this calibration grades (made for given cameras: ``city_wide`` false)."""
 
     @property
     def camera_ids(self) -> list[str]:

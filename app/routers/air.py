@@ -196,6 +196,18 @@ def current_calibration(session: SessionDep, camera_id: IdFilter = None) -> AirC
     return _calibration_out(air.with_cameras(session, row))
 
 
+@router.delete(
+    "/cameras/{camera_id}/calibration",
+    status_code=204,
+    response_class=Response,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def release_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> Response:
+    """Grade the sky camera by the city-wide calibration again, not by one made for it."""
+    air.release_camera(session, camera_id)
+    return Response(status_code=204)
+
+
 @router.get(
     "/calibrations",
     response_model=list[AirCalibrationOut],

@@ -45,12 +45,24 @@ def calibration_for(session: Session, camera_id: str | None) -> AirCalibration |
         ).first()
         if own is not None:
             return own
-    scoped = select(AirCalibrationCamera.calibration_id).where(
-        AirCalibrationCamera.calibration_id == AirCalibration.id
-    )
     return session.scalars(
-        select(AirCalibration).where(~scoped.exists()).order_by(*newest).limit(1)
+        select(AirCalibration).where(AirCalibration.city_wide).order_by(*newest).limit(1)
     ).first()
+
+
+def release_camera(session: Session, camera_id: str) -> None:
+    """Grade the sky camera by the city-wide calibration again: it is taken off every
+    calibration made for it (which keep grading their other cameras). NotFound when it has none
+    of its own."""
+    sky_camera(session, camera_id)
+    links = session.scalars(
+        select(AirCalibrationCamera).where(AirCalibrationCamera.camera_id == camera_id)
+    ).all()
+    if not links:
+        raise NotFound(f"sky camera {camera_id!r} has no calibration of its own")
+    for link in links:
+        session.delete(link)
+    session.flush()
 
 
 def calibrations(
@@ -178,6 +190,7 @@ def calibrate(
         frame_ids=frame_ids,
         method=method,
         regression=regression,
+        city_wide=not cameras,
         cameras=[AirCalibrationCamera(camera_id=c) for c in cameras],
     )
     session.add(row)

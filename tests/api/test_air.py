@@ -365,6 +365,32 @@ def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibratio
     assert client.get("/air/calibrations", params={"camera_id": "nope"}).status_code == 404
     page = client.get("/air/calibrations", params={"limit": 1, "offset": 1}).json()
     assert [c["id"] for c in page] == [city_wide.json()["id"]]
+    assert [c["city_wide"] for c in listed] == [True, True, False]
+
+
+def test_a_camera_released_from_its_own_calibration_is_graded_city_wide_again(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    city_wide = calibrate(client, admin).json()
+    city["clock"].advance(hours=1)
+    own = calibrate(
+        client, admin, "sky1", label=lambda level: 11 - level, applies_to=["sky1", "sky2"]
+    ).json()
+    assert post(client, city, "sky1", 10, seed=1)["level"] == 1
+
+    path = "/air/cameras/sky1/calibration"
+    assert client.delete(path).status_code == 401  # an operator's act
+    assert client.delete(path, headers=admin).status_code == 204
+    assert client.delete(path, headers=admin).status_code == 404  # none of its own left
+    assert client.delete("/air/cameras/nope/calibration", headers=admin).status_code == 404
+
+    v = post(client, city, "sky1", 10, seed=2)
+    assert (v["level"], v["calibration_id"]) == (10, city_wide["id"])
+    # the calibration keeps grading its other camera, and is still not the city-wide one
+    assert post(client, city, "sky2", 10, seed=3)["calibration_id"] == own["id"]
+    assert client.get("/air/calibration").json()["id"] == city_wide["id"]
+    listed = {c["id"]: c for c in client.get("/air/calibrations").json()}
+    assert (listed[own["id"]]["camera_ids"], listed[own["id"]]["city_wide"]) == (["sky2"], False)
 
 
 @pytest.mark.parametrize(
