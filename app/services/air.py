@@ -153,10 +153,19 @@ def calibrate(
     none, it is the city-wide calibration of every camera without one of its own.
     """
     cameras = sorted(set(camera_ids))
-    for camera_id in cameras:
-        camera = session.get(Camera, camera_id)
-        if camera is None or camera.kind != CameraKind.sky:
-            raise Unprocessable(f"applies_to: no sky camera {camera_id!r}", code="not_a_sky_camera")
+    if cameras:
+        sky = set(
+            session.scalars(
+                select(Camera.id).where(Camera.id.in_(cameras), Camera.kind == CameraKind.sky)
+            )
+        )
+        missing = [c for c in cameras if c not in sky]
+        if missing:
+            raise Unprocessable(
+                f"applies_to: no sky camera {missing[0]!r}"
+                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
+                code="not_a_sky_camera",
+            )
     regression = None
     if method == "regression":
         if features is None:

@@ -394,20 +394,26 @@ def test_a_camera_released_from_its_own_calibration_is_graded_city_wide_again(
 
 
 @pytest.mark.parametrize(
-    ("applies_to", "status"),
-    [(["nope"], 422), (["rig0"], 422), (["sky0", "a/b"], 422), (["sky0", "nope"], 422)],
+    ("applies_to", "detail"),
+    [
+        (["nope"], "no sky camera 'nope'"),
+        (["rig0"], "no sky camera 'rig0'"),
+        (["sky0", "a/b"], "applies_to"),
+        (["sky0", "nope", "rig0"], "no sky camera 'nope' (and 1 more)"),
+    ],
 )
 def test_a_calibration_for_cameras_that_are_not_sky_cameras_is_refused_and_stores_nothing(
     client: TestClient,
     admin: dict[str, str],
     city: dict[str, Any],
     applies_to: list[str],
-    status: int,
+    detail: str,
 ) -> None:
     r = client.post("/cameras", json={"id": "rig0", "kind": "rig"}, headers=admin)
     assert r.status_code == 201, r.text
     r = calibrate(client, admin, applies_to=applies_to)
-    assert r.status_code == status, r.text
+    assert r.status_code == 422, r.text
     assert r.headers["content-type"].startswith("application/problem+json")
+    assert detail in r.json()["detail"]
     assert client.get("/air/calibration", params={"camera_id": "sky0"}).status_code == 404
     assert client.get("/air/calibration").status_code == 404
