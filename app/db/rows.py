@@ -5,11 +5,11 @@ sent together per table and column set: at the batch's end, or as soon as anythi
 executed on the connection, so every statement still sees the rows inserted before it. On
 PostgreSQL several rows go as one ``COPY … FROM STDIN``: one statement on the server instead of
 a parse, bind and execute per row, and psycopg formats the rows in C. On SQLite they go as one
-multi-row ``INSERT … VALUES (…), (…)``: the sqlite3 module releases the GIL around every
-statement step, once per row in an executemany, and under load each release costs the writer a
-wait of ~0.4 ms to get it back (measured in the bench server: 3.3 frames a batch, 3.8 ms of wall
-time for 0.5 ms of CPU in the batch's inserts). Elsewhere (and for a single row) they go as one
-executemany.
+multi-row ``INSERT … VALUES (…), (…)``: one statement step per table instead of one per row.
+The sqlite3 module releases the GIL around every step, and under load the writer then waits
+~1 ms to get it back (in the bench server the batch's inserts took 3.8–4.0 ms of wall time for
+0.51 ms of CPU as executemany, 2.4–3.2 ms for 0.35–0.43 ms so; ``bench/README.md``). Elsewhere
+(and for a single row) they go as one executemany.
 """
 
 from __future__ import annotations
