@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import func, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, soiling
@@ -33,20 +33,25 @@ if TYPE_CHECKING:
 
 def calibration_for(session: Session, camera_id: str | None) -> AirCalibration | None:
     """The calibration that grades a camera's frames: the newest made for that camera, else
-    the newest city-wide one (made for no camera in particular). ``None``: the city-wide one."""
-    newest = (AirCalibration.created_at.desc(), AirCalibration.id)
-    if camera_id is not None:
-        own = session.scalars(
-            select(AirCalibration)
-            .join(AirCalibrationCamera)
-            .where(AirCalibrationCamera.camera_id == camera_id)
-            .order_by(*newest)
-            .limit(1)
-        ).first()
-        if own is not None:
-            return own
+    the newest city-wide one (made for no camera in particular). ``None``: the city-wide one.
+
+    One query (it runs for every sky frame, on the writer): the camera's own calibrations and
+    the city-wide ones, its own first.
+    """
+    mine = and_(
+        AirCalibrationCamera.calibration_id == AirCalibration.id,
+        AirCalibrationCamera.camera_id == camera_id,
+    )
     return session.scalars(
-        select(AirCalibration).where(AirCalibration.city_wide).order_by(*newest).limit(1)
+        select(AirCalibration)
+        .outerjoin(AirCalibrationCamera, mine)
+        .where(or_(AirCalibrationCamera.camera_id.is_not(None), AirCalibration.city_wide))
+        .order_by(
+            AirCalibrationCamera.camera_id.is_(None),  # its own first (false sorts before true)
+            AirCalibration.created_at.desc(),
+            AirCalibration.id,
+        )
+        .limit(1)
     ).first()
 
 
