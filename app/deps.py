@@ -158,6 +158,8 @@ PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]
 RigId = Annotated[str, Path(pattern=ID_PATTERN, description="Rig id.")]
 RecordId = Annotated[str, Path(pattern=ID_PATTERN, description="Id given by the service.")]
 IdFilter = Annotated[str | None, Query(pattern=ID_PATTERN, description="Only this id.")]
+Limit = Annotated[int, Query(ge=1, le=1000)]
+Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 
 
 def _info(session: Session, camera: Camera) -> CameraInfo:

@@ -15,7 +15,17 @@ from sqlalchemy.orm import Session
 
 from app.core import airquality, isopleths
 from app.db.models import CameraKind
-from app.deps import ID_PATTERN, Admin, CameraId, IdFilter, PolicyDep, SessionDep, SettingsDep
+from app.deps import (
+    ID_PATTERN,
+    Admin,
+    CameraId,
+    IdFilter,
+    Limit,
+    Offset,
+    PolicyDep,
+    SessionDep,
+    SettingsDep,
+)
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.schemas import (
@@ -215,14 +225,12 @@ def release_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> Respon
 )
 def list_calibrations(
     session: SessionDep,
-    camera_id: Annotated[
-        str | None,
-        Query(pattern=ID_PATTERN, description="Only those made for this sky camera."),
-    ] = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 50,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    camera_id: IdFilter = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
 ) -> list[AirCalibrationOut]:
-    """Every calibration, newest first, with the cameras each was made for (none: city-wide)."""
+    """Every calibration, newest first, with the cameras each was made for (none: city-wide);
+    with ``camera_id``, those made for that sky camera."""
     if camera_id is not None:
         air.sky_camera(session, camera_id)
     rows = air.calibrations(session, camera_id=camera_id, limit=limit, offset=offset)
@@ -270,7 +278,7 @@ def readings(
     until: datetime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    offset: Offset = 0,
 ) -> list[AirReading] | list[AirAggregate]:
     """Readings newest first, paginated; or their hourly or daily means."""
     if since and until and since >= until:
@@ -302,8 +310,8 @@ def readings(
 def alerts(
     session: SessionDep,
     camera_id: IdFilter = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> list[AirAlertOut]:
     """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first."""
     rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)

@@ -17,6 +17,8 @@ from app.db.models import Frame
 from app.deps import (
     Admin,
     CameraId,
+    Limit,
+    Offset,
     RecordId,
     SessionDep,
     UploadTargetDep,
@@ -44,9 +46,6 @@ router = APIRouter(tags=["cameras"])
 FRAMES_PATH = "/cameras/{camera_id}/frames"
 # a camera's clock may run a little ahead; further ahead is a broken clock
 MAX_CLOCK_SKEW = timedelta(minutes=10)
-
-Limit = Annotated[int, Query(ge=1, le=1000)]
-Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 
 _JPEG_BODY = {
     "requestBody": {

@@ -4,9 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Query, Response
+from fastapi import APIRouter, Body, Response
 
-from app.deps import IdFilter, PolicyDep, RecordId, RobotAuth, RobotOrAdmin, SessionDep
+from app.deps import (
+    IdFilter,
+    Limit,
+    Offset,
+    PolicyDep,
+    RecordId,
+    RobotAuth,
+    RobotOrAdmin,
+    SessionDep,
+)
 from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
 from app.schemas import ClaimOut, FailIn, TaskOut
 from app.services import cleaning
@@ -82,8 +91,8 @@ def list_tasks(
     policy: PolicyDep,
     _: RobotOrAdmin,
     panel_id: IdFilter = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> list[TaskOut]:
     """Cleaning tasks, newest first."""
     now = policy.now()

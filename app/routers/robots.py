@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Query
-
-from app.deps import Admin, SessionDep
+from app.deps import Admin, Limit, Offset, SessionDep
 from app.routers.responses import AUTH_ERRORS, CONFLICT, UNPROCESSABLE
 from app.schemas import RobotCreate, RobotCreated, RobotOut
 from app.services import registry
@@ -30,8 +28,8 @@ def create_robot(body: RobotCreate, session: SessionDep, _: Admin) -> RobotCreat
 def list_robots(
     session: SessionDep,
     _: Admin,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> list[RobotOut]:
     """List robots, ordered by id."""
     return [
