@@ -67,19 +67,17 @@ class _Pending:
         bulk = _bulk_sender(dialect)
         for statement, by_columns in rows.items():
             for columns, batch in by_columns.items():
-                plan = _bulk_plan(statement, columns, dialect) if bulk is not None else None
-                if bulk is not None and plan is not None and len(batch) > 1:
-                    bulk(connection, plan, batch)
-                else:
+                plan = _bulk_plan(statement, columns, dialect) if len(batch) > 1 else None
+                if bulk is None or plan is None:
                     connection.execute(statement, batch)
+                else:
+                    bulk(connection, plan, batch)
 
 
 @dataclass(frozen=True, slots=True)
 class _BulkPlan:
     sql: str
     """PostgreSQL: the COPY statement; SQLite: the INSERT up to its VALUES."""
-    row: str
-    """SQLite: one row's placeholders, ``(?, ?, …)``."""
     processors: tuple[_BindProcessorType[Any] | None, ...]
     """Each column's bind processor (its SQLAlchemy type's conversion), in order."""
 
@@ -96,13 +94,8 @@ def _bulk_plan(statement: Insert, columns: tuple[str, ...], dialect: Dialect) ->
     names = ", ".join(preparer.quote(c) for c in columns)
     processors = tuple(table.c[c].type._cached_bind_processor(dialect) for c in columns)
     if dialect.name == "postgresql":
-        return _BulkPlan(
-            f"COPY {preparer.format_table(table)} ({names}) FROM STDIN", "", processors
-        )
-    placeholders = "(" + ", ".join("?" * len(columns)) + ")"
-    return _BulkPlan(
-        f"INSERT INTO {preparer.format_table(table)} ({names}) VALUES ", placeholders, processors
-    )
+        return _BulkPlan(f"COPY {preparer.format_table(table)} ({names}) FROM STDIN", processors)
+    return _BulkPlan(f"INSERT INTO {preparer.format_table(table)} ({names}) VALUES ", processors)
 
 
 def _converted(plan: _BulkPlan, row: dict[str, Any]) -> list[Any]:
@@ -133,11 +126,12 @@ def _values(connection: Connection, plan: _BulkPlan, rows: list[dict[str, Any]])
     A failure (a unique violation) raises SQLAlchemy's exception for it, as ``execute`` does.
     """
     per_statement = max(1, SQLITE_MAX_VARIABLES // len(plan.processors))
+    row = "(" + ", ".join("?" * len(plan.processors)) + ")"
     cursor = connection.connection.dbapi_connection.cursor()  # type: ignore[union-attr]
     try:
         for start in range(0, len(rows), per_statement):
             chunk = rows[start : start + per_statement]
-            sql = plan.sql + ", ".join([plan.row] * len(chunk))
+            sql = plan.sql + ", ".join([row] * len(chunk))
             params = [v for row in chunk for v in _converted(plan, row)]
             with _as_sqlalchemy_error(connection, sql):
                 cursor.execute(sql, params)
