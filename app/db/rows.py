@@ -8,7 +8,7 @@ a parse, bind and execute per row, and psycopg formats the rows in C. On SQLite 
 multi-row ``INSERT … VALUES (…), (…)``: one statement step per table instead of one per row.
 The sqlite3 module releases the GIL around every step, and under load the writer then waits
 ~1 ms to get it back (in the bench server the batch's inserts took 3.8–4.0 ms of wall time for
-0.51 ms of CPU as executemany, 2.4–3.2 ms for 0.35–0.43 ms so; ``bench/README.md``). Elsewhere
+0.51 ms of CPU as executemany, 2.4–3.2 ms for 0.35–0.44 ms so; ``bench/README.md``). Elsewhere
 (and for a single row) they go as one executemany.
 """
 
