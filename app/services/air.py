@@ -36,7 +36,8 @@ def calibration_for(session: Session, camera_id: str | None) -> AirCalibration |
     the newest city-wide one (made for no camera in particular). ``None``: the city-wide one.
 
     One query (it runs for every sky frame, on the writer): the camera's own calibrations and
-    the city-wide ones, its own first.
+    the city-wide ones, its own first. For ``None`` the join's ``camera_id IS NULL`` matches no
+    row, which leaves the city-wide ones.
     """
     mine = and_(
         AirCalibrationCamera.calibration_id == AirCalibration.id,
