@@ -115,8 +115,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
-    # frame uploads decode in the writer's own threads, apart from the shared pool
-    app.state.writer = GroupCommitWriter(app.state.sessionmaker)
+    # frame uploads decode in the writer's own threads, apart from the shared pool: with the
+    # disk store about as many as there are cores, because more decoding threads than cores
+    # only contend for the cores and the GIL (bench/README.md)
+    app.state.writer = GroupCommitWriter(
+        app.state.sessionmaker, preparers=settings.effective_ingest_threads
+    )
     app.state.admin_token_hash = admin_token_hash(settings)
     app.state.camera_tokens = TokenCache()
     app.state.rate_budgets = rate_limit.LocalBudgets()

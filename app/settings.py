@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity, where the system reports one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 class Settings(BaseSettings):
@@ -56,6 +64,13 @@ class Settings(BaseSettings):
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",
     )
+    ingest_threads: int = Field(
+        default=0,
+        ge=0,
+        description="Frames decoded and stored at once per process. 0: twice the CPUs the "
+        "process may use with the disk store (more threads than cores only contend for them), "
+        "32 with the S3 store (each upload then waits on the network).",
+    )
     warm_up_triangulation: bool = Field(
         default=False,
         description="Compile the calibrated-rig triangulation loop (numba) at start, before "
@@ -82,6 +97,14 @@ class Settings(BaseSettings):
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
     log_level: str = "INFO"
     log_json: bool = True
+
+    @property
+    def effective_ingest_threads(self) -> int:
+        if self.ingest_threads:
+            return self.ingest_threads
+        if self.frame_store == "s3":
+            return 32
+        return 2 * usable_cpus()
 
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> Settings:

@@ -69,9 +69,20 @@ def prepare_pg() -> None:
 
 class Server:
     def __init__(
-        self, backend: str, port: int, data_dir: Path, workers: int = 1, rate_limit: bool = False
+        self,
+        backend: str,
+        port: int,
+        data_dir: Path,
+        workers: int = 1,
+        rate_limit: bool = False,
+        env: dict[str, str] | None = None,
     ) -> None:
-        env = {**os.environ, "VANTAGE_DATA_DIR": str(data_dir), "VANTAGE_ADMIN_TOKEN": ADMIN}
+        env = {
+            **os.environ,
+            "VANTAGE_DATA_DIR": str(data_dir),
+            "VANTAGE_ADMIN_TOKEN": ADMIN,
+            **(env or {}),
+        }
         env["VANTAGE_LOG_LEVEL"] = "WARNING"
         if not rate_limit:  # one camera posts hundreds of frames a second in bench/ingest.py
             env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"
@@ -199,7 +210,12 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     # by an order of magnitude between the two on some machines
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
-        server = Server(backend, port, Path(tmp), args.workers)
+        env = {}
+        if args.ingest_threads is not None:
+            env["VANTAGE_INGEST_THREADS"] = str(args.ingest_threads)
+        if args.bare_threads is not None:
+            env["VANTAGE_BENCH_BARE_THREADS"] = str(args.bare_threads)
+        server = Server(backend, port, Path(tmp), args.workers, env=env)
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
             status, body = server.request(
@@ -225,7 +241,12 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
                     r.setdefault("p50", []).append(pct(lat, 50) * 1000)
                     r.setdefault("p99", []).append(pct(lat, 99) * 1000)
                     r.setdefault("server_cpu_ms_per_frame", []).append(cpu)
-            result: dict[str, object] = {"backend": backend, "workers": args.workers}
+            result: dict[str, object] = {
+                "backend": backend,
+                "workers": args.workers,
+                "ingest_threads": args.ingest_threads,
+                "bare_threads": args.bare_threads,
+            }
             for name, r in rows.items():
                 result[name] = {k: round(statistics.median(v), 2) for k, v in r.items()}
             bare_fps = statistics.median(rows["bare"]["fps"])
@@ -258,6 +279,17 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
     parser.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
+    parser.add_argument(
+        "--ingest-threads",
+        type=int,
+        help="the service's preparing threads (VANTAGE_INGEST_THREADS; default: the service's)",
+    )
+    parser.add_argument(
+        "--bare-threads",
+        type=int,
+        help="threads the bare endpoint decodes on (default: as many as the ingest's; 0: "
+        "FastAPI's shared pool of 40)",
+    )
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()
     for backend in args.backends.split(","):

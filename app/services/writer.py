@@ -33,8 +33,8 @@ log = logging.getLogger("vantage.writer")
 T = TypeVar("T")
 
 PREPARERS = 32
-"""Frames decoding and storing at once, per process (``submit_after``; the wait for the commit
-takes no thread)."""
+"""Frames decoding and storing at once, per process, unless told (``submit_after``; the wait for
+the commit takes no thread). The service sets it from ``Settings.effective_ingest_threads``."""
 
 
 @dataclass(slots=True)
@@ -90,6 +90,11 @@ class GroupCommitWriter:
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+
+    @property
+    def preparers(self) -> int:
+        """How many preparations run at once (the size of the preparing pool)."""
+        return self._preparers
 
     def start(self) -> None:
         with self._lock:

@@ -8,6 +8,7 @@ what a client sees when the store is down (503, nothing half-stored).
 
 from __future__ import annotations
 
+import os
 import socket
 import uuid
 from collections.abc import Iterator
@@ -262,3 +263,18 @@ def test_two_machines_share_one_bucket(
         for _, p in procs:
             p.terminate()
             p.wait(10)
+
+
+def test_frames_decode_on_about_as_many_threads_as_cores_unless_told(settings: Settings) -> None:
+    # more decoding threads than cores only contend for the cores and the GIL (bench/README.md)
+    cpus = len(os.sched_getaffinity(0))
+    assert settings.effective_ingest_threads == 2 * cpus
+    # an S3 upload waits on the network: more of them at once
+    s3 = Settings(frame_store="s3", s3_bucket="frames", admin_token="t" * 32)  # type: ignore[arg-type]
+    assert s3.effective_ingest_threads == 32
+    told = settings.model_copy(update={"ingest_threads": 3})
+    assert told.effective_ingest_threads == 3
+    app = create_app(told)
+    assert app.state.writer.preparers == 3
+    with pytest.raises(ValueError, match="ingest_threads"):
+        Settings(ingest_threads=-1)
