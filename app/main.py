@@ -132,8 +132,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app)
     app.add_middleware(RequestIdMiddleware)
     for module in (
+        cameras,  # first: the frame upload is matched first
         health,
-        cameras,
         panels,
         fleet,
         robots,

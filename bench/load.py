@@ -92,14 +92,35 @@ def main() -> None:
     parser.add_argument(
         "--no-rate-limit", action="store_true", help="turn the per-camera rate limit off"
     )
+    parser.add_argument(
+        "--ingest-threads",
+        type=int,
+        help="the service's preparing threads (VANTAGE_INGEST_THREADS; default: the service's)",
+    )
+    parser.add_argument(
+        "--bare-threads",
+        type=int,
+        help="threads the bare endpoint decodes on (default: as many as the ingest's; 0: "
+        "FastAPI's shared pool of 40)",
+    )
     args = parser.parse_args()
+    env = {}
+    if args.ingest_threads is not None:
+        env["VANTAGE_INGEST_THREADS"] = str(args.ingest_threads)
+    if args.bare_threads is not None:
+        env["VANTAGE_BENCH_BARE_THREADS"] = str(args.bare_threads)
     if args.backend == "postgresql" and not pg_reachable():
         sys.exit("PostgreSQL not reachable")
     jpeg = jpeg_640x480()
     (ROOT / "data").mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory(dir=ROOT / "data", prefix="load-") as tmp:
         server = Server(
-            args.backend, args.port, Path(tmp), args.workers, rate_limit=not args.no_rate_limit
+            args.backend,
+            args.port,
+            Path(tmp),
+            args.workers,
+            rate_limit=not args.no_rate_limit,
+            env=env,
         )
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
@@ -119,6 +140,8 @@ def main() -> None:
                 "workers": args.workers,
                 "cameras": args.cameras,
                 "seconds": args.seconds,
+                "ingest_threads": args.ingest_threads,
+                "bare_threads": args.bare_threads,
                 "bare": bare,
                 "ingest": ingest,
                 "ratio": round(float(ingest["fps"]) / float(bare["fps"]), 3),  # type: ignore[arg-type]
