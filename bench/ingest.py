@@ -67,6 +67,32 @@ def prepare_pg() -> None:
         conn.execute("CREATE DATABASE vantage_bench")
 
 
+def add_pool_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--ingest-threads`` and ``--bare-threads``: the two paths' thread pools."""
+    parser.add_argument(
+        "--ingest-threads",
+        type=int,
+        help="the service's preparing threads (VANTAGE_INGEST_THREADS; default: the service's)",
+    )
+    parser.add_argument(
+        "--bare-threads",
+        type=int,
+        help="threads the bare endpoint decodes on (default: as many as the ingest's; 0: "
+        "FastAPI's shared pool of 40)",
+    )
+
+
+def pool_env(args: argparse.Namespace) -> dict[str, str]:
+    """The server's environment for ``add_pool_arguments``' options (the bare endpoint's is
+    ``bench.ingest_app.BARE_THREADS_ENV``)."""
+    env = {}
+    if args.ingest_threads is not None:
+        env["VANTAGE_INGEST_THREADS"] = str(args.ingest_threads)
+    if args.bare_threads is not None:
+        env["VANTAGE_BENCH_BARE_THREADS"] = str(args.bare_threads)
+    return env
+
+
 class Server:
     def __init__(
         self,
@@ -210,12 +236,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     # by an order of magnitude between the two on some machines
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
-        env = {}
-        if args.ingest_threads is not None:
-            env["VANTAGE_INGEST_THREADS"] = str(args.ingest_threads)
-        if args.bare_threads is not None:
-            env["VANTAGE_BENCH_BARE_THREADS"] = str(args.bare_threads)
-        server = Server(backend, port, Path(tmp), args.workers, env=env)
+        server = Server(backend, port, Path(tmp), args.workers, env=pool_env(args))
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
             status, body = server.request(
@@ -279,17 +300,7 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
     parser.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
-    parser.add_argument(
-        "--ingest-threads",
-        type=int,
-        help="the service's preparing threads (VANTAGE_INGEST_THREADS; default: the service's)",
-    )
-    parser.add_argument(
-        "--bare-threads",
-        type=int,
-        help="threads the bare endpoint decodes on (default: as many as the ingest's; 0: "
-        "FastAPI's shared pool of 40)",
-    )
+    add_pool_arguments(parser)
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()
     for backend in args.backends.split(","):

@@ -23,7 +23,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.ingest import ADMIN, ROOT, Server, jpeg_640x480, pg_reachable, unique  # noqa: E402
+from bench.ingest import (  # noqa: E402
+    ADMIN,
+    ROOT,
+    Server,
+    add_pool_arguments,
+    jpeg_640x480,
+    pg_reachable,
+    pool_env,
+    unique,
+)
 
 
 def phase(
@@ -92,23 +101,8 @@ def main() -> None:
     parser.add_argument(
         "--no-rate-limit", action="store_true", help="turn the per-camera rate limit off"
     )
-    parser.add_argument(
-        "--ingest-threads",
-        type=int,
-        help="the service's preparing threads (VANTAGE_INGEST_THREADS; default: the service's)",
-    )
-    parser.add_argument(
-        "--bare-threads",
-        type=int,
-        help="threads the bare endpoint decodes on (default: as many as the ingest's; 0: "
-        "FastAPI's shared pool of 40)",
-    )
+    add_pool_arguments(parser)
     args = parser.parse_args()
-    env = {}
-    if args.ingest_threads is not None:
-        env["VANTAGE_INGEST_THREADS"] = str(args.ingest_threads)
-    if args.bare_threads is not None:
-        env["VANTAGE_BENCH_BARE_THREADS"] = str(args.bare_threads)
     if args.backend == "postgresql" and not pg_reachable():
         sys.exit("PostgreSQL not reachable")
     jpeg = jpeg_640x480()
@@ -120,7 +114,7 @@ def main() -> None:
             Path(tmp),
             args.workers,
             rate_limit=not args.no_rate_limit,
-            env=env,
+            env=pool_env(args),
         )
         try:
             admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
