@@ -33,37 +33,57 @@ class Out(Schema):
     model_config = ConfigDict(extra="ignore")
 
 
-class CameraCreate(Schema):
-    id: Id
-    kind: CameraKind
-    name: Annotated[str, Field(max_length=200)] | None = None
-    lat: Lat | None = None
-    lon: Lon | None = None
-    panel_id: Id | None = Field(default=None, description="The panel this camera watches.")
-    roi: list[int] | list[list[int]] | None = Field(
-        default=None,
+RoiField = Annotated[
+    list[int] | list[list[int]] | None,
+    Field(
         description="Region of interest in pixels of the full frame: a rectangle [x, y, w, h], "
         "or a polygon [[x, y], ...] (3–64 vertices, simple, in order) — a sky above an "
         "irregular skyline, a panel seen in perspective.",
         examples=[[0, 60, 640, 300], [[0, 0], [640, 0], [640, 180], [320, 240], [0, 200]]],
-    )
+    ),
+]
+
+
+class CameraFields(Schema):
+    """What an operator may say about a camera, at registration and later."""
+
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat | None = None
+    lon: Lon | None = None
+    panel_id: Id | None = Field(default=None, description="The panel this camera watches.")
+    roi: RoiField = None
 
     @field_validator("roi")
     @classmethod
     def _roi_shape(
         cls, roi: list[int] | list[list[int]] | None
     ) -> list[int] | list[list[int]] | None:
-        if roi is None:
-            return None
-        if roi and isinstance(roi[0], list):
-            return _polygon(roi)
-        rect = [int(v) for v in roi if isinstance(v, int)]
-        if len(rect) != 4 or len(roi) != 4:
-            raise ValueError(f"roi must be [x, y, w, h] or [[x, y], ...]; got {len(roi)} numbers")
-        x, y, w, h = rect
-        if x < 0 or y < 0 or w < 1 or h < 1:
-            raise ValueError("roi needs x, y ≥ 0 and w, h ≥ 1")
-        return roi
+        return _roi(roi)
+
+
+class CameraCreate(CameraFields):
+    id: Id
+    kind: CameraKind
+
+
+class CameraUpdate(CameraFields):
+    """The fields to change: a field left out keeps its value, ``null`` clears it (a camera
+    without ``roi`` is judged on the whole frame). A camera's id and kind never change."""
+
+
+def _roi(roi: list[int] | list[list[int]] | None) -> list[int] | list[list[int]] | None:
+    """A region: a rectangle [x, y, w, h] with x, y ≥ 0 and w, h ≥ 1, or a ``_polygon``."""
+    if roi is None:
+        return None
+    if roi and isinstance(roi[0], list):
+        return _polygon(roi)
+    rect = [int(v) for v in roi if isinstance(v, int)]
+    if len(rect) != 4 or len(roi) != 4:
+        raise ValueError(f"roi must be [x, y, w, h] or [[x, y], ...]; got {len(roi)} numbers")
+    x, y, w, h = rect
+    if x < 0 or y < 0 or w < 1 or h < 1:
+        raise ValueError("roi needs x, y ≥ 0 and w, h ≥ 1")
+    return roi
 
 
 def _polygon(points: list[list[int]]) -> list[list[int]]:

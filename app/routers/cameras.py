@@ -33,8 +33,9 @@ from app.routers.responses import (
     UPLOAD_ERRORS,
     frame_out,
 )
-from app.schemas import CameraCreate, CameraCreated, CameraOut, FrameOut
+from app.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.services import ingest, registry
+from app.services.camera_info import TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
 from app.services.writer import GroupCommitWriter
@@ -164,6 +165,36 @@ def list_cameras(
 def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
     """One camera."""
     return CameraOut.model_validate(registry.get_camera(session, camera_id))
+
+
+@router.patch(
+    "/cameras/{camera_id}",
+    response_model=CameraOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+)
+def update_camera(
+    camera_id: CameraId, body: CameraUpdate, session: SessionDep, _: Admin, request: Request
+) -> CameraOut:
+    """Change a camera's name, location, panel or region of interest (JSON merge: fields left
+    out keep their value, ``null`` clears one). Frames uploaded afterwards are judged with the
+    new values; other server processes pick them up within 10 s."""
+    tokens: TokenCache = request.app.state.camera_tokens
+    return CameraOut.model_validate(registry.update_camera(session, camera_id, body, tokens))
+
+
+@router.post(
+    "/cameras/{camera_id}/token",
+    response_model=CameraCreated,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def rotate_camera_token(
+    camera_id: CameraId, session: SessionDep, _: Admin, request: Request
+) -> CameraCreated:
+    """Issue the camera a new upload token, shown only this once; the old token stops working
+    (at once on this server process, within 10 s on the others)."""
+    tokens: TokenCache = request.app.state.camera_tokens
+    camera, token = registry.rotate_camera_token(session, camera_id, tokens)
+    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
 
 
 @router.get(

@@ -60,3 +60,10 @@ class TokenCache:
             if len(self._items) >= self.max_entries:
                 self._items.clear()
             self._items[digest] = (time.monotonic() + self.ttl, info)
+
+    def forget(self, camera_id: str) -> None:
+        """Drop what is kept for this camera (its configuration or token changed)."""
+        with self._lock:
+            stale = [d for d, (_, info) in self._items.items() if info.id == camera_id]
+            for digest in stale:
+                del self._items[digest]

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from sqlalchemy import select
+from sqlalchemy import event, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.db.models import Camera, CameraKind, Panel, Robot
 from app.errors import Conflict, NotFound, Unprocessable
-from app.schemas import CameraCreate, PanelCreate, RobotCreate
+from app.schemas import CameraCreate, CameraUpdate, PanelCreate, RobotCreate
 from app.security import hash_token, new_token
+from app.services.camera_info import TokenCache
 
 
 def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
@@ -24,13 +25,18 @@ def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
         raise Conflict(f"a {what} with id {row.id!r} already exists") from None
 
 
+def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> None:
+    if panel_id is None:
+        return
+    if kind != CameraKind.panel:
+        raise Unprocessable(f"panel_id is only for panel cameras, not {kind.value}")
+    if session.get(Panel, panel_id) is None:
+        raise Unprocessable(f"panel {panel_id!r} does not exist; create it first")
+
+
 def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
     """Register a camera; returns it with its token (the only time the token is seen)."""
-    if data.panel_id is not None:
-        if data.kind != CameraKind.panel:
-            raise Unprocessable(f"panel_id is only for panel cameras, not {data.kind.value}")
-        if session.get(Panel, data.panel_id) is None:
-            raise Unprocessable(f"panel {data.panel_id!r} does not exist; create it first")
+    _check_panel(session, data.kind, data.panel_id)
     token = new_token("vc")
     camera = Camera(**data.model_dump(), token_hash=hash_token(token))
     _insert(session, camera, "camera")
@@ -42,6 +48,40 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     if camera is None:
         raise NotFound(f"no camera {camera_id!r}")
     return camera
+
+
+def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> None:
+    """Drop this process's cached view of the camera once the change is committed (before, a
+    concurrent upload could cache the old row again). Other processes' caches expire within
+    their ``TokenCache.ttl``."""
+    event.listen(session, "after_commit", lambda _: tokens.forget(camera_id), once=True)
+
+
+def update_camera(
+    session: Session, camera_id: str, data: CameraUpdate, tokens: TokenCache
+) -> Camera:
+    """Change the fields ``data`` carries (``null`` clears one); frames uploaded after the
+    commit are judged with the new region."""
+    camera = get_camera(session, camera_id)
+    changes = data.model_dump(include=data.model_fields_set)
+    if "panel_id" in changes:
+        _check_panel(session, camera.kind, changes["panel_id"])
+    for field, value in changes.items():
+        setattr(camera, field, value)
+    session.flush()
+    _forget_on_commit(session, tokens, camera_id)
+    return camera
+
+
+def rotate_camera_token(session: Session, camera_id: str, tokens: TokenCache) -> tuple[Camera, str]:
+    """A new upload token for the camera; the old one stops working. Returns the camera and
+    the new token (the only time it is seen)."""
+    camera = get_camera(session, camera_id)
+    token = new_token("vc")
+    camera.token_hash = hash_token(token)
+    session.flush()
+    _forget_on_commit(session, tokens, camera_id)
+    return camera, token
 
 
 def list_cameras(session: Session, *, limit: int, offset: int) -> Sequence[Camera]:

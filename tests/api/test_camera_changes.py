@@ -1,0 +1,184 @@
+"""Changing a registered camera: its fields (PATCH) and its upload token (rotation)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+
+from app.services.camera_info import CameraInfo, TokenCache
+from tests.conftest import make_jpeg, table_counts
+
+LEFT, RIGHT = (200, 40, 40), (40, 40, 200)
+
+
+def halves() -> bytes:
+    """A 64×48 JPEG: the left half LEFT, the right half RIGHT (RGB)."""
+    image = np.empty((48, 64, 3), np.uint8)
+    image[:, :32] = LEFT
+    image[:, 32:] = RIGHT
+    ok, buf = cv2.imencode(".jpg", image[:, :, ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return buf.tobytes()
+
+
+def register(client: TestClient, admin: dict[str, str], **fields: object) -> str:
+    body = {"id": "cam", "kind": "rig", **fields}
+    r = client.post("/cameras", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    token: str = r.json()["token"]
+    return token
+
+
+def post(client: TestClient, token: str, data: bytes) -> tuple[int, dict[str, object]]:
+    r = client.post(
+        "/cameras/cam/frames",
+        content=data,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    return r.status_code, r.json()
+
+
+def modes(body: dict[str, object]) -> list[int]:
+    verdict = body["verdict"]
+    assert isinstance(verdict, dict)
+    return list(verdict["modes"])
+
+
+def near(rgb: list[int], expected: tuple[int, int, int]) -> bool:
+    return all(abs(a - b) <= 6 for a, b in zip(rgb, expected, strict=True))  # JPEG: ±6 levels
+
+
+class TestUpdate:
+    def test_a_new_region_applies_to_the_very_next_frame(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        token = register(client, admin, roi=[0, 0, 24, 48])  # inside the left half
+        status, body = post(client, token, halves())  # also puts the camera in the token cache
+        assert status == 201
+        assert near(modes(body), LEFT), modes(body)
+
+        r = client.patch("/cameras/cam", json={"roi": [40, 0, 24, 48]}, headers=admin)
+        assert r.status_code == 200, r.text
+        assert r.json()["roi"] == [40, 0, 24, 48]
+        status, body = post(client, token, halves())
+        assert status == 201
+        assert near(modes(body), RIGHT), modes(body)
+
+    def test_fields_left_out_keep_their_value_and_null_clears(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        register(client, admin, name="East", lat=45.0, lon=9.0, roi=[0, 0, 10, 10])
+        r = client.patch("/cameras/cam", json={"name": "East gate", "roi": None}, headers=admin)
+        assert r.status_code == 200, r.text
+        out = client.get("/cameras/cam", headers=admin).json()
+        assert (out["name"], out["lat"], out["lon"], out["roi"]) == ("East gate", 45.0, 9.0, None)
+        assert out["kind"] == "rig"
+
+    def test_a_polygon_region(self, client: TestClient, admin: dict[str, str]) -> None:
+        token = register(client, admin)
+        polygon = [[40, 0], [63, 0], [63, 47], [40, 47]]
+        r = client.patch("/cameras/cam", json={"roi": polygon}, headers=admin)
+        assert r.status_code == 200, r.text
+        status, body = post(client, token, halves())
+        assert status == 201
+        assert near(modes(body), RIGHT), modes(body)
+
+    def test_a_panel_camera_moves_to_another_panel(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        for panel in ("p1", "p2"):
+            assert client.post("/panels", json={"id": panel}, headers=admin).status_code == 201
+        register(client, admin, kind="panel", panel_id="p1")
+        r = client.patch("/cameras/cam", json={"panel_id": "p2"}, headers=admin)
+        assert r.status_code == 200, r.text
+        assert client.get("/cameras/cam", headers=admin).json()["panel_id"] == "p2"
+
+    @pytest.mark.parametrize(
+        "body",
+        [
+            {"kind": "sky"},
+            {"id": "other"},
+            {"roi": [0, 0, 10]},
+            {"roi": [[0, 0], [10, 10], [0, 10], [10, 0]]},  # self-crossing
+            {"lat": 91},
+            {"lon": "east"},
+            {"panel_id": "p1"},  # a rig camera watches no panel
+            {"name": "x" * 201},
+        ],
+    )
+    def test_invalid_changes_are_422_and_change_nothing(
+        self, client: TestClient, admin: dict[str, str], engine: Engine, body: dict[str, object]
+    ) -> None:
+        assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
+        register(client, admin, name="East", roi=[0, 0, 10, 10])
+        before = client.get("/cameras/cam", headers=admin).json()
+        r = client.patch("/cameras/cam", json=body, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert client.get("/cameras/cam", headers=admin).json() == before
+
+    def test_a_missing_panel_is_422(self, client: TestClient, admin: dict[str, str]) -> None:
+        register(client, admin, kind="panel")
+        r = client.patch("/cameras/cam", json={"panel_id": "nowhere"}, headers=admin)
+        assert r.status_code == 422
+        assert client.get("/cameras/cam", headers=admin).json()["panel_id"] is None
+
+    def test_unknown_camera_is_404(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = client.patch("/cameras/ghost", json={"name": "x"}, headers=admin)
+        assert r.status_code == 404
+        assert r.headers["content-type"] == "application/problem+json"
+
+    def test_only_the_admin_may_change_a_camera(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        token = register(client, admin, name="East")
+        assert client.patch("/cameras/cam", json={"name": "x"}).status_code == 401
+        own = {"Authorization": f"Bearer {token}"}
+        assert client.patch("/cameras/cam", json={"name": "x"}, headers=own).status_code == 403
+        assert client.get("/cameras/cam", headers=admin).json()["name"] == "East"
+
+
+class TestTokenRotation:
+    def test_the_old_token_stops_at_once_and_the_new_one_works(
+        self, client: TestClient, admin: dict[str, str], engine: Engine
+    ) -> None:
+        old = register(client, admin)
+        assert post(client, old, make_jpeg())[0] == 201  # the old token is now cached
+        r = client.post("/cameras/cam/token", headers=admin)
+        assert r.status_code == 200, r.text
+        new = r.json()["token"]
+        assert new.startswith("vc_")
+        assert new != old
+        assert r.json()["id"] == "cam"
+
+        frames = table_counts(engine)["frames"]
+        status, body = post(client, old, make_jpeg(seed=1, noise=3))
+        assert status == 401, body
+        assert table_counts(engine)["frames"] == frames
+        assert post(client, new, make_jpeg(seed=2, noise=3))[0] == 201
+        # the token is shown once: the camera's own view does not carry it
+        assert "token" not in client.get("/cameras/cam", headers=admin).json()
+
+    def test_unknown_camera_is_404_and_only_the_admin_may_rotate(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        token = register(client, admin)
+        assert client.post("/cameras/ghost/token", headers=admin).status_code == 404
+        own = {"Authorization": f"Bearer {token}"}
+        assert client.post("/cameras/cam/token", headers=own).status_code == 403
+        assert client.post("/cameras/cam/token").status_code == 401
+        assert post(client, token, make_jpeg())[0] == 201  # still the camera's token
+
+
+def test_the_token_cache_forgets_one_camera() -> None:
+    cache = TokenCache()
+    a = CameraInfo("a", "rig", None, None)  # type: ignore[arg-type]
+    b = CameraInfo("b", "rig", None, None)  # type: ignore[arg-type]
+    cache.put("h1", a)
+    cache.put("h2", a)
+    cache.put("h3", b)
+    cache.forget("a")
+    assert (cache.get("h1"), cache.get("h2"), cache.get("h3")) == (None, None, b)
