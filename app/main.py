@@ -122,7 +122,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.sessionmaker, preparers=settings.effective_ingest_threads
     )
     app.state.admin_token_hash = admin_token_hash(settings)
-    app.state.camera_tokens = TokenCache()
+    app.state.camera_tokens = TokenCache(ttl=settings.camera_cache_seconds)
     app.state.rate_budgets = rate_limit.LocalBudgets()
     app.state.policy = Policy(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)

@@ -77,6 +77,14 @@ class Settings(BaseSettings):
         "serving (10–12 s the first time, a few seconds from its cache), instead of on the first "
         "request that needs it. It costs ~100 MB a process: for robot cells.",
     )
+    camera_cache_seconds: float = Field(
+        default=10.0,
+        ge=0,
+        le=3600,
+        description="How long a process keeps a camera's token and configuration once seen, "
+        "so that a frame costs no lookup: a change made through another process (a new "
+        "region, a new token) reaches this one within that time. 0: look up every frame.",
+    )
     rate_limit_per_minute: int = Field(
         default=600,
         ge=0,

@@ -177,7 +177,8 @@ def update_camera(
 ) -> CameraOut:
     """Change a camera's name, location, panel or region of interest (JSON merge: fields left
     out keep their value, ``null`` clears one). Frames uploaded afterwards are judged with the
-    new values; other server processes pick them up within 10 s."""
+    new values; other server processes pick them up within ``VANTAGE_CAMERA_CACHE_SECONDS``
+    (10 s)."""
     tokens: TokenCache = request.app.state.camera_tokens
     return CameraOut.model_validate(registry.update_camera(session, camera_id, body, tokens))
 
@@ -191,7 +192,8 @@ def rotate_camera_token(
     camera_id: CameraId, session: SessionDep, _: Admin, request: Request
 ) -> CameraCreated:
     """Issue the camera a new upload token, shown only this once; the old token stops working
-    (at once on this server process, within 10 s on the others)."""
+    (at once on this server process, within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s) on the
+    others)."""
     tokens: TokenCache = request.app.state.camera_tokens
     camera, token = registry.rotate_camera_token(session, camera_id, tokens)
     return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)

@@ -56,6 +56,8 @@ class TokenCache:
         return item[1]
 
     def put(self, digest: str, info: CameraInfo) -> None:
+        if self.ttl <= 0:  # keeping nothing: every frame looks its camera up
+            return
         with self._lock:
             if len(self._items) >= self.max_entries:
                 self._items.clear()

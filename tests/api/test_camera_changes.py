@@ -182,3 +182,9 @@ def test_the_token_cache_forgets_one_camera() -> None:
     cache.put("h3", b)
     cache.forget("a")
     assert (cache.get("h1"), cache.get("h2"), cache.get("h3")) == (None, None, b)
+
+
+def test_a_cache_time_of_zero_keeps_nothing() -> None:
+    cache = TokenCache(ttl=0)
+    cache.put("h1", CameraInfo("a", "rig", None, None))  # type: ignore[arg-type]
+    assert cache.get("h1") is None

@@ -6,6 +6,7 @@ Runs only when ``VANTAGE_TEST_DATABASE_URL`` names a PostgreSQL database (``.ci/
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -14,6 +15,7 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine
 
+from tests.api.test_camera_changes import LEFT, RIGHT, halves, near
 from tests.api.test_solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 from tests.conftest import ADMIN_TOKEN, _empty_tables
 from tests.servers import free_port, server_env, start_server
@@ -24,12 +26,14 @@ pytestmark = [
     pytest.mark.skipif(not URL.startswith("postgresql"), reason="needs PostgreSQL"),
 ]
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+CACHE_SECONDS = 1.0
+"""How long each server keeps a camera it has seen (VANTAGE_CAMERA_CACHE_SECONDS)."""
 
 
 @pytest.fixture
 def servers(engine: Engine, tmp_path: Path) -> Iterator[list[str]]:
     _empty_tables(engine)
-    env = server_env(URL, tmp_path)
+    env = server_env(URL, tmp_path, VANTAGE_CAMERA_CACHE_SECONDS=str(CACHE_SECONDS))
     procs = []
     try:
         for _ in range(2):
@@ -107,3 +111,37 @@ def test_frames_alternately_and_a_baseline_shared_at_once(servers: list[str]) ->
         ).json()["verdict"]
         assert v["method"] == "baseline"
         assert v["clean"] is False
+
+
+def test_a_new_token_and_region_reach_the_other_process_within_its_cache_time(
+    servers: list[str],
+) -> None:
+    a, b = servers
+    with httpx.Client(headers=ADMIN, timeout=30) as c:
+        body = {"id": "r", "kind": "rig", "roi": [0, 0, 24, 48]}  # the left half
+        old = c.post(f"{a}/cameras", json=body).json()["token"]
+
+        def post(server: str, token: str) -> httpx.Response:
+            return httpx.post(
+                f"{server}/cameras/r/frames",
+                headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+                content=halves(),
+            )
+
+        first = post(b, old)  # b now keeps the camera and its token
+        assert first.status_code == 201, first.text
+        assert near(first.json()["verdict"]["modes"], LEFT)
+
+        changed = time.monotonic()
+        new = c.post(f"{a}/cameras/r/token").json()["token"]
+        r = c.patch(f"{a}/cameras/r", json={"roi": [40, 0, 24, 48]})  # the right half
+        assert r.status_code == 200, r.text
+        assert post(a, old).status_code == 401  # at once where the change was made
+        # the other process takes the old token until its cache time is out, never much later
+        while (r := post(b, old)).status_code == 201:
+            assert time.monotonic() - changed < CACHE_SECONDS + 5, "b still takes the old token"
+            time.sleep(0.1)
+        assert r.status_code == 401, r.text
+        frame = post(b, new)
+        assert frame.status_code == 201, frame.text
+        assert near(frame.json()["verdict"]["modes"], RIGHT)
