@@ -176,9 +176,9 @@ def update_camera(
     camera_id: CameraId, body: CameraUpdate, session: SessionDep, _: Admin, request: Request
 ) -> CameraOut:
     """Change a camera's name, location, panel or region of interest (JSON merge: fields left
-    out keep their value, ``null`` clears one). Frames uploaded afterwards are judged with the
-    new values; other server processes pick them up within ``VANTAGE_CAMERA_CACHE_SECONDS``
-    (10 s)."""
+    out keep their value, ``null`` clears one). A region that would not fit the camera's latest
+    frame is refused (422). Frames uploaded afterwards are judged with the new values; other
+    server processes pick them up within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s)."""
     tokens: TokenCache = request.app.state.camera_tokens
     return CameraOut.model_validate(registry.update_camera(session, camera_id, body, tokens))
 

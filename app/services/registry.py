@@ -8,11 +8,12 @@ from sqlalchemy import event, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.db.models import Camera, CameraKind, Panel, Robot
+from app.db.models import Camera, CameraKind, Frame, Panel, Robot
 from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, RobotCreate
 from app.security import hash_token, new_token
 from app.services.camera_info import TokenCache
+from app.services.ingest import scale_polygon, scale_roi
 
 
 def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
@@ -50,6 +51,31 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
+def _check_roi_fits(session: Session, camera_id: str, roi: list[int] | list[list[int]]) -> None:
+    """Refuse a region that would not fit the camera's latest frame: its next frames, if of
+    that size, would all be refused. (A camera about to send larger frames gets its new region
+    after its first one.)"""
+    latest = session.execute(
+        select(Frame.width, Frame.height)
+        .where(Frame.camera_id == camera_id)
+        .order_by(Frame.captured_at.desc())
+        .limit(1)
+    ).first()
+    if latest is None:
+        return
+    width, height = latest
+    try:
+        if isinstance(roi[0], list):
+            scale_polygon(tuple((p[0], p[1]) for p in roi if isinstance(p, list)), width, height, 1)
+        else:
+            x, y, w, h = (v for v in roi if isinstance(v, int))
+            scale_roi((x, y, w, h), width, height, 1)
+    except ValueError as exc:
+        raise Unprocessable(
+            f"{exc} the camera sent last; its frames of that size would all be refused"
+        ) from None
+
+
 def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> None:
     """Drop this process's cached view of the camera once the change is committed (before, a
     concurrent upload could cache the old row again). Other processes' caches expire within
@@ -66,6 +92,8 @@ def update_camera(
     changes = data.model_dump(include=data.model_fields_set)
     if "panel_id" in changes:
         _check_panel(session, camera.kind, changes["panel_id"])
+    if changes.get("roi") is not None:
+        _check_roi_fits(session, camera_id, changes["roi"])
     for field, value in changes.items():
         setattr(camera, field, value)
     session.flush()

@@ -120,6 +120,22 @@ class TestUpdate:
         assert r.headers["content-type"] == "application/problem+json"
         assert client.get("/cameras/cam", headers=admin).json() == before
 
+    @pytest.mark.parametrize(
+        "roi", [[40, 0, 30, 48], [0, 40, 10, 10], [[0, 0], [64, 0], [10, 40]]], ids=str
+    )
+    def test_a_region_outside_the_latest_frame_is_422(
+        self, client: TestClient, admin: dict[str, str], roi: list[object]
+    ) -> None:
+        token = register(client, admin, roi=[0, 0, 24, 48])
+        assert post(client, token, halves())[0] == 201  # 64×48
+        r = client.patch("/cameras/cam", json={"roi": roi}, headers=admin)
+        assert r.status_code == 422, r.text
+        assert "64×48" in r.json()["detail"], r.json()["detail"]
+        assert client.get("/cameras/cam", headers=admin).json()["roi"] == [0, 0, 24, 48]
+        # a region that fits the same frame is taken
+        fits = client.patch("/cameras/cam", json={"roi": [0, 0, 64, 48]}, headers=admin)
+        assert fits.status_code == 200, fits.text
+
     def test_a_missing_panel_is_422(self, client: TestClient, admin: dict[str, str]) -> None:
         register(client, admin, kind="panel")
         r = client.patch("/cameras/cam", json={"panel_id": "nowhere"}, headers=admin)
