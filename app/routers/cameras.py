@@ -13,7 +13,7 @@ from fastapi.responses import Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
-from app.db.models import Frame
+from app.db.models import Camera, Frame
 from app.deps import (
     Admin,
     CameraId,
@@ -138,6 +138,11 @@ async def post_frame(
     return Response(body, status_code=201, media_type="application/json", headers=headers)
 
 
+def _with_token(camera: Camera, token: str) -> CameraCreated:
+    """The camera as the API shows it, with its upload token (shown only this once)."""
+    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
+
+
 @router.post(
     "/cameras",
     status_code=201,
@@ -147,7 +152,7 @@ async def post_frame(
 def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCreated:
     """Register a camera; the response carries its upload token, shown only this once."""
     camera, token = registry.create_camera(session, body)
-    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
+    return _with_token(camera, token)
 
 
 @router.get("/cameras", response_model=list[CameraOut], responses=AUTH_ERRORS)
@@ -196,7 +201,7 @@ def rotate_camera_token(
     others)."""
     tokens: TokenCache = request.app.state.camera_tokens
     camera, token = registry.rotate_camera_token(session, camera_id, tokens)
-    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
+    return _with_token(camera, token)
 
 
 @router.get(

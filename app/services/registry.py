@@ -12,7 +12,7 @@ from app.db.models import Camera, CameraKind, Frame, Panel, Robot
 from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, RobotCreate
 from app.security import hash_token, new_token
-from app.services.camera_info import TokenCache
+from app.services.camera_info import CameraInfo, TokenCache
 from app.services.ingest import scale_polygon, scale_roi
 
 
@@ -51,25 +51,25 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
-def _check_roi_fits(session: Session, camera_id: str, roi: list[int] | list[list[int]]) -> None:
+def _check_region_fits(session: Session, camera: Camera) -> None:
     """Refuse a region that would not fit the camera's latest frame: its next frames, if of
     that size, would all be refused. (A camera about to send larger frames gets its new region
     after its first one.)"""
     latest = session.execute(
         select(Frame.width, Frame.height)
-        .where(Frame.camera_id == camera_id)
+        .where(Frame.camera_id == camera.id)
         .order_by(Frame.captured_at.desc())
         .limit(1)
     ).first()
     if latest is None:
         return
     width, height = latest
+    info = CameraInfo.of(camera)  # the region as the ingest path reads it
     try:
-        if isinstance(roi[0], list):
-            scale_polygon(tuple((p[0], p[1]) for p in roi if isinstance(p, list)), width, height, 1)
-        else:
-            x, y, w, h = (v for v in roi if isinstance(v, int))
-            scale_roi((x, y, w, h), width, height, 1)
+        if info.polygon is not None:
+            scale_polygon(info.polygon, width, height, 1)
+        elif info.roi is not None:
+            scale_roi(info.roi, width, height, 1)
     except ValueError as exc:
         raise Unprocessable(
             f"{exc} the camera sent last; its frames of that size would all be refused"
@@ -92,10 +92,10 @@ def update_camera(
     changes = data.model_dump(include=data.model_fields_set)
     if "panel_id" in changes:
         _check_panel(session, camera.kind, changes["panel_id"])
-    if changes.get("roi") is not None:
-        _check_roi_fits(session, camera_id, changes["roi"])
     for field, value in changes.items():
         setattr(camera, field, value)
+    if changes.get("roi") is not None:  # on error the request's transaction is rolled back
+        _check_region_fits(session, camera)
     session.flush()
     _forget_on_commit(session, tokens, camera_id)
     return camera

@@ -8,6 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
+from app.db.models import CameraKind
 from app.services.camera_info import CameraInfo, TokenCache
 from tests.conftest import make_jpeg, table_counts
 
@@ -51,21 +52,24 @@ def near(rgb: list[int], expected: tuple[int, int, int]) -> bool:
     return all(abs(a - b) <= 6 for a, b in zip(rgb, expected, strict=True))  # JPEG: ±6 levels
 
 
+def judged_on(client: TestClient, token: str, colour: tuple[int, int, int]) -> None:
+    """Post ``halves()``: stored, and its modes are those of the half ``colour``."""
+    status, body = post(client, token, halves())
+    assert status == 201, body
+    assert near(modes(body), colour), modes(body)
+
+
 class TestUpdate:
     def test_a_new_region_applies_to_the_very_next_frame(
         self, client: TestClient, admin: dict[str, str]
     ) -> None:
         token = register(client, admin, roi=[0, 0, 24, 48])  # inside the left half
-        status, body = post(client, token, halves())  # also puts the camera in the token cache
-        assert status == 201
-        assert near(modes(body), LEFT), modes(body)
+        judged_on(client, token, LEFT)  # also puts the camera in the token cache
 
         r = client.patch("/cameras/cam", json={"roi": [40, 0, 24, 48]}, headers=admin)
         assert r.status_code == 200, r.text
         assert r.json()["roi"] == [40, 0, 24, 48]
-        status, body = post(client, token, halves())
-        assert status == 201
-        assert near(modes(body), RIGHT), modes(body)
+        judged_on(client, token, RIGHT)
 
     def test_fields_left_out_keep_their_value_and_null_clears(
         self, client: TestClient, admin: dict[str, str]
@@ -82,9 +86,7 @@ class TestUpdate:
         polygon = [[40, 0], [63, 0], [63, 47], [40, 47]]
         r = client.patch("/cameras/cam", json={"roi": polygon}, headers=admin)
         assert r.status_code == 200, r.text
-        status, body = post(client, token, halves())
-        assert status == 201
-        assert near(modes(body), RIGHT), modes(body)
+        judged_on(client, token, RIGHT)
 
     def test_a_panel_camera_moves_to_another_panel(
         self, client: TestClient, admin: dict[str, str]
@@ -191,8 +193,8 @@ class TestTokenRotation:
 
 def test_the_token_cache_forgets_one_camera() -> None:
     cache = TokenCache()
-    a = CameraInfo("a", "rig", None, None)  # type: ignore[arg-type]
-    b = CameraInfo("b", "rig", None, None)  # type: ignore[arg-type]
+    a = CameraInfo("a", CameraKind.rig, None, None)
+    b = CameraInfo("b", CameraKind.rig, None, None)
     cache.put("h1", a)
     cache.put("h2", a)
     cache.put("h3", b)
@@ -200,7 +202,9 @@ def test_the_token_cache_forgets_one_camera() -> None:
     assert (cache.get("h1"), cache.get("h2"), cache.get("h3")) == (None, None, b)
 
 
-def test_a_cache_time_of_zero_keeps_nothing() -> None:
+def test_a_cache_time_of_zero_keeps_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the clock stands still: an entry kept for 0 s would still be in date when read
+    monkeypatch.setattr("app.services.camera_info.time.monotonic", lambda: 100.0)
     cache = TokenCache(ttl=0)
-    cache.put("h1", CameraInfo("a", "rig", None, None))  # type: ignore[arg-type]
+    cache.put("h1", CameraInfo("a", CameraKind.rig, None, None))
     assert cache.get("h1") is None
