@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.db.models import Camera, Panel, Robot
 from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized
 from app.security import hash_token
-from app.services import rate_limit
+from app.services import rate_limit, registry
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
 from app.settings import Settings
@@ -156,6 +156,7 @@ RobotOrAdmin = Annotated[Principal, Depends(require_robot_or_admin)]
 CameraId = Annotated[str, Path(pattern=ID_PATTERN, description="Camera id.")]
 PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]
 RigId = Annotated[str, Path(pattern=ID_PATTERN, description="Rig id.")]
+RobotId = Annotated[str, Path(pattern=ID_PATTERN, description="Robot id.")]
 RecordId = Annotated[str, Path(pattern=ID_PATTERN, description="Id given by the service.")]
 IdFilter = Annotated[str | None, Query(pattern=ID_PATTERN, description="Only this id.")]
 Limit = Annotated[int, Query(ge=1, le=1000)]
@@ -181,7 +182,10 @@ def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | 
 def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
     with get_sessionmaker(request)() as session:
         camera = session.get(Camera, camera_id)
-        return _info(session, camera) if camera is not None else None
+        if camera is None:
+            return None
+        registry.check_in_service(camera)  # a retired camera's own token no longer exists
+        return _info(session, camera)
 
 
 async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:

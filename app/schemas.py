@@ -111,6 +111,9 @@ class CameraOut(Out):
     panel_id: str | None
     roi: list[int] | list[list[int]] | None
     created_at: datetime
+    retired_at: datetime | None = Field(
+        None, description="When the camera was retired (DELETE); null while in service."
+    )
 
 
 class CameraCreated(CameraOut):
@@ -141,6 +144,9 @@ class RobotOut(Out):
     id: str
     name: str | None
     created_at: datetime
+    retired_at: datetime | None = Field(
+        None, description="When the robot was retired (DELETE); null while in service."
+    )
 
 
 class RobotCreated(RobotOut):

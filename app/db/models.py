@@ -151,6 +151,9 @@ class Camera(TimestampMixin, Base):
     """Region of interest [x, y, w, h] in pixels of the full frame, or none for the whole frame."""
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     """SHA-256 of the camera's token (the token itself is shown once and never stored)."""
+    retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the camera was taken out of service: it posts no more frames, leaves the air map,
+    and keeps its history (its frames go with the retention like any others)."""
 
     panel: Mapped[Panel | None] = relationship(lazy="raise")
 
@@ -161,6 +164,9 @@ class Robot(TimestampMixin, Base):
     id: Mapped[str] = mapped_column(String(ID_LENGTH), primary_key=True)
     name: Mapped[str | None] = mapped_column(String(200))
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the robot was taken out of service: its token no longer works and the tasks it
+    held went back to the queue."""
 
 
 class Frame(Base):

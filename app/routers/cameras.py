@@ -19,6 +19,7 @@ from app.deps import (
     CameraId,
     Limit,
     Offset,
+    PolicyDep,
     RecordId,
     SessionDep,
     UploadTargetDep,
@@ -27,6 +28,7 @@ from app.errors import NotFound, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
+    CAMERA_RETIRED,
     CONFLICT,
     NOT_FOUND,
     UNPROCESSABLE,
@@ -80,7 +82,7 @@ def _captured_at(value: datetime | None) -> datetime | None:
     FRAMES_PATH,
     status_code=201,
     response_model=FrameOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **UPLOAD_ERRORS},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CAMERA_RETIRED, **UPLOAD_ERRORS},
     openapi_extra=_JPEG_BODY,
 )
 async def post_frame(
@@ -157,10 +159,16 @@ def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCr
 
 @router.get("/cameras", response_model=list[CameraOut], responses=AUTH_ERRORS)
 def list_cameras(
-    session: SessionDep, _: Admin, limit: Limit = 100, offset: Offset = 0
+    session: SessionDep,
+    _: Admin,
+    limit: Limit = 100,
+    offset: Offset = 0,
+    retired: Annotated[
+        bool, Query(description="Include retired cameras (by default only those in service).")
+    ] = False,
 ) -> list[CameraOut]:
     """List cameras, ordered by id."""
-    cameras = registry.list_cameras(session, limit=limit, offset=offset)
+    cameras = registry.list_cameras(session, limit=limit, offset=offset, retired=retired)
     return [CameraOut.model_validate(c) for c in cameras]
 
 
@@ -175,7 +183,7 @@ def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
 @router.patch(
     "/cameras/{camera_id}",
     response_model=CameraOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CAMERA_RETIRED, **UNPROCESSABLE},
 )
 def update_camera(
     camera_id: CameraId, body: CameraUpdate, session: SessionDep, _: Admin, request: Request
@@ -191,7 +199,7 @@ def update_camera(
 @router.post(
     "/cameras/{camera_id}/token",
     response_model=CameraCreated,
-    responses={**AUTH_ERRORS, **NOT_FOUND},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **CAMERA_RETIRED},
 )
 def rotate_camera_token(
     camera_id: CameraId, session: SessionDep, _: Admin, request: Request
@@ -202,6 +210,25 @@ def rotate_camera_token(
     tokens: TokenCache = request.app.state.camera_tokens
     camera, token = registry.rotate_camera_token(session, camera_id, tokens)
     return _with_token(camera, token)
+
+
+@router.delete(
+    "/cameras/{camera_id}",
+    status_code=204,
+    response_class=Response,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def retire_camera(
+    camera_id: CameraId, session: SessionDep, policy: PolicyDep, _: Admin, request: Request
+) -> Response:
+    """Retire a camera taken out of service. Its token stops working (at once on this server
+    process, within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s) on the others), frames for it are
+    refused (409), and it leaves the air-quality map and the camera list (``?retired=true``
+    shows it). Its frames, verdicts, readings and alerts stay readable until the retention
+    removes them; its id stays taken. Retiring it again changes nothing."""
+    tokens: TokenCache = request.app.state.camera_tokens
+    registry.retire_camera(session, camera_id, tokens, policy)
+    return Response(status_code=204)
 
 
 @router.get(

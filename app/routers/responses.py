@@ -36,6 +36,8 @@ AUTH_ERRORS: Responses = {
 }
 NOT_FOUND: Responses = {404: _problem("No such resource")}
 CONFLICT: Responses = {409: _problem("The id is taken")}
+CAMERA_RETIRED: Responses = {409: _problem("The camera is retired")}
+ROBOT_RETIRED: Responses = {409: _problem("The robot is retired")}
 UNPROCESSABLE: Responses = {422: _problem("Invalid input")}
 UPLOAD_ERRORS: Responses = {
     413: _problem("Body over the size limit"),

@@ -399,7 +399,8 @@ class Station:
 
 
 def stations(session: Session, *, since: datetime) -> list[Station]:
-    """Each located sky camera's latest smoothed (else graded) level since ``since``."""
+    """Each located sky camera in service: its latest smoothed (else graded) level since
+    ``since``."""
     newest = (
         select(Frame.camera_id, func.max(Frame.captured_at).label("t"))
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
@@ -419,7 +420,12 @@ def stations(session: Session, *, since: datetime) -> list[Station]:
         .join(Frame, Frame.camera_id == Camera.id)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
         .join(newest, (newest.c.camera_id == Frame.camera_id) & (newest.c.t == Frame.captured_at))
-        .where(Camera.lat.is_not(None), Camera.lon.is_not(None), SkyVerdict.level.is_not(None))
+        .where(
+            Camera.lat.is_not(None),
+            Camera.lon.is_not(None),
+            Camera.retired_at.is_(None),  # a camera taken down no longer paints the map
+            SkyVerdict.level.is_not(None),
+        )
     ).all()
     seen: dict[str, Station] = {}
     for cid, lon, lat, smooth, level, t in rows:

@@ -111,6 +111,24 @@ def fail(
     return task
 
 
+def release_all(session: Session, robot_id: str, policy: Policy) -> int:
+    """End the leases of the tasks the robot holds: they can be claimed by another robot at
+    once (as when a lease runs out). Returns how many."""
+    now = policy.now()
+    held = session.scalars(
+        select(CleaningTask)
+        .where(
+            CleaningTask.robot_id == robot_id,
+            CleaningTask.status == TaskStatus.claimed,
+            CleaningTask.lease_expires_at > now,
+        )
+        .with_for_update()
+    ).all()
+    for task in held:
+        task.lease_expires_at = now
+    return len(held)
+
+
 def get_task(session: Session, task_id: str) -> CleaningTask:
     task = session.get(CleaningTask, task_id)
     if task is None:

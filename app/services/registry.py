@@ -12,8 +12,10 @@ from app.db.models import Camera, CameraKind, Frame, Panel, Robot
 from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, RobotCreate
 from app.security import hash_token, new_token
+from app.services import cleaning
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.ingest import scale_polygon, scale_roi
+from app.services.policy import Policy
 
 
 def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
@@ -48,6 +50,21 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     camera = session.get(Camera, camera_id)
     if camera is None:
         raise NotFound(f"no camera {camera_id!r}")
+    return camera
+
+
+def check_in_service(camera: Camera) -> None:
+    """Refuse (409) to act for a retired camera."""
+    if camera.retired_at is not None:
+        raise Conflict(
+            f"camera {camera.id!r} was retired at {camera.retired_at.isoformat()}",
+            code="camera_retired",
+        )
+
+
+def _in_service(session: Session, camera_id: str) -> Camera:
+    camera = get_camera(session, camera_id)
+    check_in_service(camera)
     return camera
 
 
@@ -88,7 +105,7 @@ def update_camera(
 ) -> Camera:
     """Change the fields ``data`` carries (``null`` clears one); frames uploaded after the
     commit are judged with the new region."""
-    camera = get_camera(session, camera_id)
+    camera = _in_service(session, camera_id)
     changes = data.model_dump(include=data.model_fields_set)
     if "panel_id" in changes:
         _check_panel(session, camera.kind, changes["panel_id"])
@@ -104,7 +121,7 @@ def update_camera(
 def rotate_camera_token(session: Session, camera_id: str, tokens: TokenCache) -> tuple[Camera, str]:
     """A new upload token for the camera; the old one stops working. Returns the camera and
     the new token (the only time it is seen)."""
-    camera = get_camera(session, camera_id)
+    camera = _in_service(session, camera_id)
     token = new_token("vc")
     camera.token_hash = hash_token(token)
     session.flush()
@@ -112,8 +129,27 @@ def rotate_camera_token(session: Session, camera_id: str, tokens: TokenCache) ->
     return camera, token
 
 
-def list_cameras(session: Session, *, limit: int, offset: int) -> Sequence[Camera]:
-    return session.scalars(select(Camera).order_by(Camera.id).limit(limit).offset(offset)).all()
+def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: Policy) -> None:
+    """Take the camera out of service: its token stops working (replaced by the hash of one
+    nobody holds), its frames are refused, and it leaves the air map and the default camera
+    list. Its history stays. Retiring a retired camera changes nothing."""
+    camera = get_camera(session, camera_id)
+    if camera.retired_at is not None:
+        return
+    camera.retired_at = policy.now()
+    camera.token_hash = hash_token(new_token("vc"))
+    session.flush()
+    _forget_on_commit(session, tokens, camera_id)
+
+
+def list_cameras(
+    session: Session, *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Camera]:
+    """Cameras in service by id; with ``retired``, the retired ones too."""
+    q = select(Camera)
+    if not retired:
+        q = q.where(Camera.retired_at.is_(None))
+    return session.scalars(q.order_by(Camera.id).limit(limit).offset(offset)).all()
 
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:
@@ -140,5 +176,45 @@ def create_robot(session: Session, data: RobotCreate) -> tuple[Robot, str]:
     return robot, token
 
 
-def list_robots(session: Session, *, limit: int, offset: int) -> Sequence[Robot]:
-    return session.scalars(select(Robot).order_by(Robot.id).limit(limit).offset(offset)).all()
+def get_robot(session: Session, robot_id: str) -> Robot:
+    robot = session.get(Robot, robot_id)
+    if robot is None:
+        raise NotFound(f"no robot {robot_id!r}")
+    return robot
+
+
+def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
+    """A new token for the robot; the old one stops working at once (robot tokens are looked up
+    on every request, in every process). Returns the robot and the new token (shown once)."""
+    robot = get_robot(session, robot_id)
+    if robot.retired_at is not None:
+        raise Conflict(
+            f"robot {robot_id!r} was retired at {robot.retired_at.isoformat()}",
+            code="robot_retired",
+        )
+    token = new_token("vr")
+    robot.token_hash = hash_token(token)
+    session.flush()
+    return robot, token
+
+
+def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
+    """Take the robot out of service: its token stops working, and the tasks it holds go back
+    to the queue for the other robots. Its history stays. Retiring it again changes nothing."""
+    robot = get_robot(session, robot_id)
+    if robot.retired_at is not None:
+        return
+    robot.retired_at = policy.now()
+    robot.token_hash = hash_token(new_token("vr"))
+    cleaning.release_all(session, robot_id, policy)
+    session.flush()
+
+
+def list_robots(
+    session: Session, *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Robot]:
+    """Robots in service by id; with ``retired``, the retired ones too."""
+    q = select(Robot)
+    if not retired:
+        q = q.where(Robot.retired_at.is_(None))
+    return session.scalars(q.order_by(Robot.id).limit(limit).offset(offset)).all()

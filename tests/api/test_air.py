@@ -212,6 +212,22 @@ class TestBadInput:
         )
 
 
+def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    calibrate(client, admin)
+    for cam in ("sky1", "sky2", "sky3"):
+        post(client, city, cam, 7, seed=1)
+    fc = client.get("/air/isopleths").json()
+    assert [c["camera_id"] for c in fc["cameras"]] == ["sky1", "sky2", "sky3"]
+
+    assert client.delete("/cameras/sky2", headers=admin).status_code == 204
+    fc = client.get("/air/isopleths").json()
+    assert [c["camera_id"] for c in fc["cameras"]] == ["sky1", "sky3"]
+    assert client.get("/air/cameras/sky2/latest").json()["level"] == 7
+    assert len(client.get("/air/readings", params={"camera_id": "sky2"}).json()) == 1
+
+
 def test_window_excludes_old_readings(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

@@ -1,4 +1,5 @@
-"""Changing a registered camera: its fields (PATCH) and its upload token (rotation)."""
+"""Changing a registered camera: its fields (PATCH), its upload token (rotation), and retiring
+it (DELETE)."""
 
 from __future__ import annotations
 
@@ -189,6 +190,93 @@ class TestTokenRotation:
         assert client.post("/cameras/cam/token", headers=own).status_code == 403
         assert client.post("/cameras/cam/token").status_code == 401
         assert post(client, token, make_jpeg())[0] == 201  # still the camera's token
+
+
+class TestRetire:
+    def test_a_retired_camera_posts_nothing_and_keeps_its_history(
+        self, client: TestClient, admin: dict[str, str], engine: Engine
+    ) -> None:
+        token = register(client, admin, name="East")
+        first = client.post(
+            "/cameras/cam/frames",
+            content=make_jpeg(),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        ).json()  # the token is now cached
+        r = client.delete("/cameras/cam", headers=admin)
+        assert r.status_code == 204, r.text
+        assert r.content == b""
+
+        counts = table_counts(engine)
+        status, body = post(client, token, make_jpeg(seed=1, noise=3))  # its own token: gone
+        assert status == 401, body
+        r = client.post(
+            "/cameras/cam/frames",
+            content=make_jpeg(seed=2, noise=3),
+            headers={**admin, "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 409, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert r.json()["code"] == "camera_retired"
+        assert table_counts(engine) == counts
+
+        out = client.get("/cameras/cam", headers=admin).json()
+        assert out["retired_at"] is not None
+        assert out["name"] == "East"
+        frames = client.get("/cameras/cam/frames", headers=admin).json()
+        assert [f["frame_id"] for f in frames] == [first["frame_id"]]
+
+    def test_retired_cameras_leave_the_list_unless_asked_for(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        for camera in ("a", "b", "c"):
+            r = client.post("/cameras", json={"id": camera, "kind": "rig"}, headers=admin)
+            assert r.status_code == 201
+        assert client.delete("/cameras/b", headers=admin).status_code == 204
+        listed = client.get("/cameras", headers=admin).json()
+        assert [c["id"] for c in listed] == ["a", "c"]
+        assert all(c["retired_at"] is None for c in listed)
+        every = client.get("/cameras", params={"retired": True}, headers=admin).json()
+        assert [(c["id"], c["retired_at"] is None) for c in every] == [
+            ("a", True),
+            ("b", False),
+            ("c", True),
+        ]
+
+    def test_retiring_again_changes_nothing_and_the_id_stays_taken(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        register(client, admin)
+        assert client.delete("/cameras/cam", headers=admin).status_code == 204
+        when = client.get("/cameras/cam", headers=admin).json()["retired_at"]
+        assert client.delete("/cameras/cam", headers=admin).status_code == 204
+        assert client.get("/cameras/cam", headers=admin).json()["retired_at"] == when
+        r = client.post("/cameras", json={"id": "cam", "kind": "rig"}, headers=admin)
+        assert r.status_code == 409
+
+    def test_a_retired_camera_cannot_be_changed_or_given_a_token(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        register(client, admin, name="East")
+        assert client.delete("/cameras/cam", headers=admin).status_code == 204
+        before = client.get("/cameras/cam", headers=admin).json()
+        for r in (
+            client.patch("/cameras/cam", json={"name": "West"}, headers=admin),
+            client.post("/cameras/cam/token", headers=admin),
+        ):
+            assert r.status_code == 409, r.text
+            assert r.json()["code"] == "camera_retired"
+        assert client.get("/cameras/cam", headers=admin).json() == before
+
+    def test_unknown_camera_is_404_and_only_the_admin_may_retire(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        token = register(client, admin)
+        assert client.delete("/cameras/ghost", headers=admin).status_code == 404
+        assert client.delete("/cameras/cam").status_code == 401
+        own = {"Authorization": f"Bearer {token}"}
+        assert client.delete("/cameras/cam", headers=own).status_code == 403
+        assert client.get("/cameras/cam", headers=admin).json()["retired_at"] is None
+        assert post(client, token, make_jpeg())[0] == 201
 
 
 def test_the_token_cache_forgets_one_camera() -> None:

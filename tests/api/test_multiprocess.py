@@ -113,7 +113,7 @@ def test_frames_alternately_and_a_baseline_shared_at_once(servers: list[str]) ->
         assert v["clean"] is False
 
 
-def test_a_new_token_and_region_reach_the_other_process_within_its_cache_time(
+def test_a_new_token_region_and_retirement_reach_the_other_process_within_its_cache_time(
     servers: list[str],
 ) -> None:
     a, b = servers
@@ -145,3 +145,12 @@ def test_a_new_token_and_region_reach_the_other_process_within_its_cache_time(
         frame = post(b, new)
         assert frame.status_code == 201, frame.text
         assert near(frame.json()["verdict"]["modes"], RIGHT)
+
+        # retired through a: b refuses the camera within its cache time too
+        retired = time.monotonic()
+        assert c.delete(f"{a}/cameras/r").status_code == 204
+        assert post(a, new).status_code == 401
+        while (r := post(b, new)).status_code == 201:
+            assert time.monotonic() - retired < CACHE_SECONDS + 5, "b still takes the camera"
+            time.sleep(0.1)
+        assert r.status_code == 401, r.text

@@ -322,6 +322,79 @@ class TestRobotLoop:
         )
 
 
+class TestRobotChanges:
+    def test_a_retired_robot_is_shut_out_and_its_task_goes_to_another_at_once(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        r1, r2 = bearer(farm["robots"]["r1"]), bearer(farm["robots"]["r2"])
+        train(client, admin, clean_set(10))
+        for _ in range(3):
+            post_frame(client, farm, CLEAN_RGB + DUST)
+        task_id = client.post("/cleaning/claim", headers=r1).json()["task_id"]
+        assert client.post("/cleaning/claim", headers=r2).status_code == 204
+        assert status(client, admin)["state"] == "cleaning"
+
+        assert client.delete("/robots/r1", headers=admin).status_code == 204
+        # well inside the 10-minute lease r1 held
+        assert status(client, admin)["state"] == "needs_cleaning"
+        assert client.post("/cleaning/claim", headers=r1).status_code == 401
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r1).status_code == 401
+        taken = client.post("/cleaning/claim", headers=r2)
+        assert taken.status_code == 200, taken.text
+        assert taken.json()["task_id"] == task_id
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r2).status_code == 200
+
+        listed = client.get("/robots", headers=admin).json()
+        assert [r["id"] for r in listed] == ["r2"]
+        every = client.get("/robots", params={"retired": True}, headers=admin).json()
+        assert [(r["id"], r["retired_at"] is None) for r in every] == [
+            ("r1", False),
+            ("r2", True),
+        ]
+
+    def test_retiring_again_changes_nothing_and_a_retired_robot_gets_no_token(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        assert client.delete("/robots/r1", headers=admin).status_code == 204
+        when = client.get("/robots", params={"retired": True}, headers=admin).json()[0]
+        assert client.delete("/robots/r1", headers=admin).status_code == 204
+        again = client.get("/robots", params={"retired": True}, headers=admin).json()[0]
+        assert again == when
+        r = client.post("/robots/r1/token", headers=admin)
+        assert r.status_code == 409, r.text
+        assert r.json()["code"] == "robot_retired"
+        assert client.post("/robots", json={"id": "r1"}, headers=admin).status_code == 409
+
+    def test_a_new_token_shuts_out_the_old_one_at_once(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        old = bearer(farm["robots"]["r1"])
+        assert client.post("/cleaning/claim", headers=old).status_code == 204
+        r = client.post("/robots/r1/token", headers=admin)
+        assert r.status_code == 200, r.text
+        assert r.json()["id"] == "r1"
+        new = r.json()["token"]
+        assert new.startswith("vr_")
+        assert client.post("/cleaning/claim", headers=old).status_code == 401
+        assert client.post("/cleaning/claim", headers=bearer(new)).status_code == 204
+
+    def test_unknown_robot_is_404_and_only_the_admin_may_change_robots(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        robot = bearer(farm["robots"]["r1"])
+        assert client.delete("/robots/ghost", headers=admin).status_code == 404
+        assert client.post("/robots/ghost/token", headers=admin).status_code == 404
+        for r in (
+            client.delete("/robots/r2", headers=robot),
+            client.post("/robots/r2/token", headers=robot),
+        ):
+            assert r.status_code == 403
+        assert client.delete("/robots/r2").status_code == 401
+        assert (
+            client.post("/cleaning/claim", headers=bearer(farm["robots"]["r2"])).status_code == 204
+        )
+
+
 def test_twenty_robots_twenty_tasks(
     client: TestClient, admin: dict[str, str], clock: Clock
 ) -> None:
