@@ -168,7 +168,7 @@ def list_cameras(
     ] = False,
 ) -> list[CameraOut]:
     """List cameras, ordered by id."""
-    cameras = registry.list_cameras(session, limit=limit, offset=offset, retired=retired)
+    cameras = registry.listed(session, Camera, limit=limit, offset=offset, retired=retired)
     return [CameraOut.model_validate(c) for c in cameras]
 
 

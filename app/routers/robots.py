@@ -49,7 +49,7 @@ def list_robots(
     ] = False,
 ) -> list[RobotOut]:
     """List robots, ordered by id."""
-    robots = registry.list_robots(session, limit=limit, offset=offset, retired=retired)
+    robots = registry.listed(session, Robot, limit=limit, offset=offset, retired=retired)
     return [RobotOut.model_validate(r) for r in robots]
 
 

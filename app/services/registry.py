@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypeVar
 
 from sqlalchemy import event, select
 from sqlalchemy.exc import IntegrityError
@@ -142,14 +143,17 @@ def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: 
     _forget_on_commit(session, tokens, camera_id)
 
 
-def list_cameras(
-    session: Session, *, limit: int, offset: int, retired: bool = False
-) -> Sequence[Camera]:
-    """Cameras in service by id; with ``retired``, the retired ones too."""
-    q = select(Camera)
+Retirable = TypeVar("Retirable", Camera, Robot)
+
+
+def listed(
+    session: Session, model: type[Retirable], *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Retirable]:
+    """Cameras or robots in service, by id; with ``retired``, the retired ones too."""
+    q = select(model)
     if not retired:
-        q = q.where(Camera.retired_at.is_(None))
-    return session.scalars(q.order_by(Camera.id).limit(limit).offset(offset)).all()
+        q = q.where(model.retired_at.is_(None))
+    return session.scalars(q.order_by(model.id).limit(limit).offset(offset)).all()
 
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:
@@ -208,13 +212,3 @@ def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
     robot.token_hash = hash_token(new_token("vr"))
     cleaning.release_all(session, robot_id, policy)
     session.flush()
-
-
-def list_robots(
-    session: Session, *, limit: int, offset: int, retired: bool = False
-) -> Sequence[Robot]:
-    """Robots in service by id; with ``retired``, the retired ones too."""
-    q = select(Robot)
-    if not retired:
-        q = q.where(Robot.retired_at.is_(None))
-    return session.scalars(q.order_by(Robot.id).limit(limit).offset(offset)).all()

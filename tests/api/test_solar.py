@@ -98,6 +98,13 @@ def train(client: TestClient, admin: dict[str, str], files: list[bytes], **param
     )
 
 
+def dirty_with_a_task(client: TestClient, admin: dict[str, str], farm: dict[str, Any]) -> None:
+    """Train p1's baseline, then post dusty frames until the debounce opens a cleaning task."""
+    train(client, admin, clean_set(10))
+    for _ in range(3):
+        post_frame(client, farm, CLEAN_RGB + DUST)
+
+
 def status(client: TestClient, admin: dict[str, str]) -> Any:
     r = client.get("/panels/p1/status", headers=admin)
     assert r.status_code == 200, r.text
@@ -233,9 +240,7 @@ class TestRobotLoop:
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
         robot = bearer(farm["robots"]["r1"])
-        train(client, admin, clean_set(10))
-        for _ in range(3):
-            post_frame(client, farm, CLEAN_RGB + DUST)
+        dirty_with_a_task(client, admin, farm)
         task_id = client.post("/cleaning/claim", headers=robot).json()["task_id"]
         client.post(f"/cleaning/tasks/{task_id}/complete", headers=robot)
         v = post_frame(client, farm, CLEAN_RGB + DUST)
@@ -256,9 +261,7 @@ class TestRobotLoop:
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
         r1, r2 = bearer(farm["robots"]["r1"]), bearer(farm["robots"]["r2"])
-        train(client, admin, clean_set(10))
-        for _ in range(3):
-            post_frame(client, farm, CLEAN_RGB + DUST)
+        dirty_with_a_task(client, admin, farm)
         first = client.post("/cleaning/claim", headers=r1).json()
         assert client.post("/cleaning/claim", headers=r2).status_code == 204
         task_id = first["task_id"]
@@ -277,9 +280,7 @@ class TestRobotLoop:
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
         robot = bearer(farm["robots"]["r1"])
-        train(client, admin, clean_set(10))
-        for _ in range(3):
-            post_frame(client, farm, CLEAN_RGB + DUST)
+        dirty_with_a_task(client, admin, farm)
         task_id = client.post("/cleaning/claim", headers=robot).json()["task_id"]
         for _ in range(2):
             r = client.post(
@@ -296,9 +297,7 @@ class TestRobotLoop:
     def test_panel_comes_clean_on_its_own(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
-        train(client, admin, clean_set(10))
-        for _ in range(3):
-            post_frame(client, farm, CLEAN_RGB + DUST)
+        dirty_with_a_task(client, admin, farm)
         task_id = status(client, admin)["open_task"]["task_id"]
         post_frame(client, farm, CLEAN_RGB)
         assert status(client, admin)["state"] == "clean"
@@ -327,9 +326,7 @@ class TestRobotChanges:
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
         r1, r2 = bearer(farm["robots"]["r1"]), bearer(farm["robots"]["r2"])
-        train(client, admin, clean_set(10))
-        for _ in range(3):
-            post_frame(client, farm, CLEAN_RGB + DUST)
+        dirty_with_a_task(client, admin, farm)
         task_id = client.post("/cleaning/claim", headers=r1).json()["task_id"]
         assert client.post("/cleaning/claim", headers=r2).status_code == 204
         assert status(client, admin)["state"] == "cleaning"
