@@ -84,17 +84,67 @@ def _check(lon: NDArray[np.float64], lat: NDArray[np.float64], values: NDArray[n
         raise IsoplethError("all cameras are at one point: there is no field to interpolate")
 
 
+SAME_PLACE_M = 1.0
+"""Cameras closer than this [m] (two on one mast) are one station with their mean level."""
+
+
+def _stations(
+    xy: NDArray[np.float64], values: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One position per place: cameras within ``SAME_PLACE_M`` of each other (on a grid of that
+    size) merged, at their mean position with their mean level. A place counts once whatever
+    number of cameras it has, and a radial basis needs distinct points."""
+    cell = np.floor(xy / SAME_PLACE_M)
+    _, group = np.unique(cell, axis=0, return_inverse=True)
+    group = group.ravel()
+    n = np.bincount(group)
+    if len(n) == len(values):
+        return xy, values
+    merged = np.stack([np.bincount(group, xy[:, 0]), np.bincount(group, xy[:, 1])], axis=1)
+    return merged / n[:, None], np.bincount(group, values) / n
+
+
+def _rbf(
+    xy: NDArray[np.float64], values: NDArray[np.float64], grid: NDArray[np.float64], k: int
+) -> NDArray[np.float64]:
+    """Thin-plate spline in each cell's k-neighbourhood. Its linear term needs three cameras
+    not on one line in every neighbourhood."""
+    if len(values) < 3:
+        raise IsoplethError("rbf needs cameras at 3 places or more; idw works with fewer")
+    scale = float(np.ptp(xy, axis=0).max())  # condition the kernel: work in units of the extent
+    try:
+        z = RBFInterpolator(
+            xy / scale, values, kernel="thin_plate_spline", neighbors=k, smoothing=1e-6
+        )(grid / scale)
+    except np.linalg.LinAlgError:
+        raise IsoplethError(
+            "rbf cannot fit cameras that lie on one line; idw or kriging can"
+        ) from None
+    return np.asarray(z, dtype=np.float64)
+
+
+def check_bbox(bbox: tuple[float, ...]) -> None:
+    """(min lon, min lat, max lon, max lat): four finite numbers, min < max, on the globe."""
+    if len(bbox) != 4 or not all(map(math.isfinite, bbox)):
+        raise IsoplethError("bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
+    x0, y0, x1, y1 = bbox
+    if x0 >= x1 or y0 >= y1:
+        raise IsoplethError(f"bbox needs min < max in both longitude and latitude; got {bbox}")
+    if x0 < -180 or x1 > 180 or y0 < -90 or y1 > 90:
+        raise IsoplethError(f"bbox must lie within longitude ±180° and latitude ±90°; got {bbox}")
+
+
 def default_bbox(
     lon: NDArray[np.float64], lat: NDArray[np.float64]
 ) -> tuple[float, float, float, float]:
-    """The cameras' extent plus 10 % (at least 0.01°) on every side."""
+    """The cameras' extent plus 10 % (at least 0.01°) on every side, within the globe."""
     mx = max(0.1 * float(np.ptp(lon)), 0.01)
     my = max(0.1 * float(np.ptp(lat)), 0.01)
     return (
-        float(lon.min()) - mx,
-        float(lat.min()) - my,
-        float(lon.max()) + mx,
-        float(lat.max()) + my,
+        max(float(lon.min()) - mx, -180.0),
+        max(float(lat.min()) - my, -90.0),
+        min(float(lon.max()) + mx, 180.0),
+        min(float(lat.max()) + my, 90.0),
     )
 
 
@@ -175,7 +225,8 @@ def _kriging(
         a[:, :k, :k] = _exp_variogram(h, nugget, sill, rng)
         a[:, np.arange(k), np.arange(k)] = 0.0  # γ(0) = 0 at the same camera
         a[:, k, k] = 0.0
-        # coincident cameras make the system singular: a tiny ridge keeps it solvable
+        # cameras a few metres apart make the system near-singular: a tiny ridge keeps it
+        # solvable (those within SAME_PLACE_M are already one station)
         a[:, np.arange(k), np.arange(k)] += 1e-9 * (sill + nugget)
         b = np.ones((g, k + 1))
         b[:, :k] = _exp_variogram(
@@ -209,15 +260,12 @@ def interpolate(
     """
     lon, lat, values = (np.asarray(a, dtype=np.float64) for a in (lon, lat, values))
     _check(lon, lat, values)
+    check_bbox(bbox)
     x0, y0, x1, y1 = bbox
-    if not all(map(math.isfinite, bbox)) or x0 >= x1 or y0 >= y1:
-        raise IsoplethError(
-            f"bbox must be min lon, min lat, max lon, max lat with min < max; got {bbox}"
-        )
     if not 2 <= resolution <= 1024:
         raise IsoplethError("resolution must be 2–1024")
     proj = Projection(float(np.mean(lon)), float(np.mean(lat)))
-    xy = proj.forward(lon, lat)
+    xy, values = _stations(proj.forward(lon, lat), values)
     glon = np.linspace(x0, x1, resolution)
     glat = np.linspace(y0, y1, resolution)
     mlon, mlat = np.meshgrid(glon, glat)
@@ -232,16 +280,11 @@ def interpolate(
         z = _idw(xy, values, grid, k)
     elif method == "kriging":
         if len(values) < 3:
-            raise IsoplethError("kriging needs at least 3 cameras")
+            raise IsoplethError("kriging needs cameras at 3 places or more; idw works with fewer")
         z, uncertainty = _kriging(xy, values, grid, k)
         kind = "kriging_sd"
     elif method == "rbf":
-        scale = (
-            float(np.ptp(xy, axis=0).max()) or 1.0
-        )  # condition the kernel: work in units of the extent
-        z = RBFInterpolator(
-            xy / scale, values, kernel="thin_plate_spline", neighbors=k, smoothing=1e-6
-        )(grid / scale)
+        z = _rbf(xy, values, grid, k)
     else:
         raise IsoplethError(f"unknown method {method!r}")
     z = np.clip(z, 1.0, 10.0)

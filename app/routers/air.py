@@ -323,13 +323,13 @@ def _bbox(value: str | None) -> tuple[float, float, float, float] | None:
         return None
     try:
         parts = tuple(float(v) for v in value.split(","))
+        isopleths.check_bbox(parts)
+    except isopleths.IsoplethError as exc:
+        raise Unprocessable(str(exc)) from None
     except ValueError:
         raise Unprocessable("bbox must be minlon,minlat,maxlon,maxlat") from None
-    if len(parts) != 4 or not all(np.isfinite(parts)):
-        raise Unprocessable("bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
-    if parts[0] >= parts[2] or parts[1] >= parts[3]:
-        raise Unprocessable("bbox needs min < max in both longitude and latitude")
-    return parts
+    x0, y0, x1, y1 = parts
+    return x0, y0, x1, y1
 
 
 Method = Annotated[Literal["idw", "kriging", "rbf"], Query(description="Interpolation.")]

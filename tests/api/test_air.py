@@ -228,6 +228,28 @@ def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
     assert len(client.get("/air/readings", params={"camera_id": "sky2"}).json()) == 1
 
 
+def test_a_map_from_two_cameras(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    bbox = {"bbox": "9.0,45.3,9.4,45.6"}
+    off_globe = client.get("/air/isopleths", params={"bbox": "170,0,181,1"})  # no readings yet
+    assert off_globe.status_code == 422, off_globe.text
+    assert off_globe.headers["content-type"] == "application/problem+json"
+    calibrate(client, admin)
+    assert post(client, city, "sky1", 3, seed=1)["level"] == 3
+    assert post(client, city, "sky2", 10, seed=1)["level"] == 10
+    r = client.get("/air/isopleths", params={**bbox, "max_distance": 100_000})
+    assert r.status_code == 200, r.text
+    assert len(r.json()["cameras"]) == 2
+    assert r.json()["features"]
+    for method in ("kriging", "rbf"):  # both need three places
+        for path in ("/air/isopleths", "/air/isopleths.png"):
+            r = client.get(path, params={**bbox, "method": method})
+            assert r.status_code == 422, (method, path, r.text)
+            assert r.headers["content-type"] == "application/problem+json"
+            assert "3 places" in r.json()["detail"]
+
+
 def test_window_excludes_old_readings(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

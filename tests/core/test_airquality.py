@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import numpy as np
 import pytest
@@ -179,6 +180,74 @@ class TestIsopleths:
             )
         with pytest.raises(IsoplethError, match="min < max"):
             interpolate(lon, lat, level, bbox=(10, 45, 9, 46))
+
+    @pytest.mark.parametrize("method", ["idw", "kriging", "rbf"])
+    def test_two_cameras_on_one_mast_are_one_station(self, method: str) -> None:
+        # a second camera on the mast of camera 0 (a few cm away) reporting another level: the
+        # place counts once, at the mean level (rbf used to fail on the singular system)
+        lon, lat, level = smooth_field()
+        twin = level[0] + 2.0
+        lon2, lat2 = np.append(lon, lon[0] + 1e-7), np.append(lat, lat[0])
+        kw: dict[str, Any] = {
+            "bbox": default_bbox(lon, lat),
+            "method": method,
+            "resolution": 48,
+            "max_distance": 8000,
+        }
+        merged = interpolate(lon2, lat2, np.append(level, twin), **kw)
+        alone = interpolate(lon, lat, level, **kw)  # without the twin
+        moved = level.copy()
+        moved[0] += 1.0  # the mean of the two
+        expected = interpolate(lon, lat, moved, **kw)
+        # the same to within what moving the place by 4 mm (to the two cameras' mean) changes
+        np.testing.assert_allclose(merged.value, expected.value, atol=1e-3)
+        assert not np.allclose(merged.value, alone.value, atol=1e-3, equal_nan=True)
+
+    def test_rbf_needs_three_places_off_one_line(self) -> None:
+        bbox = (9.0, 45.3, 9.3, 45.5)
+        with pytest.raises(IsoplethError, match="3 places"):
+            interpolate(
+                np.array([9.1, 9.2]),
+                np.array([45.4, 45.45]),
+                np.array([3.0, 8.0]),
+                bbox=bbox,
+                method="rbf",
+            )
+        with pytest.raises(IsoplethError, match="one line"):
+            interpolate(
+                np.array([9.1, 9.15, 9.2]),
+                np.full(3, 45.4),
+                np.array([3.0, 5.0, 8.0]),
+                bbox=bbox,
+                method="rbf",
+            )
+        # idw takes both
+        f = interpolate(
+            np.array([9.1, 9.2]),
+            np.array([45.4, 45.45]),
+            np.array([3.0, 8.0]),
+            bbox=bbox,
+            method="idw",
+            resolution=16,
+            max_distance=50_000,
+        )
+        assert np.nanmin(f.value) >= 3.0 - 1e-9
+        assert np.nanmax(f.value) <= 8.0 + 1e-9
+
+    @pytest.mark.parametrize(
+        "bbox", [(-181, 0, 0, 1), (0, -91, 1, 0), (0, 0, 181, 1), (0, 0, 1, 90.5)], ids=str
+    )
+    def test_a_bbox_off_the_globe_is_refused(self, bbox: tuple[float, ...]) -> None:
+        lon, lat, level = smooth_field(5)
+        with pytest.raises(IsoplethError, match="±180"):
+            interpolate(lon, lat, level, bbox=bbox)  # type: ignore[arg-type]
+
+    def test_the_default_bbox_stays_on_the_globe(self) -> None:
+        box = default_bbox(np.array([179.99, 179.5]), np.array([89.995, 89.9]))
+        assert box[2] == 180.0
+        assert box[3] == 90.0
+        assert box[0] < 179.5
+        assert box[1] < 89.9
 
     def test_no_field_no_features(self) -> None:
         lon, lat, level = smooth_field()
