@@ -108,12 +108,26 @@ def z_estimates(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+def _nanmean(a: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """``np.nanmean`` that answers NaN for an all-NaN slice without a warning (a point with no
+    usable view or estimate is NaN, not an event)."""
+    ok = ~np.isnan(a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(ok, a, 0.0).sum(axis=axis) / ok.sum(axis=axis))
+
+
+def _nanstd(a: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """``np.nanstd`` (population), NaN for an all-NaN slice without a warning."""
+    mean = np.expand_dims(_nanmean(a, axis), axis)
+    return np.sqrt(_nanmean((a - mean) ** 2, axis))
+
+
 def _xy(rig: CrossRig, obs: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
     """X and Y from Z, averaged over the views present (the analogue of 4.15–4.16)."""
     n = rig.normalised(obs)
     c = rig.centres
-    x = np.nanmean(n[..., 0] * z[:, None] + c[None, :, 0], axis=1)
-    y = np.nanmean(n[..., 1] * z[:, None] + c[None, :, 1], axis=1)
+    x = _nanmean(n[..., 0] * z[:, None] + c[None, :, 0], axis=1)
+    y = _nanmean(n[..., 1] * z[:, None] + c[None, :, 1], axis=1)
     return np.column_stack([x, y, z])
 
 
@@ -121,7 +135,7 @@ def _rms(
     rig: CrossRig, obs: NDArray[np.float64], points: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     err = rig.project(points) - obs
-    return np.asarray(np.sqrt(np.nanmean((err**2).sum(axis=-1), axis=1)), dtype=np.float64)
+    return np.sqrt(_nanmean((err**2).sum(axis=-1), axis=1))
 
 
 def triangulate_cross(
@@ -144,18 +158,36 @@ def triangulate_cross(
         raise ValueError(f"observations must have shape (N, 4, 2); got {obs.shape}")
     est = z_estimates(rig, obs)
     if method == "mean":
-        z = np.nanmean(est, axis=1)  # eq. 4.47
+        z = _nanmean(est, axis=1)  # eq. 4.47
         points = _xy(rig, obs, z)
     elif method == "weighted":
         w = np.where(np.isnan(est), 0.0, rig.baselines() ** 2)
-        z = np.nansum(est * w, axis=1) / w.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):  # no estimate at all: NaN
+            z = np.nansum(est * w, axis=1) / w.sum(axis=1)
         points = _xy(rig, obs, z)
     elif method == "least_squares":
         points = _least_squares(rig, obs)
     else:
         raise ValueError(f"unknown method {method!r}")
-    spread = np.nanstd(est, axis=1)
+    spread = _nanstd(est, axis=1)
     return CrossResult(points, est, spread, _rms(rig, obs, points))
+
+
+def _solve_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Solve each of the systems m[i] x = v[i] (3×3); NaN for one that is singular. The
+    normal equations of a point seen with no disparity in any view (at infinity, or the same
+    pixel in every camera) have no depth column."""
+    try:
+        return np.asarray(np.linalg.solve(m, v[..., None])[..., 0], dtype=np.float64)
+    except np.linalg.LinAlgError:  # rare: find the singular ones, solve the rest
+        pass
+    scale = np.abs(m).max(axis=(1, 2)) ** 3
+    with np.errstate(invalid="ignore"):  # a point already NaN
+        det = np.linalg.det(m)
+    bad = ~(np.isfinite(det) & (np.abs(det) > 1e-12 * scale))
+    x = np.linalg.solve(np.where(bad[:, None, None], np.eye(3), m), v[..., None])[..., 0]
+    x[bad] = np.nan
+    return np.asarray(x, dtype=np.float64)
 
 
 def _least_squares(
@@ -180,7 +212,7 @@ def _least_squares(
     a, b = a * mask, b * mask[..., 0]
     ata = np.einsum("nki,nkj->nij", a, a)
     atb = np.einsum("nki,nk->ni", a, b)
-    p = np.linalg.solve(ata, atb[..., None])[..., 0]
+    p = _solve_each(ata, atb)
     for _ in range(iterations):  # Gauss–Newton on the reprojection error
         x, y, z = p[:, 0:1], p[:, 1:2], p[:, 2:3]
         ru = np.where(ok, rig.cx + f * (x - c[None, :, 0]) / z - obs[..., 0], 0)
@@ -195,7 +227,7 @@ def _least_squares(
         r[:, 0::2], r[:, 1::2] = ru, rv
         jtj = np.einsum("nki,nkj->nij", j, j)
         jtr = np.einsum("nki,nk->ni", j, r)
-        p = p - np.linalg.solve(jtj, jtr[..., None])[..., 0]
+        p = p - _solve_each(jtj, jtr)
     return p
 
 

@@ -36,6 +36,12 @@ def test_cross_rig(client: TestClient, admin: dict[str, str]) -> None:
     np.testing.assert_allclose(out["points"][:4], p[:4], rtol=1e-9)
     assert out["points"][4] is None
     assert len(out["z_estimates"][0]) == 10
+    # the same pixel in every camera (no disparity: at infinity) is no point either, not a 500
+    obs[4] = [[320, 240]] * 4
+    r = client.post("/rigs/cell-1/triangulate", json={"observations": obs}, headers=admin)
+    assert r.status_code == 200, r.text
+    assert r.json()["points"][4] is None
+    np.testing.assert_allclose(r.json()["points"][:4], p[:4], rtol=1e-9)
 
 
 def test_calibrated_rig(client: TestClient, admin: dict[str, str]) -> None:

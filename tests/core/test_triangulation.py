@@ -66,6 +66,18 @@ class TestCross:
         np.testing.assert_allclose(r.points, p, rtol=1e-9)
         assert np.isnan(r.z_estimates[:, 1]).all()  # the 3–4 pair lacks camera 3
 
+    @pytest.mark.parametrize("method", ["mean", "weighted", "least_squares"])
+    def test_a_point_with_no_disparity_is_nan_and_spoils_no_other(self, method: str) -> None:
+        # the same pixel in all four cameras: a point at infinity, no depth to solve for (the
+        # least-squares normal equations are singular)
+        p = points(6)
+        obs = RIG.project(p)
+        obs[3] = [RIG.cx, RIG.cy]
+        r = triangulate_cross(RIG, obs, method=method)  # and no warning (they fail the test)
+        assert np.isnan(r.points[3]).all()
+        keep = [0, 1, 2, 4, 5]
+        np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-9)
+
 
 def calibrated_views() -> list[View]:
     k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
