@@ -8,11 +8,12 @@ import hmac
 import math
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Annotated, Literal
 
 from fastapi import Depends, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
+from pydantic import AfterValidator
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -159,6 +160,21 @@ RigId = Annotated[str, Path(pattern=ID_PATTERN, description="Rig id.")]
 RobotId = Annotated[str, Path(pattern=ID_PATTERN, description="Robot id.")]
 RecordId = Annotated[str, Path(pattern=ID_PATTERN, description="Id given by the service.")]
 IdFilter = Annotated[str | None, Query(pattern=ID_PATTERN, description="Only this id.")]
+
+
+def _utc(value: datetime) -> datetime:
+    """A time from a client in UTC: one without an offset is taken as UTC; one whose
+    conversion leaves the calendar (year 1 at +14:00) is refused."""
+    if value.tzinfo is None:
+        return value.replace(tzinfo=UTC)
+    try:
+        return value.astimezone(UTC)
+    except OverflowError:
+        raise ValueError("the time lies outside years 1–9999 once converted to UTC") from None
+
+
+UtcTime = Annotated[datetime, AfterValidator(_utc)]
+"""A time given by a client: RFC 3339, UTC when it carries no offset."""
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 

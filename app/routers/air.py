@@ -25,6 +25,7 @@ from app.deps import (
     PolicyDep,
     SessionDep,
     SettingsDep,
+    UtcTime,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
@@ -43,7 +44,7 @@ from app.uploads import content_type, read_form, read_json
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
-Significance = Annotated[float, Query(gt=0, le=0.05, description="ς (eq. 6.21).")]
+Significance = Annotated[float, Query(ge=1e-6, le=0.05, description="ς (eq. 6.21).")]
 Shrinkage = Annotated[float, Query(ge=0, le=100, description="Variance added to each Σ̂ [level²].")]
 
 
@@ -274,8 +275,8 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
 def readings(
     session: SessionDep,
     camera_id: IdFilter = None,
-    since: datetime | None = None,
-    until: datetime | None = None,
+    since: UtcTime | None = None,
+    until: UtcTime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
     offset: Offset = 0,

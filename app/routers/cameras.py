@@ -23,6 +23,7 @@ from app.deps import (
     RecordId,
     SessionDep,
     UploadTargetDep,
+    UtcTime,
 )
 from app.errors import NotFound, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
@@ -70,7 +71,6 @@ _JPEG_BODY = {
 def _captured_at(value: datetime | None) -> datetime | None:
     if value is None:
         return None
-    value = value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
     if value > datetime.now(UTC) + MAX_CLOCK_SKEW:
         raise Unprocessable(f"captured_at {value.isoformat()} lies in the future", code="bad_time")
     return value
@@ -89,7 +89,7 @@ async def post_frame(
     request: Request,
     target: UploadTargetDep,
     captured_at: Annotated[
-        datetime | None,
+        UtcTime | None,
         Query(description="When the frame was taken (RFC 3339; default: when received)."),
     ] = None,
     idempotency_key: Annotated[

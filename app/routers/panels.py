@@ -41,7 +41,7 @@ from app.uploads import content_type, read_files, read_form, read_json
 router = APIRouter(tags=["panels"])
 
 Significance = Annotated[
-    float, Query(gt=0, le=0.05, description="ς, the level of significance (eq. 5.21).")
+    float, Query(ge=1e-6, le=0.05, description="ς, the level of significance (eq. 5.21).")
 ]
 Shrinkage = Annotated[
     float,

@@ -4,7 +4,7 @@ isopleths (GeoJSON and PNG)."""
 from __future__ import annotations
 
 from dataclasses import replace
-from datetime import timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import cv2
@@ -114,6 +114,18 @@ def test_end_to_end(client: TestClient, admin: dict[str, str], city: dict[str, A
     assert len(readings) == 4
     times = [r["captured_at"] for r in readings]
     assert times == sorted(times, reverse=True)
+    # since/until without an offset are UTC (they were a 500); out of the calendar in UTC: 422
+    first = datetime.fromisoformat(times[-1]).astimezone(UTC).replace(tzinfo=None)
+    naive = client.get(
+        "/air/readings",
+        params={"camera_id": "sky0", "since": (first + timedelta(seconds=1)).isoformat()},
+    )
+    assert naive.status_code == 200, naive.text
+    assert len(naive.json()) == 3
+    for bad in ({"since": "0001-01-01T00:00:00+14:00"}, {"until": "9999-12-31T23:59:59-14:00"}):
+        r = client.get("/air/readings", params=bad)
+        assert r.status_code == 422, r.text
+        assert r.headers["content-type"] == "application/problem+json"
     daily = client.get("/air/readings", params={"aggregate": "daily"}).json()
     assert len(daily) == 12  # one bucket per camera and day
     assert all(d["n"] == 3 for d in daily)  # sky0's first frame came before the calibration
@@ -248,6 +260,20 @@ def test_a_map_from_two_cameras(
             assert r.status_code == 422, (method, path, r.text)
             assert r.headers["content-type"] == "application/problem+json"
             assert "3 places" in r.json()["detail"]
+
+
+def test_a_significance_out_of_range_is_422(client: TestClient, admin: dict[str, str]) -> None:
+    files = [("files", (f"{k}.jpg", sky_jpeg(5, seed=k), "image/jpeg")) for k in range(4)]
+    for significance in (1e-300, 0.5):  # 1e-300: an infinite critical F, a 500 before
+        r = client.post(
+            "/air/calibration",
+            files=files,
+            data={"levels": ["5"] * 4},
+            params={"significance": significance},
+            headers=admin,
+        )
+        assert r.status_code == 422, r.text
+    assert client.get("/air/calibration").status_code == 404
 
 
 def test_window_excludes_old_readings(

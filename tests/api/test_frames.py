@@ -81,6 +81,19 @@ class TestPostFrame:
         listed = client.get("/cameras/cam-1/frames", headers=admin).json()
         assert [f["frame_id"] for f in listed] == [out["frame_id"]]
 
+    @pytest.mark.parametrize("sent", ["2026-05-01T13:00:00", "2026-05-01T15:00:00+02:00"])
+    def test_captured_at_without_an_offset_is_utc_and_one_with_is_converted(
+        self, client: TestClient, camera: dict[str, Any], sent: str
+    ) -> None:
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=make_jpeg(),
+            headers=cam_headers(camera),
+            params={"captured_at": sent},
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["captured_at"] == "2026-05-01T13:00:00Z"
+
     def test_multipart_upload(self, client: TestClient, camera: dict[str, Any]) -> None:
         r = client.post(
             "/cameras/cam-1/frames",
@@ -292,7 +305,16 @@ class TestBadInput:
         assert r.headers["content-type"] == "application/problem+json"
         assert snapshot() == before
 
-    @pytest.mark.parametrize("value", ["yesterday", "2026-13-01T00:00:00Z", "2999-01-01T00:00:00Z"])
+    @pytest.mark.parametrize(
+        "value",
+        [
+            "yesterday",
+            "2026-13-01T00:00:00Z",
+            "2999-01-01T00:00:00Z",
+            "0001-01-01T00:00:00+14:00",  # before year 1 in UTC
+            "9999-12-31T23:59:59-14:00",  # after 9999 in UTC
+        ],
+    )
     def test_malformed_captured_at(
         self, client: TestClient, camera: dict[str, Any], snapshot: Any, value: str
     ) -> None:

@@ -128,6 +128,16 @@ class TestBaseline:
         assert "at least 4" in r.json()["detail"]
         assert status(client, admin)["state"] == "no_baseline"
 
+    @pytest.mark.parametrize("significance", [0, 1e-300, 0.2])
+    def test_a_significance_out_of_range_is_422(
+        self, client: TestClient, admin: dict[str, str], farm: Any, significance: float
+    ) -> None:
+        # 1e-300 made the critical F infinite, which no JSON can carry: a 500 before
+        r = train(client, admin, clean_set(8), significance=significance)
+        assert r.status_code == 422, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert status(client, admin)["state"] == "no_baseline"
+
     def test_identical_images_then_shrinkage(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
