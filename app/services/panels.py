@@ -246,11 +246,27 @@ def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
     slope, intercept = float(res.slope), float(res.intercept)
     now_days = (now - t0) / timedelta(days=1)
     f_now = intercept + slope * now_days
-    crossing = None
-    if slope > 0:
-        cross_days = (threshold - intercept) / slope
-        crossing = t0 + timedelta(days=max(cross_days, now_days))
-    return Trend(len(rows), slope, f_now, threshold, crossing)
+    return Trend(
+        len(rows), slope, f_now, threshold, crossing_at(t0, slope, intercept, threshold, now)
+    )
+
+
+FORECAST_HORIZON = timedelta(days=3650)
+"""A crossing further ahead than this is no forecast (and a nearly flat line's would leave the
+calendar)."""
+
+
+def crossing_at(
+    t0: datetime, slope: float, intercept: float, threshold: float, now: datetime
+) -> datetime | None:
+    """When the line ``intercept + slope · days since t0`` reaches ``threshold``: now if it
+    already has, None if it falls, stays flat or gets there only after ``FORECAST_HORIZON``."""
+    if not slope > 0:
+        return None
+    ahead = (threshold - intercept) / slope - (now - t0) / timedelta(days=1)
+    if not ahead < FORECAST_HORIZON / timedelta(days=1):  # also NaN and inf
+        return None
+    return now + timedelta(days=max(ahead, 0.0))
 
 
 def latest_verdict(session: Session, panel_id: str) -> tuple[Frame, PanelVerdict] | None:
