@@ -32,12 +32,18 @@ def board_points(cols: int, rows: int, square: float) -> NDArray[np.float32]:
     return points
 
 
+MIN_SIDE = 16
+"""OpenCV's board detectors fail (an assertion, not a miss) on images smaller than this [px]."""
+
+
 def find_corners(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float32] | None:
     """The board's inner corners refined to sub-pixel, shape (cols·rows, 1, 2), or None.
 
     Tries the classic detector with ``cornerSubPix`` first (the reference results were made so),
     then the sector-based detector, which copes better with blur and uneven light.
     """
+    if min(grey.shape[:2]) < MIN_SIDE:
+        return None
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
     ok, corners = cv2.findChessboardCorners(grey, (cols, rows), flags=flags)
     if ok:

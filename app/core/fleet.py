@@ -42,7 +42,8 @@ def reduce(image: NDArray[np.uint8], max_side: int = MAX_SIDE) -> NDArray[np.uin
     k = -(-max(h, w) // max_side)
     if k <= 1:
         return image
-    return np.ascontiguousarray(image[k // 2 :: k, k // 2 :: k])
+    # the middle pixel of each k×k block; a side shorter than k keeps its middle pixel
+    return np.ascontiguousarray(image[min(k // 2, h // 2) :: k, min(k // 2, w // 2) :: k])
 
 
 _PATCH = np.ones((7, 7), np.uint8)

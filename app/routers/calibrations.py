@@ -20,8 +20,9 @@ from app.uploads import content_type, read_form
 
 router = APIRouter(prefix="/calibrations", tags=["stereo"])
 
-Cols = Annotated[int, Query(ge=2, le=100, description="Inner corners per row.")]
-Rows = Annotated[int, Query(ge=2, le=100, description="Inner corners per column.")]
+# OpenCV's detectors need at least 3 inner corners each way
+Cols = Annotated[int, Query(ge=3, le=100, description="Inner corners per row.")]
+Rows = Annotated[int, Query(ge=3, le=100, description="Inner corners per column.")]
 Square = Annotated[
     float,
     Query(
@@ -53,8 +54,8 @@ def _board(form: Any, default: Board) -> Board:
         raise Unprocessable(
             "pattern_cols, pattern_rows must be integers, square_size a number"
         ) from None
-    if not (2 <= cols <= 100 and 2 <= rows <= 100) or not 0 < square <= 1e6:
-        raise Unprocessable("pattern_cols, pattern_rows must be 2–100 and square_size > 0")
+    if not (3 <= cols <= 100 and 3 <= rows <= 100) or not 0 < square <= 1e6:
+        raise Unprocessable("pattern_cols, pattern_rows must be 3–100 and square_size > 0")
     return Board(cols, rows, square)
 
 

@@ -41,6 +41,10 @@ def _detect(
             continue
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         here = (grey.shape[1], grey.shape[0])
+        if min(here) < calibration.MIN_SIDE:
+            rejected.append({"file": label, "reason": f"{here[0]}×{here[1]} is too small"})
+            found.append(None)
+            continue
         if size is not None and here != size:
             rejected.append({"file": label, "reason": f"size {here} differs from {size}"})
             found.append(None)

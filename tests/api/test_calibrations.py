@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -65,3 +67,40 @@ def test_unusable_images_are_named(client: TestClient, admin: dict[str, str]) ->
     assert "at least 3" in body["detail"]
     assert [v["file"] for v in body["views_rejected"]] == ["x.jpg", "y.png"]
     assert client.post("/calibrations", files=bad).status_code == 401
+
+
+def test_images_too_small_for_the_detector_are_named_not_a_500(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    # OpenCV's detector asserts on images under 16 px a side; they are rejected by name first
+    tiny = [
+        (
+            "files",
+            (
+                f"t{i}.jpg",
+                cv2.imencode(".jpg", np.full((h, w, 3), 128, np.uint8))[1].tobytes(),
+                "image/jpeg",
+            ),
+        )
+        for i, (h, w) in enumerate([(1, 1), (15, 400), (400, 15)])
+    ]
+    r = client.post("/calibrations", files=tiny, headers=admin)
+    assert r.status_code == 422, r.text
+    reasons = {v["file"]: v["reason"] for v in r.json()["views_rejected"]}
+    assert reasons == {
+        "t0.jpg": "1×1 is too small",
+        "t1.jpg": "400×15 is too small",
+        "t2.jpg": "15×400 is too small",
+    }
+
+
+@pytest.mark.parametrize("pattern", [("2", "6"), ("9", "2"), ("101", "6")], ids=str)
+def test_a_board_opencv_cannot_detect_is_422(
+    client: TestClient, admin: dict[str, str], pattern: tuple[str, str]
+) -> None:
+    image = cv2.imencode(".jpg", np.full((64, 64, 3), 128, np.uint8))[1].tobytes()
+    files = [("files", (f"{i}.jpg", image, "image/jpeg")) for i in range(3)]
+    data = {"pattern_cols": pattern[0], "pattern_rows": pattern[1], "square_size": "1"}
+    r = client.post("/calibrations", files=files, data=data, headers=admin)
+    assert r.status_code == 422, r.text
+    assert "3–100" in r.json()["detail"]

@@ -138,6 +138,19 @@ class TestBaseline:
         assert r.headers["content-type"] == "application/problem+json"
         assert status(client, admin)["state"] == "no_baseline"
 
+    @pytest.mark.parametrize("shape", [(1, 4000), (4000, 1)], ids=str)
+    def test_a_frame_one_pixel_thin_is_judged_not_a_500(
+        self, client: TestClient, admin: dict[str, str], farm: Any, shape: tuple[int, int]
+    ) -> None:
+        image = np.full((*shape, 3), 120, np.uint8)
+        r = client.post(
+            "/cameras/c1/frames",
+            content=cv2.imencode(".jpg", image)[1].tobytes(),
+            headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["verdict"]["clean"] is None  # blank, and no baseline yet
+
     def test_identical_images_then_shrinkage(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:

@@ -36,6 +36,16 @@ def test_reduce_samples_to_at_most_128() -> None:
     assert reduce(small) is small
 
 
+@pytest.mark.parametrize("shape", [(1, 4000), (4000, 1), (3, 1000), (1, 1)], ids=str)
+def test_a_thin_image_keeps_a_line_of_pixels(shape: tuple[int, int]) -> None:
+    # the sampling started beyond a short side: an empty image, and a 500 on a panel frame
+    image = np.full((*shape, 3), 120, np.uint8)
+    small = reduce(image)
+    assert small.size > 0
+    assert max(small.shape[:2]) <= 128
+    assert np.isfinite(features(image)).all()
+
+
 def test_logistic_probability() -> None:
     m = LogisticModel(
         feature_names=("a", "b"),
