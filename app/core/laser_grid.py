@@ -920,6 +920,23 @@ def measure(
     )
 
 
+def _in_front(
+    r: NDArray[np.float64], t: NDArray[np.float64], tri: Triangulator
+) -> Triangulator:
+    """``tri``, with NaN for a point behind any camera that saw it: a laser spot lies in front
+    of the rig, so such a point is a wrong match (of noise, or of two different spots)."""
+
+    def checked(obs: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        points, rms = tri(obs)
+        depth = np.einsum("vj,nj->nv", r[:, 2], points) + t[None, :, 2]  # (N, V)
+        seen = np.isfinite(obs).all(axis=-1)
+        with np.errstate(invalid="ignore"):
+            behind = (seen & ~(depth > 0)).any(axis=1) & np.isfinite(points).all(axis=1)
+        return np.where(behind[:, None], np.nan, points), np.where(behind, np.nan, rms)
+
+    return checked
+
+
 def cross_geometry(rig: CrossRig) -> Geometry:
     """The 4-camera cross as a :class:`Geometry` (its frame: X right, Y up, Z forward, so each
     camera's y axis, pointing down, is −Y: R = diag(1, −1, 1), a reflection)."""
@@ -938,7 +955,7 @@ def cross_geometry(rig: CrossRig) -> Geometry:
         points = np.where(few[:, None], np.nan, res.points)
         return points, np.where(few, np.nan, res.reprojection_rms)
 
-    return Geometry(r, t, np.full(4, rig.f), normalise, tri, rig.project)
+    return Geometry(r, t, np.full(4, rig.f), normalise, _in_front(r, t, tri), rig.project)
 
 
 def views_geometry(views: list[View]) -> Geometry:
@@ -954,6 +971,6 @@ def views_geometry(views: list[View]) -> Geometry:
         rig.ts,
         rig.fs,
         lambda k, uv: undistort(views[k], uv),
-        tri,
+        _in_front(rig.rs, rig.ts, tri),
         lambda points: project_views(views, points),
     )

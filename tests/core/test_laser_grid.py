@@ -123,6 +123,27 @@ def test_no_grid_in_a_plain_image() -> None:
         laser_grid.detect(np.zeros((10, 10), np.uint8))
 
 
+def test_a_spot_behind_the_rig_is_no_point() -> None:
+    """Pixels that triangulate behind the cameras (here those of a point mirrored through the
+    rig's centre: exact, zero reprojection error) are a wrong match, not a measurement; before,
+    a dot found in noise came back at Z = −3.6."""
+    geo = laser_grid.cross_geometry(RIG)
+    front = np.array([[0.05, -0.03, 1.2], [-0.1, 0.08, 2.5]])
+    behind = -front
+    obs = np.concatenate([RIG.project(front), RIG.project(behind)])
+    points, rms = geo.triangulate(obs)
+    np.testing.assert_allclose(points[:2], front, rtol=1e-9)
+    assert np.isnan(points[2:]).all()
+    assert np.isnan(rms[2:]).all()
+    # the dot search then takes the spots in front, whatever their order
+    spots = [
+        [laser.Spot(*b, 1, 1.0), laser.Spot(*f, 1, 1.0)]
+        for f, b in zip(RIG.project(front[:1])[0], RIG.project(behind[:1])[0], strict=True)
+    ]
+    dot = laser.locate(spots, geo.triangulate)
+    np.testing.assert_allclose(dot.point, front[0], rtol=1e-9)
+
+
 def test_calibrated_views_match_a_lattice() -> None:
     """Three calibrated, distorted cameras see a periodic lattice of points on a wavy surface:
     every point is matched to itself across the views."""
