@@ -920,9 +920,7 @@ def measure(
     )
 
 
-def _in_front(
-    r: NDArray[np.float64], t: NDArray[np.float64], tri: Triangulator
-) -> Triangulator:
+def _in_front(r: NDArray[np.float64], t: NDArray[np.float64], tri: Triangulator) -> Triangulator:
     """``tri``, with NaN for a point behind any camera that saw it: a laser spot lies in front
     of the rig, so such a point is a wrong match (of noise, or of two different spots)."""
 

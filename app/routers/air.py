@@ -28,7 +28,7 @@ from app.deps import (
     UtcTime,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.schemas import (
     AirAggregate,
     AirAlertOut,
@@ -115,7 +115,7 @@ def _from_frames(
     "/calibration",
     status_code=201,
     response_model=AirCalibrationOut,
-    responses={**AUTH_ERRORS, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
 )
 async def calibrate(
     request: Request,

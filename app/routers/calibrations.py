@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 
 from app.deps import Admin, PolicyDep, RecordId, SessionDep, SettingsDep
 from app.errors import Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.services import calibrations
 from app.services.calibrations import Board
 from app.services.policy import Policy
@@ -65,7 +65,7 @@ def _single(session: Session, files: Any, board: Board, max_pixels: int, policy:
     )
 
 
-@router.post("", status_code=201, responses={**AUTH_ERRORS, **UNPROCESSABLE})
+@router.post("", status_code=201, responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE})
 async def calibrate(
     request: Request,
     session: SessionDep,
@@ -98,7 +98,7 @@ def _pair(
     )
 
 
-@router.post("/stereo", status_code=201, responses={**AUTH_ERRORS, **UNPROCESSABLE})
+@router.post("/stereo", status_code=201, responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE})
 async def calibrate_stereo(
     request: Request,
     session: SessionDep,

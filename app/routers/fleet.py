@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from app.db.models import CameraKind
 from app.deps import Admin, PolicyDep, SessionDep, SettingsDep
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE, multipart_body
+from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE, multipart_body
 from app.schemas import FleetModelOut
 from app.services import panels, training
 from app.services.camera_info import CameraInfo
@@ -45,7 +45,7 @@ def _train(
     "/model",
     status_code=201,
     response_model=FleetModelOut,
-    responses={**AUTH_ERRORS, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(files="files", labels="texts"),
 )
 async def train(

@@ -14,6 +14,7 @@ from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, Settin
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
+    BODY_ERRORS,
     CONFLICT,
     NOT_FOUND,
     UNPROCESSABLE,
@@ -149,7 +150,7 @@ def _train_from_frames(
     "/panels/{panel_id}/baseline",
     status_code=201,
     response_model=BaselineOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=_FILES_BODY,
 )
 async def train_baseline(
@@ -289,7 +290,7 @@ def _evaluate(
 @router.post(
     "/panels/evaluate",
     response_model=EvaluationOut,
-    responses={**AUTH_ERRORS, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(clean="files", dirty="files"),
 )
 async def evaluate(

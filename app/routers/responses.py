@@ -39,6 +39,10 @@ CONFLICT: Responses = {409: _problem("The id is taken")}
 CAMERA_RETIRED: Responses = {409: _problem("The camera is retired")}
 ROBOT_RETIRED: Responses = {409: _problem("The robot is retired")}
 UNPROCESSABLE: Responses = {422: _problem("Invalid input")}
+BODY_ERRORS: Responses = {
+    413: _problem("Body over the size limit"),
+    415: _problem("Not a media type the endpoint takes"),
+}
 UPLOAD_ERRORS: Responses = {
     413: _problem("Body over the size limit"),
     415: _problem("Not a JPEG"),

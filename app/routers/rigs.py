@@ -16,7 +16,14 @@ from app.db.base import utcnow
 from app.db.models import Rig
 from app.deps import Admin, RigId, RobotOrAdmin, SessionDep, SettingsDep
 from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE, multipart_body
+from app.routers.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    CONFLICT,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+)
 from app.schemas import (
     LaserDotOut,
     LaserGridOut,
@@ -176,7 +183,7 @@ def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> La
 @router.post(
     "/{rig_id}/laser/dot",
     response_model=LaserDotOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(files="files"),
 )
 async def laser_dot(
@@ -191,7 +198,7 @@ async def laser_dot(
 @router.post(
     "/{rig_id}/laser/grid",
     response_model=LaserGridOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
         files="files", dot_files="files", origin="text", base_plane="text"
     ),

@@ -1,4 +1,5 @@
-"""Schemathesis against the service's own OpenAPI schema: no 5xx, errors are problem+json.
+"""Schemathesis against the service's own OpenAPI schema: no 5xx, errors are problem+json, and
+every response is one the schema documents (its status code, content type and body).
 
 Examples are bounded (``MAX_EXAMPLES`` per operation) so the run stays within a few minutes.
 """
@@ -12,6 +13,11 @@ from typing import Any
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
+from schemathesis.specs.openapi.checks import (
+    content_type_conformance,
+    response_schema_conformance,
+    status_code_conformance,
+)
 
 from tests.conftest import ADMIN_TOKEN
 
@@ -19,6 +25,7 @@ MAX_EXAMPLES = 40
 DERANDOMIZE = os.environ.get("VANTAGE_FUZZ_RANDOM") is None
 """Deterministic examples in CI; set VANTAGE_FUZZ_RANDOM to explore new ones."""
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+CONFORMANCE = [status_code_conformance, content_type_conformance, response_schema_conformance]
 
 
 @pytest.mark.slow
@@ -55,6 +62,10 @@ def test_no_server_errors(app: Any, client: Any) -> None:
                     body = json.loads(response.text)
                     if not {"title", "status", "detail"} <= set(body):
                         failures.append(f"{case.method} {case.formatted_path}: {body}")
+            try:
+                case.validate_response(response, checks=CONFORMANCE)
+            except Exception as exc:  # schemathesis reports its findings as an exception group
+                failures.append(f"{case.method} {case.path}: {str(exc)[:300]}")
 
         check()
     assert failures == [], "\n".join(sorted(set(failures))[:20])
