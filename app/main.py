@@ -37,6 +37,7 @@ from app.services.policy import Policy
 from app.services.storage import StoreUnavailable, frame_store
 from app.services.writer import GroupCommitWriter
 from app.settings import Settings, get_settings
+from app.uploads import BodyLimitMiddleware
 
 log = logging.getLogger("vantage")
 
@@ -130,7 +131,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.frame_store = frame_store(settings)
 
     install_error_handlers(app)
-    app.add_middleware(RequestIdMiddleware)
+    app.add_middleware(
+        BodyLimitMiddleware, body=settings.max_body_bytes, bulk=settings.max_upload_bytes
+    )
+    app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
     for module in (
         cameras,  # first: the frame upload is matched first
         health,

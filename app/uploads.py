@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import AsyncGenerator
 from dataclasses import dataclass
 from typing import TypeVar
@@ -10,8 +11,72 @@ from fastapi import Request
 from pydantic import BaseModel, ValidationError
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.errors import PayloadTooLarge, Unprocessable, UnsupportedMediaType
+from app.errors import PayloadTooLarge, Unprocessable, UnsupportedMediaType, problem
+
+SELF_CAPPED = re.compile(
+    r"^/(?:cameras/[^/]+/frames|panels/[^/]+/baseline|panels/evaluate|air/calibration"
+    r"|calibrations(?:/stereo)?|fleet/model|rigs/[^/]+/laser/(?:dot|grid)|vision/[^/]+)$"
+)
+"""Routes that read their body themselves through ``read_capped``, after authenticating: the
+frame upload, and the multipart uploads of many images."""
+BULK = re.compile(r"^/rigs/[^/]+/triangulate$")
+"""JSON routes that take many points in one request: capped at ``max_upload_bytes``."""
+
+
+class BodyLimitMiddleware:
+    """Refuse (413) a JSON body over its route's cap before FastAPI buffers it.
+
+    FastAPI reads and parses a route's whole body before any dependency runs, even before the
+    token is checked; without this one request could make the process hold gigabytes. A
+    declared Content-Length over the cap is refused without reading a byte; a body without one
+    (chunked) is read here up to the cap and handed on, or refused as soon as it passes it.
+    """
+
+    def __init__(self, app: ASGIApp, *, body: int, bulk: int) -> None:
+        self.app = app
+        self.body = body
+        self.bulk = bulk
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or SELF_CAPPED.match(scope["path"]):
+            await self.app(scope, receive, send)
+            return
+        limit = self.bulk if BULK.match(scope["path"]) else self.body
+        declared = next((v for k, v in scope["headers"] if k == b"content-length"), None)
+        if declared is not None:
+            if declared.isdigit() and int(declared) > limit:
+                await _too_large(f"body of {int(declared)} bytes", limit)(scope, receive, send)
+            else:  # the server delivers no more than declared
+                await self.app(scope, receive, send)
+            return
+        chunks: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":
+                return  # the client went away
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > limit:
+                await _too_large("body", limit)(scope, receive, send)
+                return
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                break
+        replay: list[Message] = [{"type": "http.request", "body": b"".join(chunks)}]
+
+        async def replayed() -> Message:
+            return replay.pop() if replay else await receive()
+
+        await self.app(scope, replayed, send)
+
+
+def _too_large(what: str, limit: int) -> ASGIApp:
+    return problem(
+        413, "Payload too large", f"{what} exceeds the limit of {limit} bytes", code="too_large"
+    )
 
 
 async def read_capped(request: Request, limit: int) -> bytes:
