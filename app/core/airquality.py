@@ -11,11 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
+from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.core import soiling
+from app.core.stats import channel_histograms
 
 LEVELS = range(1, 11)
 CATEGORIES = (
@@ -158,30 +161,60 @@ SKY_FEATURES = (
 
 
 def sky_features(
-    sky: NDArray[np.uint8], below: NDArray[np.uint8] | None = None
+    sky: NDArray[np.uint8],
+    below: NDArray[np.uint8] | None = None,
+    histograms: NDArray[np.int64] | None = None,
 ) -> NDArray[np.float64]:
     """Features of a sky region (RGB, uint8) and of the strip below it (the skyline) for the
     regression across levels that improves on the clusters: modes, means, blue-to-red ratio,
-    median of the darkest channel, spread; the skyline's contrast (0 without a strip)."""
-    x = sky.reshape(-1, 3).astype(np.float64)
-    modes = [np.bincount(sky[..., c].ravel(), minlength=256).argmax() for c in range(3)]
-    means = x.mean(axis=0)
-    lo = x.min(axis=1)
+    median of the darkest channel, spread; the skyline's contrast (0 without a strip).
+
+    ``histograms``: the region's channel histograms (3, 256) when already computed. Everything
+    comes from histograms and uint8 or float32 single-channel arrays: a float64 copy of a 36 MP
+    region and its temporaries took ~2 GB of memory.
+    """
+    hist = channel_histograms(sky) if histograms is None else histograms
+    levels = np.arange(256, dtype=np.float64)
+    n = float(hist[0].sum())
+    modes = hist.argmax(axis=1)
+    means = hist @ levels / n
+    spread = np.sqrt(np.maximum(hist @ levels**2 / n - means**2, 0.0)).mean()
+    lo = cv2.min(cv2.min(sky[..., 0], sky[..., 1]), sky[..., 2])
     contrast = [0.0, 0.0]
     if below is not None and below.size:
-        grey = below.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-        lap = np.abs(np.diff(grey, 2, axis=0)).mean() if grey.shape[0] > 2 else 0.0
-        contrast = [float(grey.std()), float(lap)]
+        # luma channel by channel, the second difference down the columns in place
+        grey = below[..., 0] * np.float32(0.299)
+        grey += below[..., 1] * np.float32(0.587)
+        grey += below[..., 2] * np.float32(0.114)
+        lap = 0.0
+        if grey.shape[0] > 2:
+            d = grey[2:] - grey[1:-1]
+            d -= grey[1:-1]
+            d += grey[:-2]
+            lap = float(np.abs(d, out=d).mean())
+        contrast = [float(grey.std()), lap]
     return np.array(
         [
             *modes,
             *means,
             (means[2] + 1) / (means[0] + 1),
-            np.median(lo),
-            x.std(axis=0).mean(),
+            _median(cv2.calcHist([lo], [0], None, [256], [0, 256]).ravel().round()),
+            spread,
             *contrast,
         ]
     )
+
+
+def _median(hist: NDArray[Any]) -> float:
+    """``np.median`` of the values a histogram of 0–255 counts (the mean of the two middle ones
+    for an even count)."""
+    cdf = np.cumsum(hist)
+    n = int(cdf[-1])
+    upper = int(np.searchsorted(cdf, n // 2 + 1))  # the value at sorted position n // 2
+    if n % 2:
+        return float(upper)
+    lower = int(np.searchsorted(cdf, n // 2))  # at position n // 2 − 1
+    return (lower + upper) / 2
 
 
 @dataclass(frozen=True, slots=True)

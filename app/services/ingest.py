@@ -127,7 +127,7 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         features = fleet.features(region)
     elif camera.kind == CameraKind.sky:
         below = _band_below(image, roi)
-        features = airquality.sky_features(region, below)
+        features = airquality.sky_features(region, below, stats.histograms)
     return Decoded(header, stats, quality, features, reduction)
 
 
