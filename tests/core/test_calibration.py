@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.core.calibration import CalibrationError, board_points, calibrate
+from app.core.calibration import CalibrationError, board_points, calibrate, find_corners
 
 K_TRUE = np.array([[800.0, 0.0, 320.0], [0.0, 790.0, 240.0], [0.0, 0.0, 1.0]])
 DIST_TRUE = np.array([-0.2, 0.05, 0.001, -0.0005, 0.0])
@@ -40,3 +40,46 @@ def test_too_few_views() -> None:
     objs, imgs = synthetic_views(2)
     with pytest.raises(CalibrationError, match="at least 3"):
         calibrate(objs, imgs, (640, 480))
+
+
+def rendered_board(width: int, height: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A 9×6-corner board (40 px squares, a white margin) warped in perspective onto a grey
+    width × height image, rendered at 4× and area-averaged down; and its 54 inner corners in
+    the image [px, pixel centres at integers], exact by construction."""
+    sq = 40
+    board = np.kron((np.indices((7, 10)).sum(0) % 2) * 255, np.ones((sq, sq))).astype(np.uint8)
+    board = cv2.copyMakeBorder(board, sq, sq, sq, sq, cv2.BORDER_CONSTANT, value=255)
+    h, w = board.shape
+    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    dst = np.float32(
+        [[0.2, 0.15], [0.8, 0.2], [0.75, 0.85], [0.25, 0.8]] * np.array([width, height])
+    )
+    m = cv2.getPerspectiveTransform(src, dst)
+    big = cv2.warpPerspective(
+        board, np.diag([4.0, 4.0, 1.0]) @ m, (4 * width, 4 * height), borderValue=128
+    )
+    image = cv2.resize(big, (width, height), interpolation=cv2.INTER_AREA)
+    image = cv2.add(image, np.random.default_rng(seed).integers(0, 6, image.shape, np.uint8))
+    # an inner corner lies between board pixels: at sq·k − 0.5 in pixel-centre coordinates; a
+    # 4× render area-averaged down moves pixel centres by −3/8
+    corners = np.array(
+        [[sq * (2 + i) - 0.5, sq * (2 + j) - 0.5] for j in range(6) for i in range(9)],
+        np.float32,
+    )
+    truth = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), m).reshape(-1, 2) - 0.375
+    return image, truth
+
+
+@pytest.mark.parametrize("size", [(640, 480), (4000, 3000), (6000, 4500)], ids=str)
+def test_corners_of_a_large_photo_are_found_small_and_refined_full_size(
+    size: tuple[int, int],
+) -> None:
+    # 640 × 480 is searched as it is; above DETECT_SIDE (1600) in a scaled copy (a 12 MP photo
+    # took the detector 21 s at full size), then refined in the full image: as accurate as VGA
+    image, truth = rendered_board(*size)
+    corners = find_corners(image, 9, 6)
+    assert corners is not None
+    found = corners.reshape(-1, 2)
+    error = np.linalg.norm(found[:, None] - truth[None], axis=2).min(axis=1)
+    assert np.median(error) < 0.05, np.median(error)
+    assert error.max() < 0.15, error.max()
