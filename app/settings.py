@@ -71,6 +71,13 @@ class Settings(BaseSettings):
         "process may use with the disk store (more threads than cores only contend for them), "
         "32 with the S3 store (each upload then waits on the network).",
     )
+    image_threads: int = Field(
+        default=0,
+        ge=0,
+        description="Image-processing requests (outlines, laser, checkerboards, training "
+        "uploads) worked on at once per process; the others wait their turn. Each holds its "
+        "images' pixels, so this bounds memory too. 0: the CPUs the process may use.",
+    )
     warm_up_triangulation: bool = Field(
         default=False,
         description="Compile the calibrated-rig triangulation loop (numba) at start, before "
@@ -105,6 +112,10 @@ class Settings(BaseSettings):
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
     log_level: str = "INFO"
     log_json: bool = True
+
+    @property
+    def effective_image_threads(self) -> int:
+        return self.image_threads or usable_cpus()
 
     @property
     def effective_ingest_threads(self) -> int:

@@ -8,7 +8,6 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 from pydantic import StringConstraints
 from sqlalchemy.orm import Session
@@ -26,6 +25,7 @@ from app.deps import (
     SessionDep,
     SettingsDep,
     UtcTime,
+    image_work,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
@@ -161,7 +161,8 @@ async def calibrate(
             raise Unprocessable("levels must be integers 1–10") from None
         if any(not 1 <= v <= 10 for v in levels):
             raise Unprocessable("levels must be integers 1–10")
-        return await run_in_threadpool(
+        return await image_work(
+            request,
             partial(
                 _from_files,
                 session,
@@ -174,11 +175,12 @@ async def calibrate(
                 policy,
                 method,
                 applies_to or [],
-            )
+            ),
         )
     if kind == "application/json":
         body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
-        return await run_in_threadpool(
+        return await image_work(
+            request,
             partial(
                 _from_frames,
                 session,
@@ -188,7 +190,7 @@ async def calibrate(
                 policy,
                 method,
                 applies_to or [],
-            )
+            ),
         )
     raise UnsupportedMediaType(
         "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"

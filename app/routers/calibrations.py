@@ -6,11 +6,10 @@ from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.deps import Admin, PolicyDep, RecordId, SessionDep, SettingsDep
+from app.deps import Admin, PolicyDep, RecordId, SessionDep, SettingsDep, image_work
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.services import calibrations
@@ -84,8 +83,8 @@ async def calibrate(
     if not files:
         raise Unprocessable("no images in field files")
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
-    row = await run_in_threadpool(
-        partial(_single, session, files, board, settings.max_pixels, policy)
+    row = await image_work(
+        request, partial(_single, session, files, board, settings.max_pixels, policy)
     )
     return _body(row)
 
@@ -114,7 +113,8 @@ async def calibrate_stereo(
     baseline |T| with the intrinsics held fixed."""
     form = await _form(request, settings.max_upload_bytes)
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
-    row = await run_in_threadpool(
+    row = await image_work(
+        request,
         partial(
             _pair,
             session,
@@ -123,7 +123,7 @@ async def calibrate_stereo(
             board,
             settings.max_pixels,
             policy,
-        )
+        ),
     )
     return _body(row)
 

@@ -6,11 +6,10 @@ from functools import partial
 
 import numpy as np
 from fastapi import APIRouter, Request
-from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.db.models import CameraKind
-from app.deps import Admin, PolicyDep, SessionDep, SettingsDep
+from app.deps import Admin, PolicyDep, SessionDep, SettingsDep, image_work
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE, multipart_body
 from app.schemas import FleetModelOut
@@ -64,8 +63,8 @@ async def train(
     bad = sorted({label for label in labels if label not in LABELS})
     if bad:
         raise Unprocessable(f"labels must be clean or dirty; got {', '.join(bad)}")
-    return await run_in_threadpool(
-        partial(_train, session, files, labels, settings.max_pixels, policy)
+    return await image_work(
+        request, partial(_train, session, files, labels, settings.max_pixels, policy)
     )
 
 

@@ -6,11 +6,10 @@ from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.db.models import Baseline, CameraKind
-from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep
+from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep, image_work
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
@@ -173,7 +172,8 @@ async def train_baseline(
     kind = content_type(request)
     if kind == "multipart/form-data":
         files = await read_files(request, "files", settings.max_upload_bytes, max_files=1000)
-        return await run_in_threadpool(
+        return await image_work(
+            request,
             _train_from_files,
             session,
             panel_id,
@@ -186,8 +186,15 @@ async def train_baseline(
         )
     if kind == "application/json":
         body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
-        return await run_in_threadpool(
-            _train_from_frames, session, panel_id, body.frame_ids, significance, shrinkage, policy
+        return await image_work(
+            request,
+            _train_from_frames,
+            session,
+            panel_id,
+            body.frame_ids,
+            significance,
+            shrinkage,
+            policy,
         )
     raise UnsupportedMediaType("send multipart/form-data (files) or application/json (frame_ids)")
 
@@ -312,6 +319,6 @@ async def evaluate(
         raise Unprocessable(
             f"need at least 5 clean and 1 dirty image; got {len(clean)} clean, {len(dirty)} dirty"
         )
-    return await run_in_threadpool(
-        partial(_evaluate, clean, dirty, significance, shrinkage, settings.max_pixels)
+    return await image_work(
+        request, partial(_evaluate, clean, dirty, significance, shrinkage, settings.max_pixels)
     )

@@ -7,14 +7,13 @@ from functools import partial
 
 import numpy as np
 from fastapi import APIRouter, Request
-from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.core import laser_grid, shapes
 from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
-from app.deps import Admin, RigId, RobotOrAdmin, SessionDep, SettingsDep
+from app.deps import Admin, RigId, RobotOrAdmin, SessionDep, SettingsDep, image_work
 from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
@@ -192,7 +191,9 @@ async def laser_dot(
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
     row, form = await _rig_and_form(rig_id, request, session, settings)
-    return await run_in_threadpool(partial(_dot, row, form.files_of("files"), settings.max_pixels))
+    return await image_work(
+        request, partial(_dot, row, form.files_of("files"), settings.max_pixels)
+    )
 
 
 @router.post(
@@ -212,7 +213,8 @@ async def laser_grid_measure(
     [u, v] or null, e.g. from ``/laser/dot``). ``base_plane`` (JSON [a, b, c, d]) is fitted to
     the support surface when not given."""
     row, form = await _rig_and_form(rig_id, request, session, settings)
-    return await run_in_threadpool(
+    return await image_work(
+        request,
         partial(
             grid.measure,
             _geometry(row),
@@ -221,7 +223,7 @@ async def laser_grid_measure(
             origin=form.fields.get("origin", []),
             base_plane=form.fields.get("base_plane", []),
             max_pixels=settings.max_pixels,
-        )
+        ),
     )
 
 

@@ -8,11 +8,10 @@ from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
 from app.core.imaging import CannyParams, OutlineParams
-from app.deps import PrincipalDep, SettingsDep
+from app.deps import PrincipalDep, SettingsDep, image_work
 from app.errors import Unprocessable
 from app.routers.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body
 from app.schemas import EllipseOut, OutlineOut
@@ -85,8 +84,9 @@ OutlineQueryDep = Annotated[OutlineQuery, Depends(outline_query)]
 
 async def _find(request: Request, settings: Settings, q: OutlineQuery) -> vision.OutlineResult:
     [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
-    return await run_in_threadpool(
-        partial(vision.find_outline, data, q.params, roi=q.roi, max_pixels=settings.max_pixels)
+    return await image_work(
+        request,
+        partial(vision.find_outline, data, q.params, roi=q.roi, max_pixels=settings.max_pixels),
     )
 
 
@@ -132,7 +132,7 @@ async def outline_png(
 ) -> Response:
     """The outline drawn for debugging: edges, sides, numbered corners (of the ROI)."""
     result = await _find(request, settings, q)
-    return Response(await run_in_threadpool(vision.debug_png, result), media_type="image/png")
+    return Response(await image_work(request, vision.debug_png, result), media_type="image/png")
 
 
 @router.post(
@@ -158,7 +158,8 @@ async def enhance(
 ) -> Response:
     """The conditioned image (PNG) of one image (multipart ``file``)."""
     [(_filename, data)] = await read_files(request, "file", settings.max_body_bytes)
-    body = await run_in_threadpool(
+    body = await image_work(
+        request,
         partial(
             vision.enhance,
             data,
@@ -167,6 +168,6 @@ async def enhance(
             alpha=alpha,
             theta=theta,
             max_pixels=settings.max_pixels,
-        )
+        ),
     )
     return Response(body, media_type="image/png")

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
 import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app.main import create_app
+from app.services import vision as vision_service
+from tests.conftest import ADMIN_TOKEN, _empty_tables
 from tests.core.scenes import PRISM_OUTLINE, cylinder_scene, prism_scene
 from tests.core.test_imaging import corner_error
 
@@ -119,3 +127,36 @@ class TestBadInput:
 
     def test_needs_a_token(self, client: TestClient) -> None:
         assert post(client, "/vision/outline", encode(prism_scene()), {}).status_code == 401
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_image_work_runs_at_most_image_threads_at_once(
+    settings: Any, engine: Any, monkeypatch: pytest.MonkeyPatch, threads: int
+) -> None:
+    # each outline holds its image's pixels: ``image_threads`` bounds how many at once (the
+    # others wait their turn), where FastAPI's pool would run 40
+    active, peak, lock = [0], [0], threading.Lock()
+    real = vision_service.find_outline
+
+    def tracked(*args: Any, **kwargs: Any) -> Any:
+        with lock:
+            active[0] += 1
+            peak[0] = max(peak[0], active[0])
+        time.sleep(0.2)  # long enough for the other requests to arrive meanwhile
+        try:
+            return real(*args, **kwargs)
+        finally:
+            with lock:
+                active[0] -= 1
+
+    monkeypatch.setattr(vision_service, "find_outline", tracked)
+    _empty_tables(engine)
+    app = create_app(settings.model_copy(update={"image_threads": threads}))
+    image = encode(prism_scene())
+    admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    with TestClient(app) as client, ThreadPoolExecutor(6) as pool:
+        statuses = list(
+            pool.map(lambda _: post(client, "/vision/outline", image, admin).status_code, range(6))
+        )
+    assert statuses == [200] * 6
+    assert peak[0] == threads  # never more, and the requests did overlap
