@@ -84,8 +84,11 @@ def test_mutated_jpegs(client: TestClient, admin: dict[str, str], settings: Any)
     decoded_mib = settings.max_pixels * 3 / 2**20
     peak_growth = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - peak_start
     assert peak_growth < 3 * decoded_mib, (peak_growth, decoded_mib)
-    # and nothing accumulates from frame to frame
-    assert rss_mib() - settled < 50, (settled, rss_mib())
+    # and nothing accumulates from frame to frame: over the last 2,700 frames the resident
+    # memory grows by less than one decoded frame at the pixel limit (the allocator keeps some
+    # freed memory, so it moves by tens of MiB; keeping 100 kB a frame, about a frame's
+    # bytes, grew it by 261 MiB and failed here)
+    assert rss_mib() - settled < decoded_mib, (settled, rss_mib(), decoded_mib)
 
 
 def test_mutation_kinds_are_deterministic() -> None:
