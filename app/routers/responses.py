@@ -44,7 +44,7 @@ BODY_ERRORS: Responses = {
     415: _problem("Not a media type the endpoint takes"),
 }
 UPLOAD_ERRORS: Responses = {
-    413: _problem("Body over the size limit"),
+    413: BODY_ERRORS[413],
     415: _problem("Not a JPEG"),
     422: _problem("Truncated or undecodable JPEG, over the pixel limit, or bad parameters"),
 }

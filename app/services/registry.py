@@ -54,13 +54,24 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
-def check_in_service(camera: Camera) -> None:
-    """Refuse (409) to act for a retired camera."""
-    if camera.retired_at is not None:
+def check_in_service(row: Camera | Robot) -> None:
+    """Refuse (409) to act for a retired camera or robot."""
+    if row.retired_at is not None:
+        what = type(row).__name__.lower()
         raise Conflict(
-            f"camera {camera.id!r} was retired at {camera.retired_at.isoformat()}",
-            code="camera_retired",
+            f"{what} {row.id!r} was retired at {row.retired_at.isoformat()}",
+            code=f"{what}_retired",
         )
+
+
+def _retire(row: Camera | Robot, token_prefix: str, policy: Policy) -> bool:
+    """Mark the row retired and replace its token hash by that of a token nobody holds; False
+    (and nothing changed) when it already was."""
+    if row.retired_at is not None:
+        return False
+    row.retired_at = policy.now()
+    row.token_hash = hash_token(new_token(token_prefix))
+    return True
 
 
 def _in_service(session: Session, camera_id: str) -> Camera:
@@ -134,13 +145,9 @@ def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: 
     """Take the camera out of service: its token stops working (replaced by the hash of one
     nobody holds), its frames are refused, and it leaves the air map and the default camera
     list. Its history stays. Retiring a retired camera changes nothing."""
-    camera = get_camera(session, camera_id)
-    if camera.retired_at is not None:
-        return
-    camera.retired_at = policy.now()
-    camera.token_hash = hash_token(new_token("vc"))
-    session.flush()
-    _forget_on_commit(session, tokens, camera_id)
+    if _retire(get_camera(session, camera_id), "vc", policy):
+        session.flush()
+        _forget_on_commit(session, tokens, camera_id)
 
 
 Retirable = TypeVar("Retirable", Camera, Robot)
@@ -191,11 +198,7 @@ def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
     """A new token for the robot; the old one stops working at once (robot tokens are looked up
     on every request, in every process). Returns the robot and the new token (shown once)."""
     robot = get_robot(session, robot_id)
-    if robot.retired_at is not None:
-        raise Conflict(
-            f"robot {robot_id!r} was retired at {robot.retired_at.isoformat()}",
-            code="robot_retired",
-        )
+    check_in_service(robot)
     token = new_token("vr")
     robot.token_hash = hash_token(token)
     session.flush()
@@ -205,10 +208,6 @@ def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
 def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
     """Take the robot out of service: its token stops working, and the tasks it holds go back
     to the queue for the other robots. Its history stays. Retiring it again changes nothing."""
-    robot = get_robot(session, robot_id)
-    if robot.retired_at is not None:
-        return
-    robot.retired_at = policy.now()
-    robot.token_hash = hash_token(new_token("vr"))
-    cleaning.release_all(session, robot_id, policy)
-    session.flush()
+    if _retire(get_robot(session, robot_id), "vr", policy):
+        cleaning.release_all(session, robot_id, policy)
+        session.flush()
