@@ -64,9 +64,12 @@ def _from_files(
     method: str,
     applies_to: list[str],
 ) -> AirCalibrationOut:
-    camera = CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
-    if camera_id is not None:
-        camera = CameraInfo.of(air.sky_camera(session, camera_id))
+    source, warnings = air.upload_region(session, camera_id, applies_to)
+    camera = (
+        CameraInfo.of(source)
+        if source is not None
+        else CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
+    )
     decoded = training.decode_all(files, camera, max_pixels=max_pixels)
     feats = np.array([d.features for d in decoded], dtype=np.float64)
     row = air.calibrate(
@@ -80,6 +83,7 @@ def _from_files(
         method=method,
         features=feats,
         camera_ids=applies_to,
+        warnings=warnings,
     )
     return _calibration_out(row)
 
@@ -125,7 +129,15 @@ async def calibrate(
     _: Admin,
     significance: Significance = 0.05,
     shrinkage: Shrinkage = 0.0,
-    camera_id: Annotated[str | None, Query(description="Whose ROI applies to uploads.")] = None,
+    camera_id: Annotated[
+        str | None,
+        Query(
+            description="The sky camera whose region (ROI) the uploads are measured in: they "
+            "are its full frames. Default: the region of the cameras in applies_to when they "
+            "all have the same one, else the whole image (a warning names the cameras graded "
+            "that measure another region)."
+        ),
+    ] = None,
     applies_to: Annotated[
         list[Annotated[str, StringConstraints(pattern=ID_PATTERN)]] | None,
         Query(

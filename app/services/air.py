@@ -152,8 +152,11 @@ def calibrate(
     method: str = "clusters",
     features: NDArray[np.float64] | None = None,
     camera_ids: Sequence[str] = (),
+    warnings: Sequence[str] = (),
 ) -> AirCalibration:
     """The level clusters (always) and, for ``method="regression"``, the regression too.
+
+    ``warnings`` are kept in the model beside its own (levels pooled for want of images).
 
     Made for ``camera_ids`` (sky cameras), it grades those cameras' frames from now on; made for
     none, it is the city-wide calibration of every camera without one of its own.
@@ -200,7 +203,7 @@ def calibrate(
             }
             for c in cal.clusters
         ],
-        warnings=list(cal.warnings),
+        warnings=[*cal.warnings, *warnings],
         n_images=len(levels),
         frame_ids=frame_ids,
         method=method,
@@ -301,6 +304,44 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
             )
         )
     return verdict
+
+
+def upload_region(
+    session: Session, camera_id: str | None, applies_to: Sequence[str]
+) -> tuple[Camera | None, list[str]]:
+    """The camera whose region uploaded calibration images are measured in (None: the whole
+    image), and warnings naming the cameras the calibration grades that measure another region.
+
+    A calibration's features must be measured where its cameras measure their frames': a
+    calibration from whole photos of street and sky grades a camera that sees only its sky
+    region as far hazier than it is. The region is the named camera's (``camera_id``); else,
+    when every camera in ``applies_to`` measures the same region, theirs (the uploads are their
+    frames); else the whole image, each upload being taken to be a sky image.
+    """
+    source = sky_camera(session, camera_id) if camera_id is not None else None
+    graded_q = select(Camera).where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
+    if applies_to:
+        graded_q = graded_q.where(Camera.id.in_(sorted(set(applies_to))))
+    graded = session.scalars(graded_q.order_by(Camera.id)).all()
+    if source is None and applies_to and graded:
+        if all(c.roi == graded[0].roi for c in graded):
+            source = graded[0]
+    region = source.roi if source is not None else None
+    differ = [c.id for c in graded if c.roi != region]
+    if not differ:
+        return source, []
+    where = (
+        f"camera {source.id!r}'s region"
+        if source is not None and region is not None
+        else "the whole image"
+    )
+    named = ", ".join(differ[:5]) + (f" and {len(differ) - 5} more" if len(differ) > 5 else "")
+    return source, [
+        f"the uploads were measured over {where}, but the cameras it grades {named} measure "
+        "another region: unless the uploads are just what those regions see, calibrate with "
+        "camera_id naming a camera whose full frames they are, or each group of cameras with "
+        "one region with applies_to"
+    ]
 
 
 def sky_camera(session: Session, camera_id: str) -> Camera:

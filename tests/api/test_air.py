@@ -55,10 +55,11 @@ def city(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
 def calibrate(
     client: TestClient,
     admin: dict[str, str],
-    camera: str = "sky0",
+    camera: str | None = "sky0",
     *,
     label: Any = None,
     applies_to: list[str] | None = None,
+    method: str = "clusters",
 ) -> Any:
     """Calibrate from synthetic skies of levels 1, 3, 5, 7 and 10, each labelled ``label(level)``
     (the level itself by default)."""
@@ -69,7 +70,9 @@ def calibrate(
                 ("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed=100 * level + k), "image/jpeg"))
             )
             levels.append(str(label(level) if label else level))
-    params: dict[str, Any] = {"camera_id": camera, "significance": 0.01}
+    params: dict[str, Any] = {"significance": 0.01, "method": method}
+    if camera is not None:
+        params["camera_id"] = camera
     if applies_to is not None:
         params["applies_to"] = applies_to
     return client.post(
@@ -430,6 +433,49 @@ def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibratio
     page = client.get("/air/calibrations", params={"limit": 1, "offset": 1}).json()
     assert [c["id"] for c in page] == [city_wide.json()["id"]]
     assert [c["city_wide"] for c in listed] == [True, True, False]
+
+
+def test_uploads_for_cameras_are_measured_in_their_region(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Uploads calibrating sky2 and sky3 (no camera_id) are those cameras' full frames: measured
+    in their common ROI (the sky), as their frames will be. Measured whole, the dark street
+    below would make every level look hazier than it is (to the regression on means; the
+    clusters' modes are the sky's either way)."""
+    r = calibrate(client, admin, None, applies_to=["sky2", "sky3"], method="regression")
+    assert r.status_code == 201, r.text
+    assert r.json()["warnings"] == []
+    for level in (2, 5, 9):
+        v = post(client, city, "sky3", level, seed=700 + level)
+        assert v["level"] is not None, v
+        assert abs(v["level"] - level) <= 1, v
+
+
+def test_a_calibration_measured_elsewhere_than_its_cameras_says_so(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Uploads measured whole (city-wide, no camera_id), or in a region other cameras do not
+    share: the model names the cameras it grades that measure another region."""
+    r = calibrate(client, admin, None)
+    assert r.status_code == 201, r.text
+    [warning] = [w for w in r.json()["warnings"] if "region" in w]
+    for part in ("the whole image", "sky0", "7 more", "camera_id"):
+        assert part in warning
+
+    odd = {"id": "odd", "kind": "sky", "lat": 45.4, "lon": 9.1, "roi": [0, 0, 160, 40]}
+    assert client.post("/cameras", json=odd, headers=admin).status_code == 201
+    r = calibrate(client, admin, "sky0", applies_to=["sky0", "odd"])
+    assert r.status_code == 201, r.text
+    [warning] = [w for w in r.json()["warnings"] if "region" in w]
+    assert "camera 'sky0'" in warning
+    assert "odd" in warning
+    assert "sky1" not in warning
+    # the same cameras without camera_id: no common region, measured whole, both named
+    r = calibrate(client, admin, None, applies_to=["sky0", "odd"])
+    assert r.status_code == 201, r.text
+    [warning] = [w for w in r.json()["warnings"] if "region" in w]
+    assert "the whole image" in warning
+    assert "odd, sky0" in warning
 
 
 def test_a_camera_released_from_its_own_calibration_is_graded_city_wide_again(
