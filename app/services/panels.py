@@ -201,10 +201,15 @@ class Trend:
     """The fitted F at the time of the status [–]."""
     threshold: float | None
     crossing_at: datetime | None
-    """When the fitted F reaches the threshold (None: flat or falling, or too few points)."""
+    """When the fitted F reaches the threshold (None: flat or falling, or too few points, or
+    too short a time)."""
 
 
 MIN_TREND_POINTS = 3
+MIN_TREND_SPAN = timedelta(hours=1)
+"""Soiling builds up over days: a line through frames less than this far apart (a burst, a
+camera's retries) is noise, and extrapolated it forecast crossings seconds away (a slope of
+4·10⁷ a day from four frames 30 ms apart)."""
 
 
 def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
@@ -238,10 +243,10 @@ def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
     if len(rows) < MIN_TREND_POINTS:
         return Trend(len(rows), None, None, threshold, None)
     t0 = rows[0][0]
+    if rows[-1][0] - t0 < MIN_TREND_SPAN:
+        return Trend(len(rows), None, None, threshold, None)
     days = np.array([(r[0] - t0) / timedelta(days=1) for r in rows])
     f = np.array([r[1] for r in rows], dtype=np.float64)
-    if np.ptp(days) == 0:
-        return Trend(len(rows), None, None, threshold, None)
     res = sstats.theilslopes(f, days)
     slope, intercept = float(res.slope), float(res.intercept)
     now_days = (now - t0) / timedelta(days=1)

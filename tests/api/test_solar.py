@@ -461,6 +461,23 @@ class TestTrend:
         assert trend["crossing_at"] is not None
         assert trend["threshold"] > 0
 
+    def test_a_burst_of_frames_is_no_trend(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """Frames ten minutes apart (``post_frame``): no slope and no forecast until they span
+        an hour."""
+        train(client, admin, clean_set(12))
+        for k in range(6):
+            post_frame(client, farm, CLEAN_RGB + DUST * k / 5, seed=k)
+        trend = status(client, admin)["trend"]
+        assert trend["points"] == 6
+        assert trend["slope_per_day"] is None
+        assert trend["crossing_at"] is None
+        post_frame(client, farm, CLEAN_RGB + DUST, seed=6)  # 60 minutes after the first
+        trend = status(client, admin)["trend"]
+        assert trend["slope_per_day"] > 0
+        assert trend["crossing_at"] is not None
+
 
 class TestEvaluate:
     def test_two_sample_and_rates(self, client: TestClient, admin: dict[str, str]) -> None:
