@@ -167,6 +167,12 @@ def triangulate_cross(
         points = _xy(rig, obs, z)
     elif method == "least_squares":
         points = _least_squares(rig, obs)
+        # behind the lens plane: no camera saw it, the views were mismatched (pixels swapped
+        # between cameras give a point mirrored to Z < 0 that reprojects exactly); the pairwise
+        # estimates drop such a depth likewise
+        with np.errstate(invalid="ignore"):
+            behind = ~(points[:, 2] > 0)
+        points[behind] = np.nan
     else:
         raise ValueError(f"unknown method {method!r}")
     spread = _nanstd(est, axis=1)
@@ -249,7 +255,8 @@ class View:
 @dataclass(frozen=True, slots=True)
 class RigResult:
     points: NDArray[np.float64]
-    """(N, 3) in the world frame; NaN where fewer than 2 views remain."""
+    """(N, 3) in the world frame; NaN where fewer than 2 views remain, or the point lies behind
+    a camera that saw it."""
     reprojection_rms: NDArray[np.float64]
     """(N,) [px] over the views used."""
     used: NDArray[np.bool_]
@@ -343,6 +350,11 @@ def triangulate_views(
     else:
         with ThreadPoolExecutor(workers) as pool:
             list(pool.map(lambda job: _chunk(*job), jobs))
+    # a point behind a camera that saw it was never seen: the views were mismatched
+    depth = points @ rig.rs[:, 2, :].T + rig.ts[:, 2]  # (N, V): z in each camera's frame
+    with np.errstate(invalid="ignore"):
+        behind = (use & ~(depth > 0)).any(axis=1)
+    points[behind], rms[behind], use[behind] = np.nan, np.nan, False
     return RigResult(points, rms, use)
 
 

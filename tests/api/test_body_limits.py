@@ -67,7 +67,7 @@ def test_a_json_body_under_the_cap_goes_through(small: TestClient, stream: bool)
 def test_triangulation_takes_many_points_up_to_the_upload_cap(small: TestClient) -> None:
     rig = {"id": "x", "kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2}
     assert small.post("/rigs", json=rig, headers=ADMIN).status_code == 201
-    point = [[440, 216], [200, 216], [320, 136], [320, 296]]
+    point = [[200, 216], [440, 216], [320, 296], [320, 136]]  # (0, 0.03, 1)
     many = json.dumps({"observations": [point] * 200}).encode()  # ~9 kB: over 2,000, under 50,000
     r = small.post("/rigs/x/triangulate", content=many, headers={**JSON, **ADMIN})
     assert r.status_code == 200, r.text

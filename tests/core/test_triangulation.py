@@ -78,6 +78,20 @@ class TestCross:
         keep = [0, 1, 2, 4, 5]
         np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-9)
 
+    @pytest.mark.parametrize("method", ["mean", "weighted", "least_squares"])
+    def test_views_swapped_between_cameras_are_no_point(self, method: str) -> None:
+        """Cameras 1 and 2 (and 3 and 4) given each other's pixels: the disparities change sign
+        and the linear solution is the point mirrored behind the lens plane, reprojecting
+        exactly. No camera saw that: NaN, as the pairwise estimates already said."""
+        p = points(6, seed=4)
+        obs = RIG.project(p)
+        obs[2] = obs[2][[1, 0, 3, 2]]
+        r = triangulate_cross(RIG, obs, method=method)
+        assert np.isnan(r.points[2]).all()
+        assert np.isnan(r.z_estimates[2]).all()
+        keep = [0, 1, 3, 4, 5]
+        np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-9)
+
 
 def calibrated_views() -> list[View]:
     k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
@@ -117,6 +131,21 @@ class TestCalibratedRig:
         assert rms["outlier"] < 1.6 * rms["clean"]
         obs[200:, 1:] = np.nan  # a single view is not enough
         assert np.isnan(triangulate_views(views, obs).points[200:]).all()
+
+    def test_a_point_behind_a_camera_that_saw_it_is_no_point(self) -> None:
+        """Two parallel cameras given each other's pixels: the rays meet behind them (exactly,
+        with no reprojection error), which no camera could have seen: NaN, no views used."""
+        k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+        views = [View(k, np.zeros(5), np.eye(3), np.array([x, 0.0, 0.0])) for x in (0.0, -0.3)]
+        p = points(5, seed=6) + [0, 0, 1.0]
+        obs = project_views(views, p)
+        obs[1] = obs[1][::-1]
+        r = triangulate_views(views, obs)
+        assert np.isnan(r.points[1]).all()
+        assert np.isnan(r.reprojection_rms[1])
+        assert not r.used[1].any()
+        keep = [0, 2, 3, 4]
+        np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-7)
 
     def test_two_gauss_newton_steps_converge(self) -> None:
         """The default steps reach the reprojection minimum: ten more move no point by more
