@@ -312,7 +312,7 @@ def upload_region(
     """The camera whose region uploaded calibration images are measured in (None: the whole
     image), and warnings naming the cameras the calibration grades that measure another region.
 
-    A calibration's features must be measured where its cameras measure their frames': a
+    A calibration's features must be measured where its cameras measure their frames: a
     calibration from whole photos of street and sky grades a camera that sees only its sky
     region as far hazier than it is. The region is the named camera's (``camera_id``); else,
     when every camera in ``applies_to`` measures the same region, theirs (the uploads are their
