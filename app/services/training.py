@@ -26,15 +26,20 @@ MIN_FLEET_PER_CLASS = 5
 def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> CameraInfo:
     """The camera whose ROI and decoding apply to uploaded images of a panel.
 
-    The named camera, else the panel's only camera, else the whole frame.
+    The named camera, else the panel's cameras in service when they all have one region (one
+    camera, or several with the same view of it), else the whole frame.
     """
     if camera_id is not None:
         camera = session.get(Camera, camera_id)
         if camera is None or camera.panel_id != panel_id:
             raise Unprocessable(f"camera {camera_id!r} does not watch panel {panel_id!r}")
         return CameraInfo.of(camera)  # features wanted: training may be for the fleet
-    cameras = session.scalars(select(Camera).where(Camera.panel_id == panel_id)).all()
-    if len(cameras) == 1:
+    cameras = session.scalars(
+        select(Camera)
+        .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+    ).all()
+    if cameras and all(c.roi == cameras[0].roi for c in cameras):
         return CameraInfo.of(cameras[0])
     return CameraInfo(id="upload", kind=CameraKind.panel, panel_id=panel_id, roi=None)
 

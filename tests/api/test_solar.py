@@ -186,6 +186,38 @@ class TestBaseline:
         r = client.post("/panels/p1/baseline", json={"frame_ids": ["nope"]}, headers=admin)
         assert r.status_code == 422
 
+    def test_uploads_are_measured_in_the_region_the_panels_cameras_share(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """Two cameras watch p1 through the same region (the left 60 px of 160); the uploads
+        are their full frames, mostly a wall. Measured in that region, as the frames will be,
+        the baseline is the panel's; measured whole it was the wall's, and clean frames were
+        judged dirty."""
+        region = [0, 0, 60, 120]
+        r = client.patch("/cameras/c1", json={"roi": region}, headers=admin)
+        assert r.status_code == 200, r.text
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": region}
+        assert client.post("/cameras", json=c2, headers=admin).status_code == 201
+
+        def beside_a_wall(photo: bytes, seed: int) -> bytes:
+            image = cv2.imdecode(np.frombuffer(photo, np.uint8), cv2.IMREAD_COLOR)
+            rng = np.random.default_rng(seed)
+            image[:, 60:] = np.clip(rng.normal((60, 90, 170), 6, (120, 100, 3)), 0, 255)
+            return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+
+        photos = [beside_a_wall(f, seed=i) for i, f in enumerate(clean_set(8))]
+        r = train(client, admin, photos)
+        assert r.status_code == 201, r.text
+        np.testing.assert_allclose(r.json()["mean_modes"], CLEAN_RGB, atol=4)
+        farm["clock"].advance(minutes=10)
+        r = client.post(
+            "/cameras/c1/frames",
+            content=beside_a_wall(panel_jpeg(CLEAN_RGB, seed=50), seed=50),
+            headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["verdict"]["clean"] is True
+
 
 class TestVerdicts:
     def test_clean_and_dirty(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
