@@ -172,6 +172,12 @@ class PanelVerdictOut(VerdictBase):
     state: str | None = Field(description="The panel's state after this verdict.")
     method: str | None = Field(default=None, description="baseline (T²) or fleet.")
     p_dirty: float | None = Field(default=None, description="Fleet model: p(needs cleaning).")
+    late: bool = Field(
+        default=False,
+        description="Taken before the panel's latest judged frame, or before the cleaning "
+        "awaiting confirmation was done (a late upload): judged, but it did not change the "
+        "panel's state or its tasks.",
+    )
 
 
 class SkyVerdictOut(VerdictBase):

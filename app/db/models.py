@@ -61,6 +61,9 @@ class Panel(TimestampMixin, Base):
     """The last usable verdict, or None before the first."""
     ineffective: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     """The last cleaning did not make the panel clean."""
+    last_judged_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the latest frame whose verdict drove the state machine was captured: a frame taken
+    before it (a camera's backlog uploaded late) is judged but does not drive it."""
 
 
 class Baseline(Base):
@@ -251,6 +254,9 @@ class PanelVerdict(Verdict):
     baseline_id: Mapped[str | None] = mapped_column(ForeignKey("baselines.id"))
     p_dirty: Mapped[float | None] = mapped_column(Float)
     """The fleet model's probability that the panel needs cleaning."""
+    late: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    """Taken before the panel's latest judged frame, or before the cleaning awaiting
+    confirmation was done: judged, but it did not drive the panel's state."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}
 

@@ -67,6 +67,7 @@ def verdict_out(verdict: Verdict) -> VerdictOut:
             state=verdict.state,
             method=verdict.method,
             p_dirty=verdict.p_dirty,
+            late=bool(verdict.late),
             **common,
         )
     if isinstance(verdict, SkyVerdict):

@@ -145,6 +145,19 @@ def apply_verdict(
     return task
 
 
+def is_late(panel: Panel, task: CleaningTask | None, captured_at: datetime) -> bool:
+    """Whether a frame was taken too early to drive the panel's state: before the latest frame
+    that did (a camera's backlog, uploaded after newer frames), or before the cleaning that
+    awaits confirmation was done. Debounce and confirmation follow the panel in the order it
+    was seen, not the order frames arrive: a clean frame from before the dust, uploaded after
+    the robot finished, confirmed a cleaning it never saw."""
+    if panel.last_judged_at is not None and captured_at < panel.last_judged_at:
+        return True
+    if task is None or task.status != TaskStatus.completed or task.completed_at is None:
+        return False
+    return captured_at < task.completed_at
+
+
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
     """A panel camera's verdict: the panel's own T² baseline, else the fleet model.
 
@@ -156,6 +169,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         camera_id=camera.id,
         panel_id=camera.panel_id,
         clean=None,
+        late=False,
         **stats_columns(decoded.stats),
     )
     if camera.panel_id is None:
@@ -183,7 +197,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         verdict.clean = p_dirty < model.threshold
     else:
         verdict.reason = "no baseline: train one (POST /panels/{id}/baseline) or a fleet model"
-    if verdict.clean is not None:
+    verdict.late = verdict.clean is not None and is_late(panel, task, frame.captured_at)
+    if verdict.clean is not None and not verdict.late:
+        panel.last_judged_at = frame.captured_at
         task = apply_verdict(
             session, panel, task, verdict.clean, now, policy, fleet_available=fleet_available
         )

@@ -291,6 +291,66 @@ class TestRobotLoop:
             "task_id": None,
         }
 
+    def test_frames_taken_before_the_cleaning_do_not_confirm_it(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """A camera uploads its backlog after the robot finished: a clean frame taken before
+        the dust, then one taken after the dust but before the cleaning. Judged, marked late,
+        and the task waits for a frame taken after the cleaning."""
+        robot = bearer(farm["robots"]["r1"])
+        dirty_with_a_task(client, admin, farm)
+        task_id = client.post("/cleaning/claim", headers=robot).json()["task_id"]
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=robot).status_code == 200
+        clock = farm["clock"]
+
+        def backlog(minutes_ago: int) -> Any:
+            taken = clock.now - timedelta(minutes=minutes_ago)
+            r = client.post(
+                "/cameras/c1/frames",
+                content=panel_jpeg(CLEAN_RGB, seed=minutes_ago),
+                headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+                params={"captured_at": taken.isoformat()},
+            )
+            assert r.status_code == 201, r.text
+            return r.json()["verdict"]
+
+        for minutes_ago in (60, 5):  # before the dusty frames; after them, before the cleaning
+            clock.advance(minutes=1)
+            v = backlog(minutes_ago)
+            assert v["clean"] is True
+            assert v["late"] is True
+            assert v["state"] == "cleaning"
+        task = client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()
+        assert task["status"] == "completed"
+        v = post_frame(client, farm, CLEAN_RGB)  # taken now, after the cleaning
+        assert v["late"] is False
+        assert v["state"] == "clean"
+        task = client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()
+        assert (task["status"], task["outcome"]) == ("closed", "effective")
+
+    def test_a_backlog_of_dirty_frames_does_not_open_a_task(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """Three dusty frames from yesterday arrive after today's clean one: the panel was
+        cleaned since; the debounce counts frames in the order they were taken."""
+        train(client, admin, clean_set(10))
+        assert post_frame(client, farm, CLEAN_RGB)["late"] is False
+        for hours_ago in (26, 25, 24):
+            taken = farm["clock"].now - timedelta(hours=hours_ago)
+            r = client.post(
+                "/cameras/c1/frames",
+                content=panel_jpeg(CLEAN_RGB + DUST, seed=hours_ago),
+                headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+                params={"captured_at": taken.isoformat()},
+            )
+            v = r.json()["verdict"]
+            assert v["clean"] is False
+            assert v["late"] is True
+            assert v["state"] == "clean"
+        s = status(client, admin)
+        assert s["open_task"] is None
+        assert s["dirty_streak"] == 0
+
     def test_ineffective_cleaning(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
