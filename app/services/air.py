@@ -269,14 +269,18 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         if g.level is not None:
             verdict.level = g.level
             verdict.category = airquality.category(g.level)
+    # the camera's readings up to this frame's capture: a frame uploaded late (a backlog) is
+    # smoothed with the hours before it was taken, not with the readings taken since
     since = frame.captured_at - timedelta(hours=airquality.NOWCAST_HOURS)
-    history = session.execute(
+    graded = (
         select(Frame.captured_at, SkyVerdict.level, SkyVerdict.smoothed_level)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(
-            Frame.camera_id == camera.id, Frame.captured_at >= since, SkyVerdict.level.is_not(None)
+        .where(Frame.camera_id == camera.id, SkyVerdict.level.is_not(None))
+    )
+    history = session.execute(
+        graded.where(Frame.captured_at >= since, Frame.captured_at <= frame.captured_at).order_by(
+            Frame.captured_at.desc(), Frame.received_at.desc()
         )
-        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
     ).all()
     times = [r[0] for r in history]
     levels = [float(r[1]) for r in history if r[1] is not None]
@@ -290,6 +294,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         smoothed is not None
         and round(smoothed) <= airquality.POOR_LEVEL
         and (previous is None or round(previous) > airquality.POOR_LEVEL)
+        # the air of hours ago, seen after newer readings: history, not an alert
+        and session.execute(graded.where(Frame.captured_at > frame.captured_at).limit(1)).first()
+        is None
     ):
         session.add(
             AirAlert(

@@ -171,6 +171,37 @@ def test_alert_when_the_smoothed_level_turns_poor(
     assert alerts[0]["category"] in ("Poor", "Very Poor")
 
 
+def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """sky1 reports clean air for three hours, then uploads its backlog: four frames of haze
+    taken six hours ago. They are graded and smoothed with the hours before they were taken
+    (Very Poor then), but they raise no alert now and the camera's latest stays clean."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    token = city["tokens"]["sky1"][0]
+    for k in range(4):
+        taken = city["clock"].now - timedelta(hours=6) + timedelta(minutes=20 * k)
+        r = client.post(
+            "/cameras/sky1/frames",
+            content=sky_jpeg(1, seed=20 + k),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+            params={"captured_at": taken.isoformat()},
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["verdict"]["level"] in (1, 2)
+    assert client.get("/air/alerts").json() == []
+    latest = client.get("/air/cameras/sky1/latest").json()
+    assert latest["level"] == 10
+    assert latest["smoothed_level"] == pytest.approx(10)
+    readings = client.get("/air/readings", params={"camera_id": "sky1"}).json()
+    late = [r for r in readings if r["level"] in (1, 2)]
+    assert len(late) == 4
+    assert all(r["smoothed_level"] <= 2 for r in late)  # the hours before them had no reading
+
+
 class TestBadInput:
     def test_empty_city_is_an_empty_collection(self, client: TestClient) -> None:
         fc = client.get("/air/isopleths").json()
