@@ -13,7 +13,6 @@ from pydantic import StringConstraints
 from sqlalchemy.orm import Session
 
 from app.core import airquality, isopleths
-from app.db.models import CameraKind
 from app.deps import (
     ID_PATTERN,
     Admin,
@@ -38,7 +37,6 @@ from app.schemas import (
     AirReading,
 )
 from app.services import air, training
-from app.services.camera_info import CameraInfo
 from app.services.policy import Policy
 from app.uploads import content_type, read_form, read_json
 
@@ -64,12 +62,7 @@ def _from_files(
     method: str,
     applies_to: list[str],
 ) -> AirCalibrationOut:
-    source, warnings = air.upload_region(session, camera_id, applies_to)
-    camera = (
-        CameraInfo.of(source)
-        if source is not None
-        else CameraInfo(id="upload", kind=CameraKind.sky, panel_id=None, roi=None)
-    )
+    camera, warnings = air.upload_region(session, camera_id, applies_to)
     decoded = training.decode_all(files, camera, max_pixels=max_pixels)
     feats = np.array([d.features for d in decoded], dtype=np.float64)
     row = air.calibrate(

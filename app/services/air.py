@@ -24,6 +24,7 @@ from app.db.models import (
     SkyVerdict,
 )
 from app.errors import NotFound, Unprocessable
+from app.services.camera_info import CameraInfo, one_view, uploads_in
 from app.services.policy import Policy
 from app.services.verdicts import stats_columns
 
@@ -315,9 +316,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
 
 def upload_region(
     session: Session, camera_id: str | None, applies_to: Sequence[str]
-) -> tuple[Camera | None, list[str]]:
-    """The camera whose region uploaded calibration images are measured in (None: the whole
-    image), and warnings naming the cameras the calibration grades that measure another region.
+) -> tuple[CameraInfo, list[str]]:
+    """How uploaded calibration images are measured (a camera's region, or the whole image),
+    and warnings naming the cameras the calibration grades that measure another region.
 
     A calibration's features must be measured where its cameras measure their frames: a
     calibration from whole photos of street and sky grades a camera that sees only its sky
@@ -330,20 +331,20 @@ def upload_region(
     if applies_to:
         graded_q = graded_q.where(Camera.id.in_(sorted(set(applies_to))))
     graded = session.scalars(graded_q.order_by(Camera.id)).all()
-    if source is None and applies_to and graded:
-        if all(c.roi == graded[0].roi for c in graded):
-            source = graded[0]
+    if source is None and applies_to:
+        source = one_view(graded)
     region = source.roi if source is not None else None
     differ = [c.id for c in graded if c.roi != region]
+    measured = uploads_in(source, CameraKind.sky)
     if not differ:
-        return source, []
+        return measured, []
     where = (
         f"camera {source.id!r}'s region"
         if source is not None and region is not None
         else "the whole image"
     )
     named = ", ".join(differ[:5]) + (f" and {len(differ) - 5} more" if len(differ) > 5 else "")
-    return source, [
+    return measured, [
         f"the uploads were measured over {where}, but the cameras it grades {named} measure "
         "another region: unless the uploads are just what those regions see, calibrate with "
         "camera_id naming a camera whose full frames they are, or each group of cameras with "

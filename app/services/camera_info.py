@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from app.core.stats import Polygon, Roi
@@ -34,6 +35,21 @@ class CameraInfo:
             x, y, w, h = (int(v) for v in r if isinstance(v, int))
             roi = (x, y, w, h)
         return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
+
+
+def one_view(cameras: Sequence[Camera]) -> Camera | None:
+    """The first camera when every one measures the same region (their uploads are measured
+    there, as their frames are), else None (uploads are measured whole)."""
+    if cameras and all(c.roi == cameras[0].roi for c in cameras):
+        return cameras[0]
+    return None
+
+
+def uploads_in(camera: Camera | None, kind: CameraKind, panel_id: str | None = None) -> CameraInfo:
+    """How uploaded training images are measured: in ``camera``'s region, else whole."""
+    if camera is not None:
+        return CameraInfo.of(camera)
+    return CameraInfo(id="upload", kind=kind, panel_id=panel_id, roi=None)
 
 
 class TokenCache:

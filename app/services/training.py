@@ -16,7 +16,7 @@ from app.core import soiling
 from app.core.fleet import FEATURES
 from app.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
 from app.errors import Unprocessable, VantageError
-from app.services.camera_info import CameraInfo
+from app.services.camera_info import CameraInfo, one_view, uploads_in
 from app.services.ingest import Decoded, analyse
 from app.services.panels import lock_panel
 
@@ -39,9 +39,7 @@ def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> Came
         .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
         .order_by(Camera.id)
     ).all()
-    if cameras and all(c.roi == cameras[0].roi for c in cameras):
-        return CameraInfo.of(cameras[0])
-    return CameraInfo(id="upload", kind=CameraKind.panel, panel_id=panel_id, roi=None)
+    return uploads_in(one_view(cameras), CameraKind.panel, panel_id)
 
 
 def decode_all(
