@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 from pydantic import StringConstraints
 from sqlalchemy.orm import Session
@@ -184,8 +185,7 @@ async def calibrate(
         )
     if kind == "application/json":
         body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
-        return await image_work(
-            request,
+        return await run_in_threadpool(  # stored features, no image: no image_work
             partial(
                 _from_frames,
                 session,

@@ -6,6 +6,7 @@ from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.db.models import Baseline, CameraKind
@@ -186,8 +187,7 @@ async def train_baseline(
         )
     if kind == "application/json":
         body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
-        return await image_work(
-            request,
+        return await run_in_threadpool(  # stored modes, no image: no image_work
             _train_from_frames,
             session,
             panel_id,
