@@ -225,7 +225,7 @@ MIN_TREND_POINTS = 3
 MIN_TREND_SPAN = timedelta(hours=1)
 """Soiling builds up over days: a line through frames less than this far apart (a burst, a
 camera's retries) is noise, and extrapolated it forecast crossings seconds away (a slope of
-4·10⁷ a day from four frames 30 ms apart)."""
+4·10⁷ a day from four frames posted back to back, within 0.3 s)."""
 
 
 def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
