@@ -922,7 +922,10 @@ def measure(
 
 def _in_front(r: NDArray[np.float64], t: NDArray[np.float64], tri: Triangulator) -> Triangulator:
     """``tri``, with NaN for a point behind any camera that saw it: a laser spot lies in front
-    of the rig, so such a point is a wrong match (of noise, or of two different spots)."""
+    of the rig, so such a point is a wrong match (of noise, or of two different spots). The
+    triangulators already refuse a point behind a view they used; this also refuses one behind
+    a view the calibrated rig's RANSAC set aside, since a candidate match must hold in every
+    view that saw its spot."""
 
     def checked(obs: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         points, rms = tri(obs)
