@@ -4,7 +4,9 @@ Each scene is a box or an upright cylinder on a table at 1 m, seen by the 4-came
 (f = 1000 px, ax = 0.30, ay = 0.20 m, 640 × 480), the grid (1.2 cm cells at 1 m) projected from
 the cross's centre, pixel noise σ = 2 grey levels (renders: tests/core/laser_scenes.py). For
 each: the errors of volume, measured surface area (the part's top) and side area against the
-part's own dimensions, and the time of each stage.
+part's own dimensions, and the time of each stage. Then the first box at other grid pitches,
+and at other exposures (every channel scaled, clipped at 255) and JPEG qualities, as a camera
+delivers its photos: the laser dot's error against its exact point, and the grid's errors.
 
     python bench/laser_grid.py
 """
@@ -15,10 +17,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.core import laser, laser_grid  # noqa: E402
-from tests.core.laser_scenes import RIG, Part, Scene, render  # noqa: E402
+from tests.core.laser_scenes import RIG, Part, Scene, photographed, render  # noqa: E402
 
 SCENES = [
     # shape, dims [m], centre [m], yaw, table tilt, grid rotation [rad]
@@ -94,6 +98,35 @@ def main() -> None:
             f"{100 * (m.surface_area / part.top_area - 1):+.1f} % | "
             f"{100 * (m.side_area / part.side_area - 1):+.1f} % |"
         )
+
+    print("\nExposure and JPEG quality (the first box; the dot is at (0, 0, 0.92) exactly):\n")
+    print("| exposure | format | dot error [mm] | dot RMS [px] | nodes | volume | surface | side |")
+    print("|---|---|---|---|---|---|---|---|")
+    scene = Scene(part, table_tilt=0.05, grid_rotation=0.1)
+    images, dots = render(scene, seed=1), render(scene, mode="dot", seed=2)
+    for gain in (0.5, 0.7, 1.0, 1.4, 1.6, 2.0):
+        for quality in (0, 95, 80):
+            grid_ims, dot_ims = (
+                [photographed(im, gain, quality) for im in ims] for ims in (images, dots)
+            )
+            fmt = f"JPEG {quality}" if quality else "PNG"
+            try:
+                dot = laser.locate([laser.find_spots(d) for d in dot_ims], geo.triangulate)
+            except ValueError as exc:
+                print(f"| {gain} | {fmt} | {str(exc).split(':')[0]} | | | | | |")
+                continue
+            nodes = [laser_grid.detect(im) for im in grid_ims]
+            grid = laser_grid.label(
+                nodes, laser_grid.match(nodes, geo, origin=dot.point), geo, origin=dot.point
+            )
+            m = laser_grid.measure(grid, nodes, geo)
+            error = 1000 * float(np.linalg.norm(dot.point - [0.0, 0.0, 0.92]))
+            print(
+                f"| {gain} | {fmt} | {error:.2f} | {dot.reprojection_rms:.2f} | "
+                f"{len(grid.points)} | {100 * (m.volume / part.volume - 1):+.1f} % | "
+                f"{100 * (m.surface_area / part.top_area - 1):+.1f} % | "
+                f"{100 * (m.side_area / part.side_area - 1):+.1f} % |"
+            )
 
 
 if __name__ == "__main__":

@@ -5,11 +5,13 @@ irregular quadrilateral whose corners the cameras locate in 3-D. The dissertatio
 idea ("divides the luggage into small sections and computes the volume of each small section");
 this module makes it a measurement:
 
-1. **Nodes in each view** (:func:`detect`). The lines are the red excess R − max(G, B). An
-   opening with a horizontal (vertical) segment keeps the roughly horizontal (vertical) lines;
-   where both survive is a node. Each node is refined to sub-pixel accuracy by fitting the two
-   lines through it (column- and row-wise centroids) and intersecting them. Consecutive nodes
-   along a line are neighbours when the line runs unbroken between them.
+1. **Nodes in each view** (:func:`detect`). The lines are the red excess R − max(G, B) above
+   that of the surface they fall on (a white top-hat), so a reddish part does not pass for
+   line when the exposure saturates the lines' red. An opening with a horizontal (vertical)
+   segment keeps the roughly horizontal (vertical) lines; where both survive is a node. Each
+   node is refined to sub-pixel accuracy by fitting the two lines through it (column- and
+   row-wise centroids) and intersecting them. Consecutive nodes along a line are neighbours
+   when the line runs unbroken between them.
 2. **Correspondence** (:func:`match`). The grid is periodic, so a node's partner in another view
    is ambiguous along the epipolar line. Every candidate pair within ``tol_px`` of the epipolar
    line is triangulated and projected into the other views; the candidate that the most views
@@ -101,10 +103,21 @@ class Nodes:
     """Typical line brightness in ``excess``."""
 
 
+_BACKGROUND_KERNEL = cv2.getStructuringElement(cv2.MORPH_RECT, (OPEN_LENGTH, OPEN_LENGTH))
+
+
 def _excess(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """The lines' red excess above the surface they fall on: R − max(G, B), smoothed, less its
+    morphological opening by a square wider than a line (a white top-hat). A reddish surface
+    (cardboard, wood) has an excess of its own, and a bright exposure saturates R on the
+    lines, so on such a surface the lines stand only a little above it: one threshold for the
+    whole image would take the surface for lines."""
     r = rgb[..., 0].astype(np.float32)
     e = r - np.maximum(rgb[..., 1], rgb[..., 2]).astype(np.float32)
-    return np.asarray(cv2.GaussianBlur(np.maximum(e, 0), (0, 0), 0.8), dtype=np.float32)
+    smooth = cv2.GaussianBlur(np.maximum(e, 0), (0, 0), 0.8)
+    return np.asarray(
+        cv2.morphologyEx(smooth, cv2.MORPH_TOPHAT, _BACKGROUND_KERNEL), dtype=np.float32
+    )
 
 
 def _patches(image: NDArray[np.float32], centres: NDArray[np.int64], r: int) -> NDArray[np.float32]:

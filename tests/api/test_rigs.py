@@ -268,6 +268,39 @@ class TestLaserGrid:
         assert r2.json()["volume"] == pytest.approx(truth.part.volume, rel=0.02)
         np.testing.assert_allclose(r2.json()["base_plane"], truth.base_plane(), atol=1e-9)
 
+    def test_over_exposed_jpeg_photos(self, client: TestClient, admin: dict[str, str]) -> None:
+        """The box as a camera sends it: JPEG (quality 80) and over-exposed, the lines' red
+        saturated on the brown box. Before, this came back 200 with a volume of 0."""
+        import cv2
+
+        from tests.core.laser_scenes import photographed
+
+        truth, grid, dots = grid_scene()
+
+        def jpeg(images: list[np.ndarray], field: str) -> list[tuple[str, tuple]]:
+            quality = [cv2.IMWRITE_JPEG_QUALITY, 80]
+            return [
+                (
+                    field,
+                    (
+                        f"{i}.jpg",
+                        cv2.imencode(".jpg", im[:, :, ::-1], quality)[1].tobytes(),
+                        "image/jpeg",
+                    ),
+                )
+                for i, im in enumerate(photographed(im, 1.6) for im in images)
+            ]
+
+        client.post("/rigs", json=self.CROSS, headers=admin)
+        r = client.post(
+            "/rigs/cell/laser/grid",
+            files=jpeg(grid, "files") + jpeg(dots, "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        assert r.json()["volume"] == pytest.approx(truth.part.volume, rel=0.02)
+        assert r.json()["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+
     def test_the_same_images_on_a_calibrated_rig(
         self, client: TestClient, admin: dict[str, str]
     ) -> None:

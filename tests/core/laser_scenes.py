@@ -168,3 +168,14 @@ def render(
         image = image + rng.normal(0.0, 2.0, image.shape)
         images.append(np.clip(np.rint(image), 0, 255).astype(np.uint8))
     return images
+
+
+def photographed(rgb: np.ndarray, gain: float = 1.0, quality: int = 0) -> np.ndarray:
+    """A render as a camera delivers it: exposure scaled by ``gain`` (every channel clipped at
+    255, as a sensor saturates), then JPEG at ``quality`` (0: lossless), decoded again."""
+    out = np.clip(rgb.astype(np.float64) * gain, 0, 255).astype(np.uint8)
+    if not quality:
+        return out
+    ok, buf = cv2.imencode(".jpg", out[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+    assert ok
+    return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[:, :, ::-1])
