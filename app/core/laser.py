@@ -14,9 +14,24 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 MAX_CANDIDATES = 4
 """Per view, the brightest this many blobs are considered."""
+
+SATURATED = 250
+"""A channel at or above this is saturated."""
+
+MIN_PLATEAU = 9
+"""Saturated pixels from which a blob's centroid is the plateau's [px]: fewer are a peak
+that only touches saturation, better located by its excess."""
+
+MAX_RMS_PX = 2.0
+"""A dot's views agree to this reprojection RMS [px]. Measured on renders of the dot (σ 1.5
+px) at exposures from half to twice the nominal, PNG and JPEG quality 60–95: 0.02–1.11 px
+(the worst a dim dot at quality 60, its chroma halved and blocky). Views over-exposed until
+the dot had vanished (2.5–3 times, the table white) gave red patches of the part instead,
+whose best choice reprojected at 3.5–39 px."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,36 +42,64 @@ class Spot:
     area: int
     """[px]"""
     strength: float
-    """Sum of the red excess over the blob."""
+    """Sum of the centroid's weights over the blob."""
 
 
 def find_spots(
-    rgb: NDArray[np.uint8], *, min_red: int = 150, min_excess: int = 60, max_area: int = 2000
+    rgb: NDArray[np.uint8], *, min_excess: float = 30.0, max_area: int = 2000
 ) -> list[Spot]:
-    """Red blobs in an RGB image, strongest first: R ≥ ``min_red`` and R − max(G, B) ≥
-    ``min_excess``; centroids weighted by the red excess."""
+    """Red blobs in an RGB image, the most intense first (at most ``MAX_CANDIDATES``).
+
+    The red excess E = R − max(G, B), smoothed, marks red. A blob is a connected region of
+    pixels that are red (E ≥ ``min_excess``) or whose R is saturated, with at least one red
+    pixel: a dot bright enough to saturate all three channels at its centre has no excess
+    there, only in the ring around it. Its centroid is weighted by E above half the blob's
+    peak (or above ``min_excess``, whichever is higher: a weight that falls to zero where
+    the blob ends), so that it does not depend on the exposure; where R is saturated over a
+    plateau of ``MIN_PLATEAU`` pixels or more, by the brightness R + G + B, smoothed, above
+    its lowest on the plateau instead (the excess is flat or falls there). Blobs larger than
+    ``max_area`` [px] are not dots. Ranked by peak excess, not by summed excess, which a
+    large dull-red patch would win.
+    """
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an RGB image (H, W, 3), uint8; got {rgb.shape}")
-    r = rgb[..., 0].astype(np.int16)
-    excess = r - np.maximum(rgb[..., 1], rgb[..., 2]).astype(np.int16)
-    mask = ((r >= min_red) & (excess >= min_excess)).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    spots = []
-    for k in range(1, n):
-        area = int(stats[k, cv2.CC_STAT_AREA])
-        if area > max_area:
-            continue
-        ys, xs = np.nonzero(labels == k)
-        w = excess[ys, xs].astype(np.float64)
-        spots.append(
-            Spot(
-                float((xs * w).sum() / w.sum()),
-                float((ys * w).sum() / w.sum()),
-                area,
-                float(w.sum()),
-            )
+    r = rgb[..., 0]
+    excess = cv2.GaussianBlur(
+        r.astype(np.float32) - np.maximum(rgb[..., 1], rgb[..., 2]), (0, 0), 1.0
+    )
+    saturated = r >= SATURATED
+    n, blobs = cv2.connectedComponents(
+        ((excess >= min_excess) | saturated).astype(np.uint8), connectivity=8
+    )
+    if n <= 1:
+        return []
+    index = np.arange(1, n)
+    peak = np.concatenate([[0.0], ndimage.maximum(excess, blobs, index)])
+    floor = np.maximum(0.5 * peak, min_excess)[blobs]
+    weight = np.maximum(excess - floor, 0.0) * (blobs > 0)
+    on_plateau = np.where(saturated, blobs, 0)
+    plateau = np.concatenate([[0.0], ndimage.sum_labels(saturated, on_plateau, index)])
+    if (plateau >= MIN_PLATEAU).any():
+        brightness = cv2.GaussianBlur(rgb.astype(np.float32).sum(axis=2), (0, 0), 1.0)
+        lowest = np.concatenate([[0.0], ndimage.minimum(brightness, on_plateau, index)])
+        weight = np.where(
+            plateau[blobs] >= MIN_PLATEAU,
+            np.where(on_plateau > 0, brightness - lowest[blobs] + 1.0, 0.0),
+            weight,
         )
-    return sorted(spots, key=lambda s: s.strength, reverse=True)[:MAX_CANDIDATES]
+    area = ndimage.sum_labels(blobs > 0, blobs, index)
+    total = ndimage.sum_labels(weight, blobs, index)
+    ys, xs = np.indices(weight.shape, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = ndimage.sum_labels(weight * xs, blobs, index) / total
+        v = ndimage.sum_labels(weight * ys, blobs, index) / total
+    found = [
+        (peak[k], Spot(float(u[k - 1]), float(v[k - 1]), int(area[k - 1]), float(total[k - 1])))
+        for k in index
+        if peak[k] >= min_excess and area[k - 1] <= max_area and total[k - 1] > 0
+    ]
+    found.sort(key=lambda f: f[0], reverse=True)
+    return [spot for _, spot in found[:MAX_CANDIDATES]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,10 +113,18 @@ Triangulator = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArra
 """(N, V, 2) observations → ((N, 3) points, (N,) reprojection RMS [px])."""
 
 
-def locate(candidates: list[list[Spot]], triangulate: Triangulator, *, min_views: int = 2) -> Dot:
+def locate(
+    candidates: list[list[Spot]],
+    triangulate: Triangulator,
+    *,
+    min_views: int = 2,
+    max_rms: float = MAX_RMS_PX,
+) -> Dot:
     """The most consistent choice of one spot per view (views without spots left out).
 
-    Raises ValueError naming the views without a dot when fewer than ``min_views`` have one.
+    Raises ValueError naming the views without a dot when fewer than ``min_views`` have one,
+    and when no choice of spots reprojects within ``max_rms`` [px]: red spots that are not
+    one point in space.
     """
     seen = [i for i, c in enumerate(candidates) if c]
     if len(seen) < min_views:
@@ -91,6 +142,11 @@ def locate(candidates: list[list[Spot]], triangulate: Triangulator, *, min_views
     points, rms = triangulate(obs)
     rms = np.where(np.isfinite(rms), rms, np.inf)
     best = int(np.argmin(rms))
+    if rms[best] > max_rms:
+        raise ValueError(
+            f"the red spots found in the views do not meet in one point (the best choice "
+            f"reprojects at {rms[best]:.2g} px, more than {max_rms:g}): no laser dot"
+        )
     pixels: list[tuple[float, float] | None] = [None] * v
     for i, s in zip(seen, combos[best], strict=True):
         pixels[i] = (s.u, s.v)
