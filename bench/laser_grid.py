@@ -22,6 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.core import laser, laser_grid  # noqa: E402
+from app.core.triangulation import CrossRig  # noqa: E402
 from tests.core.laser_scenes import RIG, Part, Scene, photographed, render  # noqa: E402
 
 SCENES = [
@@ -127,6 +128,35 @@ def main() -> None:
                 f"{100 * (m.surface_area / part.top_area - 1):+.1f} % | "
                 f"{100 * (m.side_area / part.side_area - 1):+.1f} % |"
             )
+
+    print("\nCamera resolution (the first box; focal length and sensor scaled together):\n")
+    print("| f [px] | image | cell [px] | reduced by | nodes | volume | surface | time |")
+    print("|---|---|---|---|---|---|---|---|")
+    for f, size in (
+        (1000, (640, 480)),
+        (2000, (1280, 960)),
+        (3000, (1920, 1440)),
+        (4000, (2560, 1920)),
+        (6000, (3840, 2880)),
+    ):
+        rig = CrossRig(f=float(f), ax=RIG.ax, ay=RIG.ay, cx=size[0] / 2, cy=size[1] / 2)
+        cam = laser_grid.cross_geometry(rig)
+        images = render(scene, rig=rig, size=size, seed=1)
+        dots = render(scene, mode="dot", rig=rig, size=size, seed=2)
+        t0 = time.perf_counter()
+        dot = laser.locate([laser.find_spots(d) for d in dots], cam.triangulate)
+        nodes = [laser_grid.detect(im) for im in images]
+        grid = laser_grid.label(
+            nodes, laser_grid.match(nodes, cam, origin=dot.point), cam, origin=dot.point
+        )
+        m = laser_grid.measure(grid, nodes, cam)
+        print(
+            f"| {f} | {size[0]} × {size[1]} | {f * scene.pitch:.0f} | "
+            f"{max(n.scale for n in nodes)} | {len(grid.points)} | "
+            f"{100 * (m.volume / part.volume - 1):+.1f} % | "
+            f"{100 * (m.surface_area / part.top_area - 1):+.1f} % | "
+            f"{time.perf_counter() - t0:.1f} s |"
+        )
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ this module makes it a measurement:
 from __future__ import annotations
 
 import heapq
+import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -101,6 +102,11 @@ class Nodes:
     """The smoothed red excess, for tracing line ends."""
     level: float
     """Typical line brightness in ``excess``."""
+    cell: float = 0.0
+    """Median distance between neighbouring nodes [px]."""
+    scale: int = 1
+    """The reduction the nodes were found at (``detect``): their error in the image's pixels
+    grows with it, and so do the pixel tolerances of matching and labelling."""
 
 
 _BACKGROUND_KERNEL = cv2.getStructuringElement(cv2.MORPH_RECT, (OPEN_LENGTH, OPEN_LENGTH))
@@ -186,6 +192,8 @@ def _fit_lines(w: NDArray[np.float32], r: int) -> tuple[NDArray[np.float64], ...
 
 def _sample(image: NDArray[np.float32], pts: NDArray[np.float64]) -> NDArray[np.float64]:
     """Bilinear samples of ``image`` at (..., 2) points (x, y); 0 outside."""
+    if pts.size == 0:  # OpenCV refuses an empty map
+        return np.zeros(pts.shape[:-1])
     flat = pts.reshape(-1, 2).astype(np.float32)
     out = cv2.remap(
         image,
@@ -198,10 +206,75 @@ def _sample(image: NDArray[np.float32], pts: NDArray[np.float64]) -> NDArray[np.
     return np.asarray(out, dtype=np.float64).reshape(pts.shape[:-1])
 
 
+MAX_CELL_PX = 16.0
+"""Cells larger than this [px] are found in a reduced copy of the image: the kernels above
+(``OPEN_LENGTH``, the top-hat's square, the node windows) are sized for lines a few pixels wide
+and cells of 9–16 px, and a long lens or a large sensor makes both wider."""
+
+REDUCED_CELL_PX = 14.0
+"""The cell size [px] the reduced copy aims at."""
+
+MIN_REDUCED_SIDE = 100
+"""A copy is not reduced below this many pixels on its short side."""
+
+
+def _reduced(rgb: NDArray[np.uint8], k: int) -> NDArray[np.uint8]:
+    """The image reduced by the whole factor ``k`` (pixel areas averaged)."""
+    if k == 1:
+        return rgb
+    h, w = rgb.shape[:2]
+    return np.asarray(cv2.resize(rgb, (w // k, h // k), interpolation=cv2.INTER_AREA))
+
+
+def _agree(fine: Nodes, k: int, coarse: Nodes) -> bool:
+    """The nodes found at reduction ``k`` and at ``2k`` say the same cell (within 15 %) and
+    as many nodes (the finer at least 80 % of the coarser): the finer scale is no worse."""
+    if fine.cell <= 0 or coarse.cell <= 0:
+        return fine.cell > 0 and len(coarse.uv) == 0
+    same_cell = abs(fine.cell - 2 * coarse.cell) <= 0.15 * 2 * coarse.cell
+    return same_cell and len(fine.uv) >= 0.8 * len(coarse.uv)
+
+
 def detect(rgb: NDArray[np.uint8], *, min_excess: float = 40.0) -> Nodes:
-    """The grid's nodes in one RGB image (H, W, 3), uint8, and the line links between them."""
+    """The grid's nodes in one RGB image (H, W, 3), uint8, and the line links between them.
+
+    The grid's cell size is not known in advance: lines too wide for the kernels are not found
+    at full size, and what is found there (a few stray crossings) says the wrong cell. So the
+    image is also searched reduced by 2, 4, …, until two successive scales agree (``_agree``);
+    the cell they measure sets the reduction the nodes come from: none for cells up to
+    ``MAX_CELL_PX``, else the whole factor that brings them to about ``REDUCED_CELL_PX``. The
+    nodes are returned in the image's own pixels, and ``excess`` is the reduced copy's,
+    enlarged again, for tracing line ends."""
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an RGB image (H, W, 3), uint8; got {rgb.shape}")
+    found = {1: _detect(rgb, min_excess)}
+    k = 1
+    while min(rgb.shape[:2]) // (2 * k) >= MIN_REDUCED_SIDE:
+        found[2 * k] = _detect(_reduced(rgb, 2 * k), min_excess)
+        if _agree(found[k], k, found[2 * k]):
+            break
+        k *= 2
+    cell = found[k].cell * k  # [px of the image]
+    if cell <= MAX_CELL_PX:
+        return found[1]
+    k = math.ceil(cell / REDUCED_CELL_PX)
+    reduced = found.get(k) or _detect(_reduced(rgb, k), min_excess)
+    if len(reduced.uv) == 0:
+        return found[1]
+    h, w = rgb.shape[:2]
+    excess = cv2.resize(reduced.excess, (w, h), interpolation=cv2.INTER_LINEAR)
+    # pixel centres: reduced pixel i covers the image's pixels k·i … k·i + k − 1
+    return Nodes(
+        (reduced.uv + 0.5) * k - 0.5,
+        reduced.links,
+        np.asarray(excess, dtype=np.float32),
+        reduced.level,
+        reduced.cell * k,
+        k,
+    )
+
+
+def _detect(rgb: NDArray[np.uint8], min_excess: float) -> Nodes:
     e = _excess(rgb)
     empty = Nodes(np.zeros((0, 2)), np.zeros((0, 3), np.int64), e, 0.0)
     bright = e[e > min_excess / 2]
@@ -238,7 +311,7 @@ def detect(rgb: NDArray[np.uint8], *, min_excess: float = 40.0) -> Nodes:
         return empty
     slopes = np.column_stack([np.where(ok_h > 0, b, 0.0), np.where(ok_v > 0, d, 0.0)])
     links = _links(uv, slopes, e, level, cell)
-    return Nodes(uv, links, e, level)
+    return Nodes(uv, links, e, level, cell)
 
 
 def _links(
@@ -346,12 +419,14 @@ def match(
 ) -> Matches:
     """Corresponding nodes across views: (M, V) node indices, −1 where a view lacks the node.
 
+    ``tol_px`` is for nodes found at full size; it grows with the coarsest view's ``scale``.
     Each view in turn is the reference for its nodes not matched yet; a match needs the
     confirmation of ``min(3, V)`` views, less one for each view that contradicts it (it falls
     among that view's nodes but on none of them). A grid aligned with the rig's baselines is
     periodic along them: a shift of whole cells can be confirmed by every view. Such ties are
     broken by continuity (:func:`_choose`), grown from the laser dot (``origin``, a 3-D point)
     and from the nodes that had one candidate only."""
+    tol_px *= max((n.scale for n in nodes), default=1)
     v = len(nodes)
     q = [
         geo.normalise(k, n.uv) * geo.f[k] if len(n.uv) else np.zeros((0, 2))
@@ -561,7 +636,11 @@ def label(
 ) -> Labelled:
     """Triangulate the matched nodes and label them (row, column) by walking 3-D neighbours.
 
-    ``origin``: the laser dot's 3-D point; the surface it lands on is labelled from it."""
+    ``origin``: the laser dot's 3-D point; the surface it lands on is labelled from it.
+    ``max_rms_px`` is for nodes found at full size; it grows with the coarsest view's
+    ``scale``."""
+    coarsest = max((n.scale for n in nodes), default=1)
+    max_rms_px *= coarsest
     index = matches.index
     v = len(nodes)
     obs = np.full((len(index), v, 2), np.nan)
@@ -571,7 +650,7 @@ def label(
     points, rms = geo.triangulate(obs) if len(obs) else (np.zeros((0, 3)), np.zeros(0))
     # a node cut by an occluding edge in one view is displaced there: with 3+ views, leave out
     # the view whose removal halves the error (typical errors are ~0.1 px)
-    many = (np.isfinite(obs).all(axis=-1).sum(axis=1) >= 3) & (rms > 0.25)
+    many = (np.isfinite(obs).all(axis=-1).sum(axis=1) >= 3) & (rms > 0.25 * coarsest)
     if many.any():
         best_rms, best_drop = rms[many].copy(), np.full(many.sum(), -1)
         for k in range(v):
