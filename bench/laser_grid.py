@@ -39,6 +39,18 @@ SCENES = [
 ]
 
 
+def measured(
+    images: list, dots: list, geo: laser_grid.Geometry
+) -> tuple[laser.Dot, list[laser_grid.Nodes], laser_grid.Labelled, laser_grid.Measurement]:
+    """Dot, nodes, labels and measurement from one grid and one dot image per camera."""
+    dot = laser.locate([laser.find_spots(d) for d in dots], geo.triangulate)
+    nodes = [laser_grid.detect(im) for im in images]
+    grid = laser_grid.label(
+        nodes, laser_grid.match(nodes, geo, origin=dot.point), geo, origin=dot.point
+    )
+    return dot, nodes, grid, laser_grid.measure(grid, nodes, geo)
+
+
 def main() -> None:
     geo = laser_grid.cross_geometry(RIG)
     print(
@@ -86,13 +98,7 @@ def main() -> None:
     part = Part(*SCENES[0][:4])
     for pitch, lines in ((0.009, 33), (0.012, 25), (0.016, 19), (0.020, 15)):
         scene = Scene(part, table_tilt=0.05, grid_rotation=0.1, pitch=pitch, lines=lines)
-        dots = render(scene, mode="dot", seed=2)
-        nodes = [laser_grid.detect(im) for im in render(scene, seed=1)]
-        dot = laser.locate([laser.find_spots(d) for d in dots], geo.triangulate)
-        grid = laser_grid.label(
-            nodes, laser_grid.match(nodes, geo, origin=dot.point), geo, origin=dot.point
-        )
-        m = laser_grid.measure(grid, nodes, geo)
+        _, _, grid, m = measured(render(scene, seed=1), render(scene, mode="dot", seed=2), geo)
         print(
             f"| {1000 * pitch:.0f} | {RIG.f * pitch:.0f} | {len(grid.points)} | "
             f"{100 * (m.volume / part.volume - 1):+.1f} % | "
@@ -112,15 +118,10 @@ def main() -> None:
             )
             fmt = f"JPEG {quality}" if quality else "PNG"
             try:
-                dot = laser.locate([laser.find_spots(d) for d in dot_ims], geo.triangulate)
-            except ValueError as exc:
+                dot, _, grid, m = measured(grid_ims, dot_ims, geo)
+            except ValueError as exc:  # the dot not found
                 print(f"| {gain} | {fmt} | {str(exc).split(':')[0]} | | | | | |")
                 continue
-            nodes = [laser_grid.detect(im) for im in grid_ims]
-            grid = laser_grid.label(
-                nodes, laser_grid.match(nodes, geo, origin=dot.point), geo, origin=dot.point
-            )
-            m = laser_grid.measure(grid, nodes, geo)
             error = 1000 * float(np.linalg.norm(dot.point - [0.0, 0.0, 0.92]))
             print(
                 f"| {gain} | {fmt} | {error:.2f} | {dot.reprojection_rms:.2f} | "
@@ -144,12 +145,7 @@ def main() -> None:
         images = render(scene, rig=rig, size=size, seed=1)
         dots = render(scene, mode="dot", rig=rig, size=size, seed=2)
         t0 = time.perf_counter()
-        dot = laser.locate([laser.find_spots(d) for d in dots], cam.triangulate)
-        nodes = [laser_grid.detect(im) for im in images]
-        grid = laser_grid.label(
-            nodes, laser_grid.match(nodes, cam, origin=dot.point), cam, origin=dot.point
-        )
-        m = laser_grid.measure(grid, nodes, cam)
+        _, nodes, grid, m = measured(images, dots, cam)
         print(
             f"| {f} | {size[0]} × {size[1]} | {f * scene.pitch:.0f} | "
             f"{max(n.scale for n in nodes)} | {len(grid.points)} | "
