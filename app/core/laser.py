@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 MAX_CANDIDATES = 4
 """Per view, the brightest this many blobs are considered."""
@@ -73,30 +72,31 @@ def find_spots(
     )
     if n <= 1:
         return []
-    index = np.arange(1, n)
-    peak = np.concatenate([[0.0], ndimage.maximum(excess, blobs, index)])
-    floor = np.maximum(0.5 * peak, min_excess)[blobs]
-    weight = np.maximum(excess - floor, 0.0) * (blobs > 0)
-    on_plateau = np.where(saturated, blobs, 0)
-    plateau = np.concatenate([[0.0], ndimage.sum_labels(saturated, on_plateau, index)])
+    # statistics over the blobs' own pixels (a dot is a few dozen of an image's millions)
+    ys, xs = np.nonzero(blobs)
+    label: NDArray[np.intp] = np.asarray(blobs[ys, xs], dtype=np.intp)
+    e = excess[ys, xs].astype(np.float64)
+    peak = np.zeros(n)
+    np.maximum.at(peak, label, e)
+    weight = np.maximum(e - np.maximum(0.5 * peak, min_excess)[label], 0.0)
+    sat = saturated[ys, xs]
+    plateau = np.bincount(label, weights=sat, minlength=n)
     if (plateau >= MIN_PLATEAU).any():
         brightness = cv2.GaussianBlur(rgb.astype(np.float32).sum(axis=2), (0, 0), 1.0)
-        lowest = np.concatenate([[0.0], ndimage.minimum(brightness, on_plateau, index)])
-        weight = np.where(
-            plateau[blobs] >= MIN_PLATEAU,
-            np.where(on_plateau > 0, brightness - lowest[blobs] + 1.0, 0.0),
-            weight,
-        )
-    area = ndimage.sum_labels(blobs > 0, blobs, index)
-    total = ndimage.sum_labels(weight, blobs, index)
-    ys, xs = np.indices(weight.shape, dtype=np.float64)
+        b = brightness[ys, xs].astype(np.float64)
+        lowest = np.full(n, np.inf)
+        np.minimum.at(lowest, label[sat], b[sat])
+        on = plateau[label] >= MIN_PLATEAU
+        weight[on] = np.where(sat[on], b[on] - lowest[label[on]] + 1.0, 0.0)
+    area = np.bincount(label, minlength=n)
+    total = np.bincount(label, weights=weight, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u = ndimage.sum_labels(weight * xs, blobs, index) / total
-        v = ndimage.sum_labels(weight * ys, blobs, index) / total
+        u = np.bincount(label, weights=weight * xs, minlength=n) / total
+        v = np.bincount(label, weights=weight * ys, minlength=n) / total
     found = [
-        (peak[k], Spot(float(u[k - 1]), float(v[k - 1]), int(area[k - 1]), float(total[k - 1])))
-        for k in index
-        if peak[k] >= min_excess and area[k - 1] <= max_area and total[k - 1] > 0
+        (peak[k], Spot(float(u[k]), float(v[k]), int(area[k]), float(total[k])))
+        for k in range(1, n)
+        if peak[k] >= min_excess and area[k] <= max_area and total[k] > 0
     ]
     found.sort(key=lambda f: f[0], reverse=True)
     return [spot for _, spot in found[:MAX_CANDIDATES]]
