@@ -76,6 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     settings.alert_webhook_url,
                     app.state.policy,
                     settings.alert_poll_seconds,
+                    timedelta(hours=settings.alert_retry_hours),
                 )
             )
         sweeper = asyncio.create_task(

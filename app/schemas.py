@@ -412,6 +412,12 @@ class AirAlertOut(Out):
     category: str
     delivered: bool
     attempts: int
+    delivery: Literal["delivered", "pending", "gave_up", "no_webhook"] = Field(
+        description="delivered; pending (to be tried, or retried after a failure); gave_up"
+        " (undelivered when its retry period ran out); no_webhook (none is configured)."
+    )
+    last_error: str | None = Field(description="Why the last attempt failed.")
+    next_attempt_at: datetime | None = Field(description="When a failed delivery is retried.")
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]

@@ -6,6 +6,7 @@ import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
+from urllib.parse import urlsplit
 
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -110,6 +111,9 @@ class Settings(BaseSettings):
         default=None, description="POST each air-quality alert here (JSON), with retries."
     )
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
+    alert_retry_hours: float = Field(
+        default=24.0, gt=0, description="Retry an undelivered alert this long after it was raised."
+    )
     log_level: str = "INFO"
     log_json: bool = True
 
@@ -130,6 +134,13 @@ class Settings(BaseSettings):
         if self.env == "production" and self.admin_token is not None:
             if len(self.admin_token.get_secret_value()) < 24:
                 raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
+        if self.alert_webhook_url is not None:
+            url = urlsplit(self.alert_webhook_url)
+            if url.scheme not in ("http", "https") or not url.hostname:
+                raise ValueError(
+                    "VANTAGE_ALERT_WEBHOOK_URL must be an http:// or https:// URL with a host;"
+                    f" got {self.alert_webhook_url!r}"
+                )
         if self.frame_store == "s3" and not self.s3_bucket:
             raise ValueError("VANTAGE_FRAME_STORE=s3 needs VANTAGE_S3_BUCKET")
         if self.frame_store == "s3" and self.admin_token is None:

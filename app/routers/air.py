@@ -37,7 +37,7 @@ from app.schemas import (
     AirLatest,
     AirReading,
 )
-from app.services import air, training
+from app.services import air, training, webhooks
 from app.services.policy import Policy
 from app.uploads import content_type, read_form, read_json
 
@@ -317,13 +317,33 @@ def readings(
 @router.get("/alerts", response_model=list[AirAlertOut])
 def alerts(
     session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
     camera_id: IdFilter = None,
     limit: Limit = 100,
     offset: Offset = 0,
 ) -> list[AirAlertOut]:
-    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first."""
+    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, with where
+    each one's webhook delivery stands."""
     rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)
-    return [AirAlertOut.model_validate(a) for a in rows]
+    now = policy.now()
+    retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None
+    return [
+        AirAlertOut(
+            id=a.id,
+            camera_id=a.camera_id,
+            frame_id=a.frame_id,
+            created_at=a.created_at,
+            smoothed_level=a.smoothed_level,
+            category=a.category,
+            delivered=a.delivered,
+            attempts=a.attempts,
+            delivery=webhooks.delivery(a, now, retry_for=retry_for),
+            last_error=a.last_error,
+            next_attempt_at=a.next_attempt_at,
+        )
+        for a in rows
+    ]
 
 
 def _bbox(value: str | None) -> tuple[float, float, float, float] | None:

@@ -2,19 +2,29 @@
 
 A sweep takes undelivered alerts (``FOR UPDATE SKIP LOCKED``: several processes never send one
 twice at once), POSTs each as JSON, and records the outcome; a failure is retried after
-2, 4, 8 … seconds, up to ``MAX_ATTEMPTS``. Alerts live in the database, so a restart loses none.
+2, 4, 8 … seconds, at most ``RETRY_CAP`` apart, until the alert is ``retry_for`` old (24 h by
+default: a receiver down for a deploy or a night still gets every alert). Alerts live in the
+database, so a restart loses none.
+
+Only a 2xx answer to the POST itself is a delivery. A redirect is not followed: urllib would
+follow a 301 or 302 with a GET without the alert, and a page answering that GET 200 would pass
+for the receiver. Whatever else goes wrong with one alert (no answer, an answer that is not
+HTTP, a truncated one) is that alert's failed attempt, never the sweep's: the outcomes of the
+alerts already tried are kept.
 """
 
 from __future__ import annotations
 
 import asyncio
+import http.client
 import json
 import logging
 import threading
 import urllib.error
 import urllib.request
-from datetime import timedelta
+from datetime import datetime, timedelta
 from functools import partial
+from typing import Literal
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -25,8 +35,38 @@ from app.services.policy import Policy
 
 log = logging.getLogger("vantage.webhooks")
 
-MAX_ATTEMPTS = 6
 TIMEOUT_S = 5.0
+RETRY_CAP = timedelta(minutes=10)
+"""The longest wait between two attempts."""
+DEFAULT_RETRY_FOR = timedelta(hours=24)
+
+Delivery = Literal["delivered", "pending", "gave_up", "no_webhook"]
+
+
+def delivery(alert: AirAlert, now: datetime, *, retry_for: timedelta | None) -> Delivery:
+    """Where an alert's delivery stands; ``retry_for`` None: no webhook is configured."""
+    if alert.delivered:
+        return "delivered"
+    if retry_for is None:
+        return "no_webhook"
+    return "pending" if alert.created_at >= now - retry_for else "gave_up"
+
+
+def backoff(attempts: int) -> timedelta:
+    """The wait after the ``attempts``-th failure: 2, 4, 8 … s, at most ``RETRY_CAP``."""
+    return min(timedelta(seconds=2 ** min(attempts, 20)), RETRY_CAP)
+
+
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    def redirect_request(self, *args: object, **kwargs: object) -> None:
+        return None  # the 3xx then raises HTTPError
+
+
+_opener = urllib.request.build_opener(_NoRedirect)
+
+
+class DeliveryFailed(Exception):
+    """The receiver did not take the alert."""
 
 
 def _post(url: str, body: dict[str, object]) -> None:
@@ -36,9 +76,19 @@ def _post(url: str, body: dict[str, object]) -> None:
         headers={"Content-Type": "application/json", "User-Agent": "vantage-alerts"},
         method="POST",
     )
-    with urllib.request.urlopen(request, timeout=TIMEOUT_S) as response:  # noqa: S310
-        if not 200 <= response.status < 300:
-            raise urllib.error.HTTPError(url, response.status, "not 2xx", response.headers, None)
+    try:
+        with _opener.open(request, timeout=TIMEOUT_S) as response:
+            if not 200 <= response.status < 300:
+                raise DeliveryFailed(f"HTTP {response.status}")
+    except urllib.error.HTTPError as exc:
+        if 300 <= exc.code < 400:
+            raise DeliveryFailed(
+                f"HTTP {exc.code} redirect to {exc.headers.get('Location')!r}, not followed:"
+                " set the webhook URL to the address that takes the POST"
+            ) from None
+        raise DeliveryFailed(f"HTTP {exc.code} {exc.reason}") from None
+    except (OSError, http.client.HTTPException) as exc:  # refused, timed out, not HTTP, cut
+        raise DeliveryFailed(f"{type(exc).__name__}: {exc}") from None
 
 
 def sweep(
@@ -46,6 +96,7 @@ def sweep(
     url: str,
     policy: Policy,
     *,
+    retry_for: timedelta = DEFAULT_RETRY_FOR,
     batch: int = 20,
     stopping: threading.Event | None = None,
 ) -> int:
@@ -58,7 +109,7 @@ def sweep(
             select(AirAlert)
             .where(
                 AirAlert.delivered.is_(False),
-                AirAlert.attempts < MAX_ATTEMPTS,
+                AirAlert.created_at >= now - retry_for,
                 or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
             )
             .order_by(AirAlert.created_at)
@@ -80,9 +131,9 @@ def sweep(
             alert.attempts += 1
             try:
                 _post(url, body)
-            except (OSError, urllib.error.URLError) as exc:
+            except DeliveryFailed as exc:
                 alert.last_error = str(exc)[:500]
-                alert.next_attempt_at = now + timedelta(seconds=2**alert.attempts)
+                alert.next_attempt_at = now + backoff(alert.attempts)
                 log.warning(
                     "alert %s not delivered (attempt %d): %s", alert.id, alert.attempts, exc
                 )
@@ -94,13 +145,20 @@ def sweep(
     return delivered
 
 
-async def run(sessions: sessionmaker[Session], url: str, policy: Policy, every: float) -> None:
+async def run(
+    sessions: sessionmaker[Session],
+    url: str,
+    policy: Policy,
+    every: float,
+    retry_for: timedelta = DEFAULT_RETRY_FOR,
+) -> None:
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
     stopping = threading.Event()  # a shutdown waits for the post under way, not for all
     while True:
         try:
             await in_thread(
-                partial(sweep, sessions, url, policy, stopping=stopping), on_cancel=stopping.set
+                partial(sweep, sessions, url, policy, retry_for=retry_for, stopping=stopping),
+                on_cancel=stopping.set,
             )
         except Exception:
             log.exception("webhook sweep failed")

@@ -169,6 +169,7 @@ def test_alert_when_the_smoothed_level_turns_poor(
     assert len(alerts) == 1  # entering Poor once raises one alert, not one per frame
     assert alerts[0]["camera_id"] == "sky1"
     assert alerts[0]["category"] in ("Poor", "Very Poor")
+    assert alerts[0]["delivery"] == "no_webhook"  # recorded; nothing is configured to send it
 
 
 def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
@@ -375,6 +376,8 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
                 time.sleep(0.1)
             assert alerts[0]["delivered"] is True
             assert alerts[0]["attempts"] == 2
+            assert alerts[0]["delivery"] == "delivered"
+            assert alerts[0]["last_error"] is None
     finally:
         server.shutdown()
         server.server_close()

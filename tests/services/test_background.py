@@ -144,7 +144,8 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
     app_engine = make_engine(database_url)
     try:
         sessions = make_sessionmaker(app_engine)
-        assert webhooks.sweep(sessions, "http://hook", Policy(), stopping=stopping) == 1
+        policy = Policy(clock=lambda: t0 + timedelta(minutes=1))
+        assert webhooks.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
     finally:
         app_engine.dispose()
     assert posted == ["a0"]

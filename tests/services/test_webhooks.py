@@ -1,0 +1,216 @@
+"""Alert delivery against real receivers on a local socket: only a 2xx answer to the POST is a
+delivery, a bad answer is one alert's failed attempt, and retries go on for the retry period."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
+from http.server import BaseHTTPRequestHandler, HTTPServer
+from typing import Any
+
+import pytest
+from pydantic import ValidationError
+from sqlalchemy import Engine, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.db.models import AirAlert, Camera, CameraKind, Frame
+from app.db.session import make_engine, make_sessionmaker
+from app.services import webhooks
+from app.services.policy import Policy
+from app.settings import Settings
+from tests.conftest import _empty_tables
+
+T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
+
+
+def seed_alerts(engine: Engine, n: int) -> None:
+    _empty_tables(engine)
+    with Session(engine) as s:
+        s.add(Camera(id="sky", kind=CameraKind.sky, token_hash="h"))
+        s.add(
+            Frame(
+                id="f", camera_id="sky", captured_at=T0, received_at=T0, width=1, height=1,
+                size_bytes=1, sha256="0" * 64,
+            )
+        )  # fmt: skip
+        s.flush()
+        for k in range(n):
+            s.add(
+                AirAlert(
+                    id=f"a{k}", camera_id="sky", frame_id="f",
+                    created_at=T0 + timedelta(seconds=k), smoothed_level=2.0, category="Poor",
+                )
+            )  # fmt: skip
+        s.commit()
+
+
+def at(now: datetime) -> Policy:
+    """A policy whose clock stands at ``now``."""
+    return Policy(clock=lambda: now)
+
+
+def state(engine: Engine) -> dict[str, tuple[bool, int, str | None]]:
+    with Session(engine) as s:
+        return {a.id: (a.delivered, a.attempts, a.last_error) for a in s.scalars(select(AirAlert))}
+
+
+@pytest.fixture
+def sessions(database_url: str) -> Iterator[sessionmaker[Session]]:
+    engine = make_engine(database_url)
+    try:
+        yield make_sessionmaker(engine)
+    finally:
+        engine.dispose()
+
+
+def serve(handler: type[BaseHTTPRequestHandler]) -> tuple[HTTPServer, str]:
+    server = HTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server, f"http://127.0.0.1:{server.server_port}"
+
+
+def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Session]) -> None:
+    """An http:// hook that moved to https:// answers 301. Followed, urllib would send a GET
+    without the alert, and a page answering it 200 would have counted as delivered."""
+    seen: list[tuple[str, str]] = []
+
+    class Moved(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            self.rfile.read(int(self.headers["Content-Length"]))
+            seen.append(("POST", self.path))
+            self.send_response(301)
+            self.send_header("Location", "/landing")
+            self.end_headers()
+
+        def do_GET(self) -> None:  # noqa: N802
+            seen.append(("GET", self.path))
+            self.send_response(200)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    seed_alerts(engine, 1)
+    server, base = serve(Moved)
+    try:
+        assert webhooks.sweep(sessions, f"{base}/hook", at(T0)) == 0
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert seen == [("POST", "/hook")]
+    delivered, attempts, error = state(engine)["a0"]
+    assert (delivered, attempts) == (False, 1)
+    assert "301 redirect to '/landing'" in str(error)
+
+
+def raw_receiver(answer: Callable[[str], bytes]) -> tuple[socket.socket, str]:
+    """A TCP server reading one request per connection and sending ``answer(alert_id)``."""
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def loop() -> None:
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            with conn:
+                data = b""
+                while b"\r\n\r\n" not in data:
+                    data += conn.recv(65536)
+                head, _, body = data.partition(b"\r\n\r\n")
+                length = int(next(
+                    line.split(b":")[1] for line in head.split(b"\r\n")
+                    if line.lower().startswith(b"content-length")
+                ))  # fmt: skip
+                while len(body) < length:
+                    body += conn.recv(65536)
+                conn.sendall(answer(json.loads(body)["alert_id"]))
+
+    threading.Thread(target=loop, daemon=True).start()
+    return listener, f"http://127.0.0.1:{listener.getsockname()[1]}/hook"
+
+
+def test_an_answer_that_is_not_http_fails_that_alert_only(
+    engine: Engine, sessions: sessionmaker[Session]
+) -> None:
+    """A proxy that cuts one answer (or something not HTTP on the port) made the whole sweep
+    raise before: its transaction rolled back, the alerts already delivered were sent again
+    at every sweep, and the failing one was retried every few seconds without an error."""
+    answers = {
+        "a0": b"HTTP/1.1 204 No Content\r\n\r\n",
+        "a1": b"-ERR unknown command\r\n",
+        "a2": b"HTTP/1.1 204 No Content\r\n\r\n",
+    }
+    posted: list[str] = []
+
+    def answer(alert_id: str) -> bytes:
+        posted.append(alert_id)
+        return answers[alert_id]
+
+    seed_alerts(engine, 3)
+    listener, url = raw_receiver(answer)
+    try:
+        assert webhooks.sweep(sessions, url, at(T0)) == 2
+        after = state(engine)
+        assert {k: v[:2] for k, v in after.items()} == {
+            "a0": (True, 1),
+            "a1": (False, 1),
+            "a2": (True, 1),
+        }
+        assert "BadStatusLine" in str(after["a1"][2])
+        # the next sweep, once a1's backoff has passed, tries a1 alone
+        assert webhooks.sweep(sessions, url, at(T0 + timedelta(seconds=3))) == 0
+    finally:
+        listener.close()
+    assert posted == ["a0", "a1", "a2", "a1"]
+
+
+def closed_port() -> str:
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        return f"http://127.0.0.1:{s.getsockname()[1]}/hook"
+
+
+def test_retries_back_off_up_to_ten_minutes_apart_for_the_retry_period(
+    engine: Engine, sessions: sessionmaker[Session]
+) -> None:
+    """A receiver down for hours (nothing listens on the port) still gets the alert when it is
+    back; after the retry period the alert is given up. Before, the sixth failure (62 s after
+    the first) was the last."""
+    seed_alerts(engine, 1)
+    url = closed_port()
+    now = T0
+    times = []
+    while now < T0 + timedelta(hours=2):
+        with Session(engine) as s:
+            due = s.get(AirAlert, "a0")
+            assert due is not None
+            now = max(now, due.next_attempt_at or now)
+        webhooks.sweep(sessions, url, at(now), retry_for=timedelta(hours=3))
+        times.append(now)
+    gaps = [(b - a).total_seconds() for a, b in zip(times, times[1:], strict=False)]
+    assert gaps[:9] == [2, 4, 8, 16, 32, 64, 128, 256, 512]
+    assert set(gaps[9:]) == {600}
+    assert state(engine)["a0"][:2] == (False, len(times))
+    with Session(engine) as s:
+        alert = s.get(AirAlert, "a0")
+        assert alert is not None
+        assert webhooks.delivery(alert, T0 + timedelta(hours=2), retry_for=timedelta(hours=3)) == (
+            "pending"
+        )
+        assert webhooks.delivery(alert, T0 + timedelta(hours=4), retry_for=timedelta(hours=3)) == (
+            "gave_up"
+        )
+        assert webhooks.delivery(alert, T0, retry_for=None) == "no_webhook"
+    # past the retry period the sweep leaves it alone
+    late = T0 + timedelta(hours=3, seconds=1)
+    webhooks.sweep(sessions, url, at(late), retry_for=timedelta(hours=3))
+    assert state(engine)["a0"][1] == len(times)
+
+
+@pytest.mark.parametrize("url", ["hooks.example.org/alerts", "ftp://example.org/x", "http://"])
+def test_a_webhook_url_that_cannot_be_posted_to_is_refused_at_start(url: str) -> None:
+    with pytest.raises(ValidationError, match="VANTAGE_ALERT_WEBHOOK_URL"):
+        Settings(alert_webhook_url=url)
