@@ -100,24 +100,29 @@ def sweep(
     batch: int = 20,
     stopping: threading.Event | None = None,
 ) -> int:
-    """Try every due alert once; returns how many were delivered. Once ``stopping`` is set (a
-    shutdown waiting for this sweep), the alerts not yet tried are left for the next one."""
+    """Try every due alert once (at most ``batch``); returns how many were delivered. Each
+    alert is taken, posted and recorded in its own transaction: a process that dies during a
+    sweep sends again at most the alert it was posting, not every one delivered before it in
+    the sweep. Once ``stopping`` is set (a shutdown waiting for this sweep), the alerts not yet
+    tried are left for the next one."""
     now = policy.now()
     delivered = 0
-    with sessions() as session:
-        alerts = session.scalars(
-            select(AirAlert)
-            .where(
-                AirAlert.delivered.is_(False),
-                AirAlert.created_at >= now - retry_for,
-                or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
-            )
-            .order_by(AirAlert.created_at)
-            .limit(batch)
-            .with_for_update(skip_locked=True)
-        ).all()
-        for alert in alerts:
-            if stopping is not None and stopping.is_set():
+    for _ in range(batch):
+        if stopping is not None and stopping.is_set():
+            break
+        with sessions() as session:
+            alert = session.scalars(
+                select(AirAlert)
+                .where(
+                    AirAlert.delivered.is_(False),
+                    AirAlert.created_at >= now - retry_for,
+                    or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
+                )
+                .order_by(AirAlert.created_at)
+                .limit(1)
+                .with_for_update(skip_locked=True)
+            ).first()
+            if alert is None:
                 break
             body = {
                 "alert_id": alert.id,
@@ -141,7 +146,7 @@ def sweep(
                 alert.delivered = True
                 alert.last_error = None
                 delivered += 1
-        session.commit()
+            session.commit()
     return delivered
 
 

@@ -214,3 +214,27 @@ def test_retries_back_off_up_to_ten_minutes_apart_for_the_retry_period(
 def test_a_webhook_url_that_cannot_be_posted_to_is_refused_at_start(url: str) -> None:
     with pytest.raises(ValidationError, match="VANTAGE_ALERT_WEBHOOK_URL"):
         Settings(alert_webhook_url=url)
+
+
+def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
+    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The process stops (here SystemExit) while posting the second alert: the first, already
+    taken by the receiver, stays delivered. One transaction for the whole sweep rolled it back,
+    and it was sent again."""
+    posted: list[str] = []
+
+    def post(url: str, body: dict[str, object]) -> None:
+        posted.append(str(body["alert_id"]))
+        if len(posted) == 2:
+            raise SystemExit
+
+    seed_alerts(engine, 3)
+    monkeypatch.setattr(webhooks, "_post", post)
+    with pytest.raises(SystemExit):
+        webhooks.sweep(sessions, "http://hook", at(T0))
+    assert {k: v[:2] for k, v in state(engine).items()} == {
+        "a0": (True, 1),
+        "a1": (False, 0),
+        "a2": (False, 0),
+    }
