@@ -82,6 +82,22 @@ def _detect(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float32
     return np.asarray(corners, dtype=np.float32) if ok else None
 
 
+SAME_VIEW_PX = 1.0
+"""Two views whose corners lie within this RMS distance [px] of each other are one view: the
+board and camera did not move between them (a repeated upload, a still camera's frames). Any
+new pose moves the corners by many pixels; sensor noise and JPEG move them by hundredths."""
+
+
+def same_view(a: NDArray[np.float32], b: NDArray[np.float32]) -> bool:
+    """Whether two detections of one board are the same view (in either corner order: a
+    detector may number the corners of a board turned 180° from the other end)."""
+    a2, b2 = a.reshape(-1, 2).astype(np.float64), b.reshape(-1, 2).astype(np.float64)
+    if a2.shape != b2.shape:
+        return False
+    rms = min(float(np.sqrt(np.mean(np.sum((a2 - c) ** 2, axis=1)))) for c in (b2, b2[::-1]))
+    return rms < SAME_VIEW_PX
+
+
 @dataclass(frozen=True, slots=True)
 class Intrinsics:
     K: NDArray[np.float64]

@@ -82,3 +82,41 @@ def cylinder_scene(*, noise: float = 1.0, blur: float = 1.0, seed: int = 0) -> n
             4,
         )
     return finish(low_range(image), noise=noise, blur=blur, seed=seed)
+
+
+def checkerboard_photo(
+    k: np.ndarray,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    size: tuple[int, int],
+    *,
+    cols: int = 9,
+    rows: int = 6,
+    square: float = 25.0,
+    seed: int = 0,
+) -> np.ndarray:
+    """A cols × rows (inner corners) board of ``square`` mm squares, at pose (rvec, tvec) of a
+    distortion-free pinhole camera ``k``, on a grey width × height image: the plane's
+    homography K [r1 r2 t] (Zhang's), rendered at 4× and area-averaged down, with noise. The
+    board's corner (i, j) is at (i·square, j·square, 0), as ``board_points`` puts it."""
+    sq = 20  # texture pixels a square; a square's width of white margin
+    texture = np.kron(
+        (np.indices((rows + 1, cols + 1)).sum(0) % 2) * 255, np.ones((sq, sq))
+    ).astype(np.uint8)
+    texture = cv2.copyMakeBorder(texture, sq, sq, sq, sq, cv2.BORDER_CONSTANT, value=255)
+    r = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
+    plane = k @ np.column_stack([r[:, 0], r[:, 1], np.asarray(tvec, np.float64)])
+    # texture pixel centre (u, v) → board (X, Y) [mm]: inner corner 0 lies between the pixels
+    # 2·sq − 1 and 2·sq
+    s = square / sq
+    to_board = np.array([[s, 0, -(2 * sq - 0.5) * s], [0, s, -(2 * sq - 0.5) * s], [0, 0, 1]])
+    # 4× render area-averaged down: a small pixel's centre x is the big one's 4x + 1.5
+    up = np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]])
+    big = cv2.warpPerspective(
+        texture,
+        up @ plane @ to_board,
+        (4 * size[0], 4 * size[1]),
+        borderValue=128,
+    )
+    image = cv2.resize(big, size, interpolation=cv2.INTER_AREA).astype(np.float64)
+    return finish(image, noise=1.0, blur=0.0, seed=seed)
