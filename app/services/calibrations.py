@@ -113,7 +113,10 @@ def calibrate_camera(
             views_rejected=rejected,
         )
     obj = calibration.board_points(board.cols, board.rows, board.square)
-    result = calibration.calibrate([obj] * len(points), points, size)
+    try:
+        result = calibration.calibrate([obj] * len(points), points, size)
+    except calibration.CalibrationError as exc:
+        raise Unprocessable(str(exc), views_rejected=rejected) from None
     row = Calibration(
         id=str(uuid.uuid4()),
         created_at=now,
@@ -153,9 +156,20 @@ def calibrate_pair(
             " least 3 of each are needed (views_rejected says why the others are not)",
             views_rejected=lrej + rrej,
         )
-    lcal = calibration.calibrate([obj] * len(lpts), lpts, lsize)
-    rcal = calibration.calibrate([obj] * len(rpts), rpts, rsize)
     pairs = [(a, b) for a, b in zip(lf, rf, strict=True) if a is not None and b is not None]
+    cals = []
+    for side, pts, size in (("left", lpts, lsize), ("right", rpts, rsize)):
+        try:
+            cals.append(calibration.calibrate([obj] * len(pts), pts, size))
+        except calibration.CalibrationError as exc:
+            raise Unprocessable(f"{side} camera: {exc}", views_rejected=lrej + rrej) from None
+    lcal, rcal = cals
+    if not pairs:
+        raise Unprocessable(
+            "no pair in which both cameras found the board: their relative pose needs views"
+            " taken together",
+            views_rejected=lrej + rrej,
+        )
     pose = calibration.stereo(
         [obj] * len(pairs), [a for a, _ in pairs], [b for _, b in pairs], lcal, rcal
     )

@@ -255,3 +255,45 @@ def test_a_photo_of_another_size_first_does_not_reject_the_series(
         }
     ]
     np.testing.assert_allclose(c["K"], K_RENDER, rtol=0.005, atol=1.0)
+
+
+def test_boards_held_flat_towards_the_camera_are_refused(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """Five rendered views of the board facing the camera, spun and moved: before, 201 with
+    fx ~ 39,000 px for a camera of 800, at 0.03 px RMS."""
+    centre = np.array([100.0, 62.5, 0.0])
+    rng = np.random.default_rng(4)
+    images = []
+    for i, spin in enumerate([0.0, 0.3, -0.3, 0.6, -0.5]):
+        r = cv2.Rodrigues(np.array([0.0, 0.0, spin]))[0]
+        t = -r @ centre + np.array([0.0, 0.0, 600.0]) + rng.normal(0, [30, 30, 60])
+        image = checkerboard_photo(K_RENDER, cv2.Rodrigues(r)[0], t, (640, 480), seed=i)
+        images.append((f"flat{i}.jpg", cv2.imencode(".jpg", image)[1].tobytes()))
+    status, body = upload(client, admin, images)
+    assert status == 422, body
+    assert "faces the same way" in body["detail"]
+    assert table_counts(engine)["calibrations"] == 0
+
+
+def test_a_pair_with_no_view_taken_together_is_422(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """Each camera found the board three times, never in the same pair: the relative pose has
+    nothing to go on. This was a 500 (an exception the service did not turn into an answer)."""
+    views = rendered_views(6, seed=30)
+    grey = cv2.imencode(".jpg", np.full((480, 640), 128, np.uint8))[1].tobytes()
+    files = [("left", (f"l{i}.jpg", views[i] if i < 3 else grey, "image/jpeg")) for i in range(6)]
+    files += [
+        ("right", (f"r{i}.jpg", views[i] if i >= 3 else grey, "image/jpeg")) for i in range(6)
+    ]
+    r = client.post(
+        "/calibrations/stereo",
+        files=files,
+        data={"pattern_cols": "9", "pattern_rows": "6", "square_size": "25"},
+        headers=admin,
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith("no pair in which both cameras found the board")
+    assert len(r.json()["views_rejected"]) == 6
+    assert table_counts(engine)["calibrations"] == 0
