@@ -5,9 +5,11 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import DateTime, MetaData
+from sqlalchemy import BigInteger, DateTime, MetaData
 from sqlalchemy.engine import Dialect
+from sqlalchemy.ext.compiler import compiles
 from sqlalchemy.orm import DeclarativeBase
+from sqlalchemy.sql.functions import FunctionElement
 from sqlalchemy.types import TypeDecorator
 
 NAMING_CONVENTION = {
@@ -49,3 +51,30 @@ def utcnow() -> datetime:
 
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
+
+
+class time_slot(FunctionElement[int]):  # noqa: N801  (a SQL function's name)
+    """The index of the ``seconds``-long slot of the Unix epoch a UTC time falls in:
+    floor(epoch / seconds), computed by the database (SQLite and PostgreSQL)."""
+
+    type = BigInteger()
+    inherit_cache = True
+
+
+@compiles(time_slot, "sqlite")
+def _time_slot_sqlite(element: time_slot, compiler: Any, **kw: Any) -> str:
+    column, seconds = list(element.clauses)
+    # stored as naive UTC text: strftime('%s') reads it as UTC; integer division floors (≥ 1970)
+    return (
+        f"(CAST(strftime('%s', {compiler.process(column, **kw)}) AS INTEGER)"
+        f" / {compiler.process(seconds, **kw)})"
+    )
+
+
+@compiles(time_slot)
+def _time_slot_default(element: time_slot, compiler: Any, **kw: Any) -> str:
+    column, seconds = list(element.clauses)
+    return (
+        f"CAST(floor(extract(epoch from {compiler.process(column, **kw)})"
+        f" / {compiler.process(seconds, **kw)}) AS BIGINT)"
+    )

@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Annotated, Any, Literal
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 from fastapi import APIRouter, Query, Request
@@ -285,12 +286,21 @@ def readings(
     since: UtcTime | None = None,
     until: UtcTime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
+    tz: Annotated[
+        str,
+        Query(
+            max_length=64,
+            description="IANA time zone of the hourly and daily buckets (Asia/Kolkata).",
+        ),
+    ] = "UTC",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
     offset: Offset = 0,
 ) -> list[AirReading] | list[AirAggregate]:
-    """Readings newest first, paginated; or their hourly or daily means."""
+    """Readings newest first, paginated; or their hourly or daily means, over every reading
+    in the range, in the time zone ``tz`` (its local hours and days; UTC by default)."""
     if since and until and since >= until:
         raise Unprocessable("since must be before until")
+    zone = _zone(tz)
     if aggregate == "none":
         rows = air.readings(
             session, camera_id=camera_id, since=since, until=until, limit=limit, offset=offset
@@ -307,11 +317,19 @@ def readings(
             )
             for r in rows
         ]
-    rows = air.readings(
-        session, camera_id=camera_id, since=since, until=until, limit=100_000, offset=0
+    buckets = air.aggregate(
+        session, camera_id=camera_id, since=since, until=until, bucket=aggregate, tz=zone
     )
-    buckets = air.aggregate(rows, aggregate)[offset : offset + limit]
-    return [AirAggregate(**b) for b in buckets]
+    return [AirAggregate(**b) for b in buckets[offset : offset + limit]]
+
+
+def _zone(name: str) -> ZoneInfo:
+    try:
+        return ZoneInfo(name)
+    except (ZoneInfoNotFoundError, ValueError):
+        raise Unprocessable(
+            f"unknown time zone {name!r}: give an IANA name such as Europe/Rome or Asia/Kolkata"
+        ) from None
 
 
 @router.get("/alerts", response_model=list[AirAlertOut])

@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import math
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timedelta
-from typing import TYPE_CHECKING, Any
+from datetime import datetime, time, timedelta, timezone
+from typing import TYPE_CHECKING, Any, Literal
+from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import and_, func, literal_column, or_, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, soiling
+from app.db.base import time_slot
 from app.db.models import (
     AirAlert,
     AirCalibration,
@@ -400,31 +403,92 @@ def readings(
     ).all()
 
 
-def aggregate(rows: Sequence[Any], bucket: str) -> list[dict[str, Any]]:
-    """Hourly or daily means of the graded readings, newest first."""
-    out: dict[tuple[str, datetime], list[float]] = {}
-    for r in rows:
-        if r.level is None:
-            continue
-        t: datetime = r.captured_at
-        start = t.replace(minute=0, second=0, microsecond=0)
-        if bucket == "daily":
-            start = start.replace(hour=0)
-        out.setdefault((r.camera_id, start), []).append(float(r.level))
+SLOT_S = 900
+"""Readings are summed by the database in 15-minute slots of UTC, then the slots gathered into
+local hours or days: every time zone's offset from UTC is a whole number of quarter hours
+(India +5:30, Nepal +5:45), so no slot straddles a local hour."""
+
+
+def aggregate(
+    session: Session,
+    *,
+    camera_id: str | None,
+    since: datetime | None,
+    until: datetime | None,
+    bucket: Literal["hourly", "daily"],
+    tz: ZoneInfo,
+) -> list[dict[str, Any]]:
+    """Hourly or daily means of the graded readings in the time zone ``tz``, newest first.
+
+    All readings in the range count: the database sums them by slot (count, sum, min, max),
+    so a month of a city's cameras is thousands of slots, not millions of rows. A local hour
+    that occurs twice (clocks put back) is two buckets, told apart by their UTC offset; a
+    local day is 23 to 25 hours long around a change of clocks."""
+    slot = time_slot(Frame.captured_at, literal_column(str(SLOT_S))).label("slot")
+    q = (
+        select(
+            Frame.camera_id,
+            slot,
+            func.count(SkyVerdict.level),
+            func.sum(SkyVerdict.level),
+            func.min(SkyVerdict.level),
+            func.max(SkyVerdict.level),
+        )
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(SkyVerdict.level.is_not(None))
+        .group_by(slot, Frame.camera_id)  # this order: SQLite scans the readings, not the
+        # (camera, time) index with a lookup per row (3.4 against 11 s for 1.7 M readings)
+    )
+    if camera_id is not None:
+        q = q.where(Frame.camera_id == camera_id)
+    if since is not None:
+        q = q.where(Frame.captured_at >= since)
+    if until is not None:
+        q = q.where(Frame.captured_at < until)
+    spans: dict[int, tuple[datetime, datetime]] = {}  # slot → its bucket's (start, end)
+    sums: dict[tuple[str, datetime, datetime], list[float]] = {}
+    for row in session.execute(q):
+        cam, index, n = row[0], int(row[1]), int(row[2])
+        total, lo, hi = (float(v or 0) for v in row[3:])  # never NULL: ungraded rows left out
+        if index not in spans:
+            spans[index] = _bucket(datetime.fromtimestamp(index * SLOT_S, tz), bucket, tz)
+        acc = sums.setdefault((cam, *spans[index]), [0.0, 0.0, math.inf, -math.inf])
+        acc[0] += n
+        acc[1] += total
+        acc[2] = min(acc[2], lo)
+        acc[3] = max(acc[3], hi)
     result = [
         {
             "camera_id": cam,
             "start": start,
-            "end": start + (timedelta(days=1) if bucket == "daily" else timedelta(hours=1)),
-            "n": len(v),
-            "mean_level": float(np.mean(v)),
-            "min_level": min(v),
-            "max_level": max(v),
-            "category": airquality.category(float(np.mean(v))),
+            "end": end,
+            "n": int(n),
+            "mean_level": total / n,
+            "min_level": lo,
+            "max_level": hi,
+            "category": airquality.category(total / n),
         }
-        for (cam, start), v in out.items()
+        for (cam, start, end), (n, total, lo, hi) in sums.items()
     ]
     return sorted(result, key=lambda d: (d["start"], d["camera_id"]), reverse=True)
+
+
+def _bucket(local: datetime, bucket: str, tz: ZoneInfo) -> tuple[datetime, datetime]:
+    """The local hour or day ``local`` (an aware time in ``tz``) falls in: (start, end)."""
+    if bucket == "hourly":
+        # the hour's own offset: the repeated hour of an autumn night is two hours
+        start = local.replace(minute=0, second=0, microsecond=0)
+        start = start.replace(tzinfo=timezone(local.utcoffset() or timedelta(0)))
+        return start, start + timedelta(hours=1)
+    day = local.date()
+    start = datetime.combine(day, time(), tzinfo=tz)
+    end = datetime.combine(day + timedelta(days=1), time(), tzinfo=tz)
+    return _fixed(start), _fixed(end)
+
+
+def _fixed(t: datetime) -> datetime:
+    """The same instant with its offset as a fixed zone (compares and sorts by the instant)."""
+    return t.astimezone(timezone(t.utcoffset() or timedelta(0)))
 
 
 def alerts(

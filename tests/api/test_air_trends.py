@@ -1,0 +1,184 @@
+"""GET /air/readings?aggregate=hourly|daily: every reading in the range counts, in the local
+hours and days of the time zone asked for, checked against the same means computed here from
+the readings one by one."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from datetime import UTC, datetime, timedelta, timezone
+from typing import Any
+from zoneinfo import ZoneInfo
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine, insert
+
+from app.db.models import Camera, CameraKind, Frame, SkyVerdict, Verdict
+
+Reading = tuple[str, datetime, int | None]
+
+
+def store(engine: Engine, readings: list[Reading]) -> None:
+    """Sky readings written straight to the tables (the grading path has its own tests)."""
+    cameras = sorted({cam for cam, _, _ in readings})
+    frames, verdicts, skies = [], [], []
+    for k, (cam, at, level) in enumerate(readings):
+        fid = f"f{k:07d}"
+        frames.append(
+            {
+                "id": fid, "camera_id": cam, "captured_at": at, "received_at": at, "width": 1,
+                "height": 1, "size_bytes": 1, "sha256": f"{k:064x}",
+            }
+        )  # fmt: skip
+        verdicts.append(
+            {
+                "frame_id": fid, "kind": CameraKind.sky, "camera_id": cam, "mode_r": 0,
+                "mode_g": 0, "mode_b": 0, "mean_r": 0.0, "mean_g": 0.0, "mean_b": 0.0,
+            }
+        )  # fmt: skip
+        skies.append({"frame_id": fid, "level": level})
+    with engine.begin() as conn:
+        conn.execute(
+            insert(Camera),
+            [{"id": c, "kind": CameraKind.sky, "token_hash": f"h-{c}"} for c in cameras],
+        )
+        for table, rows in ((Frame, frames), (Verdict, verdicts), (SkyVerdict, skies)):
+            for start in range(0, len(rows), 20_000):
+                conn.execute(insert(table.__table__), rows[start : start + 20_000])
+
+
+def expected(readings: list[Reading], bucket: str, tz: ZoneInfo) -> list[dict[str, Any]]:
+    """The buckets, newest first, from each reading's own local time."""
+    groups: dict[tuple[str, datetime, datetime], list[int]] = defaultdict(list)
+    for cam, at, level in readings:
+        if level is None:
+            continue
+        local = at.astimezone(tz)
+        if bucket == "hourly":
+            start = local.replace(minute=0, second=0, microsecond=0)
+            end = start.astimezone(UTC) + timedelta(hours=1)
+        else:
+            start = datetime(local.year, local.month, local.day, tzinfo=tz)
+            nxt = start.date() + timedelta(days=1)
+            end = datetime(nxt.year, nxt.month, nxt.day, tzinfo=tz)
+        groups[(cam, start, end)].append(level)
+    out = [
+        {
+            "camera_id": cam,
+            "start": start.astimezone(UTC),
+            "end": end.astimezone(UTC),
+            "offset": start.utcoffset(),
+            "n": len(v),
+            "mean_level": float(np.mean(v)),
+            "min_level": min(v),
+            "max_level": max(v),
+        }
+        for (cam, start, end), v in groups.items()
+    ]
+    return sorted(out, key=lambda d: (d["start"], d["camera_id"]), reverse=True)
+
+
+def fetch(client: TestClient, **params: Any) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    while True:
+        r = client.get("/air/readings", params={**params, "limit": 10_000, "offset": len(out)})
+        assert r.status_code == 200, r.text
+        page = r.json()
+        out += page
+        if len(page) < 10_000:
+            return out
+
+
+def as_expected(got: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for b in got:
+        start = datetime.fromisoformat(b["start"])
+        rows.append(
+            {
+                "camera_id": b["camera_id"],
+                "start": start.astimezone(UTC),
+                "end": datetime.fromisoformat(b["end"]).astimezone(UTC),
+                "offset": start.utcoffset(),
+                "n": b["n"],
+                "mean_level": pytest.approx(b["mean_level"], abs=1e-9),
+                "min_level": b["min_level"],
+                "max_level": b["max_level"],
+            }
+        )
+    return rows
+
+
+def test_local_hours_and_days_across_zones_and_clock_changes(
+    client: TestClient, engine: Engine
+) -> None:
+    """Two cameras, a reading every 7 to 23 minutes (some ungraded) over the last week of
+    October 2026, when Europe puts its clocks back (25 October: the hour 02:00–03:00 comes
+    twice) and New York does not yet. India (+5:30) and Nepal (+5:45) have hours that are not
+    UTC's. Before, buckets were UTC's whatever the city."""
+    rng = np.random.default_rng(7)
+    readings: list[Reading] = []
+    for cam in ("sky-a", "sky-b"):
+        at = datetime(2026, 10, 22, tzinfo=UTC)
+        while at < datetime(2026, 10, 29, tzinfo=UTC):
+            level = None if rng.random() < 0.1 else int(rng.integers(1, 11))
+            readings.append((cam, at, level))
+            at += timedelta(minutes=int(rng.integers(7, 24)), seconds=int(rng.integers(0, 60)))
+    store(engine, readings)
+    since, until = datetime(2026, 10, 23, 3, 10, tzinfo=UTC), datetime(2026, 10, 28, tzinfo=UTC)
+    inside = [r for r in readings if since <= r[1] < until]
+    for zone in ("UTC", "Europe/Rome", "Asia/Kolkata", "Asia/Kathmandu", "America/New_York"):
+        for bucket in ("hourly", "daily"):
+            got = fetch(
+                client,
+                aggregate=bucket,
+                tz=zone,
+                since=since.isoformat(),
+                until=until.isoformat(),
+            )
+            want = expected(inside, bucket, ZoneInfo(zone))
+            assert as_expected(got) == want, (zone, bucket)
+    # the autumn night in Rome: 02:00 +02:00 and 02:00 +01:00 are two hours
+    rome = fetch(client, aggregate="hourly", tz="Europe/Rome", camera_id="sky-a")
+    twice = [b["start"] for b in rome if b["start"][11:16] == "02:00" and "10-25" in b["start"]]
+    assert sorted(twice) == ["2026-10-25T02:00:00+01:00", "2026-10-25T02:00:00+02:00"]
+    day = next(
+        b for b in fetch(client, aggregate="daily", tz="Europe/Rome") if "10-25" in b["start"]
+    )
+    hours = (
+        datetime.fromisoformat(day["end"]) - datetime.fromisoformat(day["start"])
+    ).total_seconds()
+    assert hours == 25 * 3600
+
+
+def test_every_reading_in_the_range_counts(client: TestClient, engine: Engine) -> None:
+    """120,000 readings (a city's cameras over a few days). Before, only the newest 100,000
+    were read: the oldest days' means came from part of their readings, or were missing."""
+    rng = np.random.default_rng(3)
+    t0 = datetime(2026, 6, 1, tzinfo=UTC)
+    readings: list[Reading] = [
+        (f"sky-{k % 40:02d}", t0 + timedelta(seconds=6 * (k // 40)), int(rng.integers(1, 11)))
+        for k in range(120_000)
+    ]
+    store(engine, readings)
+    got = fetch(client, aggregate="daily")
+    assert sum(b["n"] for b in got) == 120_000
+    assert as_expected(got) == expected(readings, "daily", ZoneInfo("UTC"))
+
+
+@pytest.mark.parametrize("zone", ["Mars/Olympus_Mons", "../../etc/passwd", "", "+05:30"])
+def test_an_unknown_time_zone_is_422(client: TestClient, zone: str) -> None:
+    r = client.get("/air/readings", params={"aggregate": "daily", "tz": zone})
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+
+
+def test_offsets_are_fixed_in_the_answer() -> None:
+    """A bucket's start carries the offset it had then (checked on the helper's output)."""
+    from app.services.air import _bucket
+
+    local = datetime(2026, 10, 25, 2, 30, tzinfo=ZoneInfo("Europe/Rome"), fold=1)
+    start, end = _bucket(local, "hourly", ZoneInfo("Europe/Rome"))
+    assert start.utcoffset() == timedelta(hours=1)
+    assert start.tzinfo == timezone(timedelta(hours=1))
+    assert end - start == timedelta(hours=1)
