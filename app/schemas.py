@@ -542,3 +542,6 @@ class ShapeFitOut(Out):
     centre: list[float]
     axes: list[list[float]] = Field(description="The shape's local x, y, z axes (rows).")
     rms: float = Field(description="RMS distance of the points from the fitted shape.")
+    hidden_corners: int = Field(
+        description="The shape's corners no point lies near (unseen, or not the part's)."
+    )

@@ -249,6 +249,7 @@ def match_shape(body: ShapeMatchIn, _: RobotOrAdmin) -> list[ShapeFitOut]:
             centre=f.centre.tolist(),
             axes=f.axes.tolist(),
             rms=f.rms,
+            hidden_corners=f.hidden,
         )
         for f in fits
     ]

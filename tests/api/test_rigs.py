@@ -185,6 +185,11 @@ def test_shape_match(client: TestClient, admin: dict[str, str]) -> None:
         pytest.approx(0.2),
         pytest.approx(0.4),
     ]
+    assert best["hidden_corners"] == 0
+    # the far bottom corner unseen: still the box, one corner hidden
+    seen = client.post("/shapes/match", json={"points": corners[:7]}, headers=admin).json()[0]
+    assert (seen["shape"], seen["hidden_corners"]) == ("box", 1)
+    assert sorted(seen["dimensions"].values()) == pytest.approx([0.1, 0.2, 0.4], abs=1e-6)
     assert (
         client.post("/shapes/match", json={"points": corners[:3]}, headers=admin).status_code == 422
     )

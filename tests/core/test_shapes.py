@@ -59,3 +59,59 @@ def test_bad_input() -> None:
         match(np.zeros((4, 3)))
     with pytest.raises(ValueError, match="finite"):
         match(np.full((8, 3), np.nan))
+
+
+def box_corners(length: float, width: float, height: float) -> np.ndarray:
+    return np.array(list(itertools.product((0, length), (0, width), (0, height))), float)
+
+
+@pytest.mark.parametrize(
+    "dims", [(100, 60, 40), (50, 50, 50), (80, 50, 50), (100, 100, 20)], ids=str
+)
+@pytest.mark.parametrize("seen", [8, 7], ids=lambda n: f"{n} corners")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_boxes_with_equal_sides_or_a_hidden_corner(
+    dims: tuple[float, float, float], seen: int, seed: int
+) -> None:
+    """A cube, a square bar, a square flat box, and any box whose far bottom corner the
+    cameras do not see (noise σ 0.2 mm a coordinate). The principal axes are not a box's axes
+    then: the cube came out 86 × 84 × 71 and a prism, the flat box 141 × 141 × 20 (its
+    diagonals), every box with a hidden corner 110 × 80 × 52."""
+    rng = np.random.default_rng(seed)
+    p = (box_corners(*dims) @ rotation(seed + 10).T + [10.0, 20.0, 500.0])[:seen]
+    p = p + rng.normal(0, 0.2, p.shape)
+    best = match(p)[0]
+    assert best.shape == "box"
+    got = [best.dimensions[k] for k in ("length", "width", "height")]
+    np.testing.assert_allclose(got, sorted(dims, reverse=True), atol=0.6)
+    assert best.hidden == 8 - seen
+    centre = np.mean(box_corners(*dims), axis=0) @ rotation(seed + 10).T + [10.0, 20.0, 500.0]
+    np.testing.assert_allclose(best.centre, centre, atol=0.6)
+
+
+def test_a_right_angled_prism_is_a_prism_not_a_box_missing_two_corners() -> None:
+    """Its six corners are six of a box's eight: both fit as closely, and the prism, which
+    accounts for all of its corners, comes first."""
+    tri = np.array([[0.0, 0.0], [80.0, 0.0], [0.0, 40.0]])
+    p = np.array([[x, y, z] for z in (0.0, 50.0) for x, y in tri]) @ rotation(4).T
+    p = p + np.random.default_rng(4).normal(0, 0.2, p.shape)
+    fits = match(p)
+    assert [f.shape for f in fits] == ["prism", "box"]
+    assert (fits[0].hidden, fits[1].hidden) == (0, 2)
+    assert fits[1].rms < 0.05 * 80  # the box fits too: the answer says so
+    assert fits[0].dimensions["length"] == pytest.approx(50, abs=0.6)
+
+
+@pytest.mark.parametrize("height", [200.0, 70.7, 40.0])
+def test_a_cylinder_as_tall_as_its_points_are_wide(height: float) -> None:
+    """Radius 50 and height 70.7 (√2 × r): the rim points spread alike in every direction, so
+    any three axes are principal. The height came out 106–114."""
+    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    p = np.array([[50 * np.cos(t), 50 * np.sin(t), z] for z in (0.0, height) for t in a])
+    p = p @ rotation(5).T + np.random.default_rng(5).normal(0, 0.2, (24, 3))
+    best = match(p)[0]
+    assert best.shape == "cylinder"
+    assert best.dimensions["radius"] == pytest.approx(50, abs=0.3)
+    assert best.dimensions["height"] == pytest.approx(height, abs=1.2)
+    axis = rotation(5) @ [0.0, 0.0, 1.0]
+    assert abs(best.axes[2] @ axis) > np.cos(np.radians(1))
