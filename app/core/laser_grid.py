@@ -802,7 +802,7 @@ def fit_base_plane(
         raise ValueError("no plane has the grid points on one side: give the base plane")
     inl = points[np.abs(dist[:, best]) < tol]
     centre = inl.mean(axis=0)
-    _, _, vt = np.linalg.svd(inl - centre)
+    _, _, vt = np.linalg.svd(inl - centre, full_matrices=False)  # not U: n × n
     nrm = vt[2] if vt[2] @ normal[best] > 0 else -vt[2]
     return np.append(nrm, -nrm @ centre)
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 
@@ -41,7 +42,7 @@ def _hidden(points: NDArray[np.float64], corners: NDArray[np.float64], rms: floa
 
 def _frame(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     centre = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - centre)
+    _, _, vt = np.linalg.svd(p - centre, full_matrices=False)  # not U: n × n
     if np.linalg.det(vt) < 0:
         vt[2] *= -1
     return centre, vt
@@ -56,16 +57,15 @@ def _edge_directions(
     points: NDArray[np.float64], *, k: int = 6, limit: int = 60
 ) -> NDArray[np.float64]:
     """Unit directions from each point to its ``k`` nearest others, shortest first, one of each
-    (within 3°, either sign): a box's edges join a corner to its nearest corners."""
-    d = points[None, :, :] - points[:, None, :]
-    dist = np.linalg.norm(d, axis=-1)
-    np.fill_diagonal(dist, np.inf)
-    near = np.argsort(dist, axis=1)[:, : min(k, len(points) - 1)]
-    rows = np.repeat(np.arange(len(points)), near.shape[1])
-    vec, length = d[rows, near.ravel()], dist[rows, near.ravel()]
-    order = np.argsort(length)
-    vec, length = vec[order], length[order]
-    keep = length > 1e-12
+    (within 3°, either sign), at most ``limit``: a box's edges join a corner to its nearest
+    corners."""
+    k = min(k, len(points) - 1)
+    dist, near = cKDTree(points).query(points, k=k + 1)  # the first is the point itself
+    rows = np.repeat(np.arange(len(points)), k)
+    vec = points[near[:, 1:].ravel()] - points[rows]
+    length = dist[:, 1:].ravel()
+    order = np.argsort(length, kind="stable")
+    keep = order[length[order] > 1e-12]
     units = vec[keep] / length[keep, None]
     chosen: list[NDArray[np.float64]] = []
     for u in units:

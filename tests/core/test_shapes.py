@@ -115,3 +115,22 @@ def test_a_cylinder_as_tall_as_its_points_are_wide(height: float) -> None:
     assert best.dimensions["height"] == pytest.approx(height, abs=1.2)
     axis = rotation(5) @ [0.0, 0.0, 1.0]
     assert abs(best.axes[2] @ axis) > np.cos(np.radians(1))
+
+
+def test_many_points_take_little_memory() -> None:
+    """5,000 rim points (the API takes up to 10,000): the principal axes came from a full SVD
+    whose unused U alone is n × n, 200 MB here and 800 MB at 10,000 points."""
+    import tracemalloc
+
+    rng = np.random.default_rng(6)
+    a = rng.uniform(0, 2 * np.pi, 5000)
+    p = np.column_stack([50 * np.cos(a), 50 * np.sin(a), rng.choice([0.0, 100.0], 5000)])
+    tracemalloc.start()
+    try:
+        best = match(p + rng.normal(0, 0.2, p.shape))[0]
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 50e6
+    assert best.shape == "cylinder"
+    assert best.dimensions["radius"] == pytest.approx(50, abs=0.3)
