@@ -12,7 +12,7 @@ from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import and_, func, literal_column, or_, select
+from sqlalchemy import ColumnElement, and_, func, literal_column, or_, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, soiling
@@ -392,15 +392,24 @@ def readings(
         SkyVerdict.smoothed_level,
         SkyVerdict.reason,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-    if camera_id is not None:
-        q = q.where(Frame.camera_id == camera_id)
-    if since is not None:
-        q = q.where(Frame.captured_at >= since)
-    if until is not None:
-        q = q.where(Frame.captured_at < until)
+    q = q.where(*_in_range(camera_id, since, until))
     return session.execute(
         q.order_by(Frame.captured_at.desc(), Frame.id).limit(limit).offset(offset)
     ).all()
+
+
+def _in_range(
+    camera_id: str | None, since: datetime | None, until: datetime | None
+) -> list[ColumnElement[bool]]:
+    """Conditions on frames: one camera's (or all), taken in [since, until)."""
+    conditions = []
+    if camera_id is not None:
+        conditions.append(Frame.camera_id == camera_id)
+    if since is not None:
+        conditions.append(Frame.captured_at >= since)
+    if until is not None:
+        conditions.append(Frame.captured_at < until)
+    return conditions
 
 
 SLOT_S = 900
@@ -420,8 +429,9 @@ def aggregate(
 ) -> list[dict[str, Any]]:
     """Hourly or daily means of the graded readings in the time zone ``tz``, newest first.
 
-    All readings in the range count: the database sums them by slot (count, sum, min, max),
-    so a month of a city's cameras is thousands of slots, not millions of rows. A local hour
+    All readings in the range count: the database sums them by camera and slot (count, sum,
+    min, max), so Python sees at most one row per camera a quarter hour (576,000 for a month of
+    200 cameras reading every 5 minutes, 1.7 million readings). A local hour
     that occurs twice (clocks put back) is two buckets, told apart by their UTC offset; a
     local day is 23 to 25 hours long around a change of clocks."""
     slot = time_slot(Frame.captured_at, literal_column(str(SLOT_S))).label("slot")
@@ -439,12 +449,7 @@ def aggregate(
         .group_by(slot, Frame.camera_id)  # this order: SQLite scans the readings, not the
         # (camera, time) index with a lookup per row (3.4 against 11 s for 1.7 M readings)
     )
-    if camera_id is not None:
-        q = q.where(Frame.camera_id == camera_id)
-    if since is not None:
-        q = q.where(Frame.captured_at >= since)
-    if until is not None:
-        q = q.where(Frame.captured_at < until)
+    q = q.where(*_in_range(camera_id, since, until))
     spans: dict[int, tuple[datetime, datetime]] = {}  # slot → its bucket's (start, end)
     sums: dict[tuple[str, datetime, datetime], list[float]] = {}
     for row in session.execute(q):

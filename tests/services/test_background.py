@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from datetime import UTC, datetime, timedelta
+from datetime import timedelta
 from typing import Any
 
 import pytest
@@ -14,14 +14,14 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import AirAlert, Camera, CameraKind, Frame
+from app.db.models import AirAlert
 from app.db.session import make_engine, make_sessionmaker
 from app.main import create_app
 from app.services import webhooks
 from app.services.background import in_thread
 from app.services.policy import Policy
 from app.settings import Settings
-from tests.conftest import _empty_tables
+from tests.services.test_webhooks import T0, seed_alerts
 
 
 def test_a_cancelled_wait_still_waits_for_the_thread() -> None:
@@ -114,25 +114,8 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
 ) -> None:
     """A shutdown waits for the alert being posted, not for every due one (each post may take
     its whole timeout when the receiver does not answer)."""
-    _empty_tables(engine)
-    t0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
-    with Session(engine) as s:
-        s.add(Camera(id="sky", kind=CameraKind.sky, token_hash="h"))
-        s.add(
-            Frame(
-                id="f", camera_id="sky", captured_at=t0, received_at=t0, width=1, height=1,
-                size_bytes=1, sha256="0" * 64,
-            )
-        )  # fmt: skip
-        s.flush()  # the camera and frame first: no relationship tells the flush their order
-        for n in range(3):
-            s.add(
-                AirAlert(
-                    id=f"a{n}", camera_id="sky", frame_id="f",
-                    created_at=t0 + timedelta(seconds=n), smoothed_level=2.0, category="Poor",
-                )
-            )  # fmt: skip
-        s.commit()
+    seed_alerts(engine, 3)
+    t0 = T0
     stopping = threading.Event()
     posted: list[str] = []
 
