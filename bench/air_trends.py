@@ -1,0 +1,127 @@
+"""Hourly and daily air-quality means over a city's month: ``air.aggregate`` (the database sums
+15-minute slots) against reading the same readings one row each (``air.readings``, which the
+aggregates were computed from before, capped at the newest 100,000).
+
+Readings are written straight to the tables of a scratch database: ``--cameras`` cameras, one
+reading every ``--every`` seconds each, for ``--days`` days.
+
+    python bench/air_trends.py                       # SQLite, 200 cameras, 30 days, every 5 min
+    python bench/air_trends.py --backend postgresql  # a scratch database on 127.0.0.1:5432
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from zoneinfo import ZoneInfo
+
+import numpy as np
+from sqlalchemy import create_engine
+from sqlalchemy.orm import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.services import air  # noqa: E402
+from tests.api.test_air_trends import store  # noqa: E402
+from tests.conftest import migrate  # noqa: E402
+
+PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
+PG_BENCH = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_trends_bench"
+
+
+def database(backend: str) -> str:
+    if backend == "sqlite":
+        return f"sqlite:///{tempfile.mkdtemp()}/trends.db"
+    import psycopg
+
+    with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+        conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
+        conn.execute("CREATE DATABASE vantage_trends_bench")
+    return PG_BENCH
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
+    ap.add_argument("--cameras", type=int, default=200)
+    ap.add_argument("--days", type=int, default=30)
+    ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
+    ap.add_argument("--rounds", type=int, default=2)
+    args = ap.parse_args()
+
+    url = database(args.backend)
+    migrate(url)
+    engine = create_engine(url)
+    rng = np.random.default_rng(0)
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    per_camera = args.days * 86400 // args.every
+    n = args.cameras * per_camera
+    readings = [
+        (
+            f"sky-{k % args.cameras:04d}",
+            t0 + timedelta(seconds=args.every * (k // args.cameras)),
+            int(rng.integers(1, 11)),
+        )
+        for k in range(n)
+    ]
+    t = time.perf_counter()
+    store(engine, readings)
+    print(f"{args.backend}: {n} readings stored in {time.perf_counter() - t:.0f} s")
+    if args.backend == "postgresql":
+        with engine.connect() as conn:
+            conn.exec_driver_sql("ANALYZE")
+    print("| round | what | buckets | readings counted | time [s] |")
+    print("|---|---|---|---|---|")
+    with Session(engine) as session:
+        for r in range(args.rounds):
+            for zone, bucket in (("UTC", "daily"), ("Asia/Kolkata", "daily"), ("UTC", "hourly")):
+                t = time.perf_counter()
+                out = air.aggregate(
+                    session,
+                    camera_id=None,
+                    since=None,
+                    until=None,
+                    bucket=bucket,
+                    tz=ZoneInfo(zone),
+                )
+                dt = time.perf_counter() - t
+                counted = sum(b["n"] for b in out)
+                print(
+                    f"| {r + 1} | aggregate {bucket} {zone} | {len(out)} | {counted} | {dt:.2f} |"
+                )
+            for limit in (100_000, n):
+                t = time.perf_counter()
+                rows = air.readings(
+                    session, camera_id=None, since=None, until=None, limit=limit, offset=0
+                )
+                dt = time.perf_counter() - t
+                print(f"| {r + 1} | readings, newest {limit} rows | | {len(rows)} | {dt:.2f} |")
+                del rows
+            t = time.perf_counter()
+            out = air.aggregate(
+                session,
+                camera_id="sky-0007",
+                since=None,
+                until=None,
+                bucket="daily",
+                tz=ZoneInfo("UTC"),
+            )
+            print(
+                f"| {r + 1} | aggregate daily, one camera | {len(out)} |"
+                f" {sum(b['n'] for b in out)} | {time.perf_counter() - t:.2f} |"
+            )
+    engine.dispose()
+    if args.backend == "postgresql":
+        import psycopg
+
+        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
+
+
+if __name__ == "__main__":
+    main()
