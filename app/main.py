@@ -86,6 +86,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 app.state.policy,
                 settings.frame_retention_days,
                 settings.retention_sweep_seconds,
+                settings.history_retention_days,
             )
         )
         # what start-up built lives as long as the process: out of the cyclic collector's way,

@@ -40,6 +40,12 @@ class Settings(BaseSettings):
     frame_retention_days: float = Field(
         default=30.0, gt=0, description="Keep frames this long [d]."
     )
+    history_retention_days: float | None = Field(
+        default=None,
+        gt=0,
+        description="Keep frames' rows (verdicts, readings, trends) this long [d], their images"
+        " only for frame_retention_days; default: the rows go with their images.",
+    )
     retention_sweep_seconds: float = Field(
         default=3600.0, gt=0, description="How often old frames are swept [s]."
     )
@@ -134,6 +140,14 @@ class Settings(BaseSettings):
         if self.env == "production" and self.admin_token is not None:
             if len(self.admin_token.get_secret_value()) < 24:
                 raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
+        if (
+            self.history_retention_days is not None
+            and self.history_retention_days < self.frame_retention_days
+        ):
+            raise ValueError(
+                "VANTAGE_HISTORY_RETENTION_DAYS must be at least VANTAGE_FRAME_RETENTION_DAYS:"
+                " a frame's image is kept only with its row"
+            )
         if self.alert_webhook_url is not None:
             url = urlsplit(self.alert_webhook_url)
             if url.scheme not in ("http", "https") or not url.hostname:

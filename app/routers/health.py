@@ -61,5 +61,6 @@ def sweep_now(request: Request, _: Admin) -> dict[str, int]:
         request.app.state.frame_store,
         request.app.state.policy,
         settings.frame_retention_days,
+        settings.history_retention_days,
     )
-    return {"frames": swept.frames, "files": swept.files}
+    return {"frames": swept.frames, "files": swept.files, "images": swept.images}

@@ -1,5 +1,10 @@
 """Frame retention: old frames go (rows and bytes); frames something still needs stay.
 
+Rows and images may have retentions of their own: with ``history_days`` longer than ``days``,
+a frame's image goes after ``days`` (its row then says it has none) and its row, with the
+verdict and reading, after ``history_days``: a city keeps a year of trends without a year of
+photos.
+
 Kept whatever their age: frames a baseline or an air calibration was trained from, and frames
 an alert points at. On disk, frames live in packs, one per process and hour of reception
 (``app.services.storage``): once an hour has expired, the kept frames among its packs are
@@ -44,8 +49,11 @@ BATCH = 2000
 @dataclass(frozen=True, slots=True)
 class Swept:
     frames: int
+    """Frames deleted, rows and images."""
     files: int
     """Frames' files or objects deleted, and packs."""
+    images: int = 0
+    """Frames whose image was deleted and row kept (``history_days``)."""
 
 
 def _kept(session: Session) -> set[str]:
@@ -58,10 +66,18 @@ def _kept(session: Session) -> set[str]:
     return keep
 
 
-def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float) -> Swept:
-    """Delete frames received more than ``days`` ago, their files, and the expired packs."""
-    cutoff = policy.now() - timedelta(days=days)
-    frames = files = 0
+def sweep(
+    sessions: sessionmaker[Session],
+    store: FrameStore,
+    policy: Policy,
+    days: float,
+    history_days: float | None = None,
+) -> Swept:
+    """Delete frames received more than ``history_days`` (default ``days``) ago, their files,
+    the images of those received more than ``days`` ago, and the expired packs."""
+    now = policy.now()
+    cutoff = now - timedelta(days=max(days, history_days or days))
+    frames = files = images = 0
     while True:
         with sessions() as session:
             keep = _kept(session)
@@ -87,11 +103,46 @@ def sweep(sessions: sessionmaker[Session], store: FrameStore, policy: Policy, da
         store.delete(gone)
         files += len(gone)
         frames += len(ids)
+    cutoff = now - timedelta(days=days)
+    if history_days is not None and history_days > days:
+        images, dropped = _drop_images(sessions, store, cutoff)
+        files += dropped
     if packs := store.expired_packs(cutoff):
         _move_kept(sessions, store, policy, set(packs), cutoff)
         store.delete_packs(packs)
         files += len(packs)
-    return Swept(frames, files)
+    return Swept(frames, files, images)
+
+
+def _drop_images(
+    sessions: sessionmaker[Session], store: FrameStore, cutoff: datetime
+) -> tuple[int, int]:
+    """Forget the images of the frames received before ``cutoff`` that nothing keeps, their
+    rows staying: the rows first (committed), then files of their own no row refers to any
+    more. A frame in a pack goes with its pack. Returns (frames, files)."""
+    frames = files = 0
+    while True:
+        with sessions() as session:
+            keep = _kept(session)
+            rows = session.execute(
+                select(Frame.id, Frame.stored_path)
+                .where(Frame.received_at < cutoff, Frame.stored_path.is_not(None))
+                .order_by(Frame.received_at)
+                .limit(BATCH + len(keep))
+            ).all()
+            doomed = [r for r in rows if r[0] not in keep][:BATCH]
+            if not doomed:
+                return frames, files
+            session.execute(
+                update(Frame).where(Frame.id.in_([r[0] for r in doomed])).values(stored_path=None)
+            )
+            paths = {r[1] for r in doomed if r[1] is not None and pack_of(r[1]) is None}
+            still = _referenced(session, paths)
+            session.commit()
+        gone = sorted(paths - still)
+        store.delete(gone)
+        files += len(gone)
+        frames += len(doomed)
 
 
 def _move_kept(
@@ -185,14 +236,22 @@ def _any_referenced(sessions: sessionmaker[Session], locators: Generator[str, No
 
 
 async def run(
-    sessions: sessionmaker[Session], store: FrameStore, policy: Policy, days: float, every: float
+    sessions: sessionmaker[Session],
+    store: FrameStore,
+    policy: Policy,
+    days: float,
+    every: float,
+    history_days: float | None = None,
 ) -> None:
     """The retention sweep every ``every`` seconds (the first after one interval)."""
     while True:
         await asyncio.sleep(every)
         try:
-            swept = await in_thread(sweep, sessions, store, policy, days)
-            if swept.frames:
-                log.info("retention sweep", extra={"frames": swept.frames, "files": swept.files})
+            swept = await in_thread(sweep, sessions, store, policy, days, history_days)
+            if swept.frames or swept.images:
+                log.info(
+                    "retention sweep",
+                    extra={"frames": swept.frames, "files": swept.files, "images": swept.images},
+                )
         except Exception:
             log.exception("retention sweep failed")
