@@ -29,8 +29,6 @@ CATEGORIES = (
     (1, "Very Poor"),
 )
 """Lowest level of each category: 9–10 Very Good, 7–8 Good, 5–6 Fair, 3–4 Poor, 1–2 Very Poor."""
-POOR_LEVEL = 4
-"""Levels at or below this are Poor or Very Poor: alerts."""
 MIN_CLUSTER = 5
 """A level needs this many images for its own cluster (F(3, n − 3) with n − 3 ≥ 2)."""
 
@@ -41,6 +39,23 @@ def category(level: float) -> str:
         raise ValueError(f"level must lie in 1–10; got {level}")
     rounded = int(np.floor(level + 0.5))
     return next(name for lowest, name in CATEGORIES if rounded >= lowest)
+
+
+ALERT_CATEGORIES = ("Poor", "Very Poor")
+
+
+def alert_category(smoothed: float, previous: float | None) -> str | None:
+    """The category to raise an alert for when a camera's smoothed level goes from
+    ``previous`` to ``smoothed``: entering Poor or Very Poor from a better category (Poor from
+    Fair, Very Poor from Poor or better); None otherwise. Judged by ``category`` alone, so an
+    alert never names a category it is not about (a level of exactly 4.5 is Fair)."""
+    now = category(smoothed)
+    if now not in ALERT_CATEGORIES:
+        return None
+    if previous is None:
+        return now
+    rank = [name for _, name in CATEGORIES]
+    return now if rank.index(now) > rank.index(category(previous)) else None
 
 
 def message(name: str) -> str:

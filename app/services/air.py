@@ -294,10 +294,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     previous = next((r[2] for r in history if r[2] is not None), None)
     smoothed = airquality.nowcast(times, levels, frame.captured_at)
     verdict.smoothed_level = smoothed
+    alert = None if smoothed is None else airquality.alert_category(smoothed, previous)
     if (
-        smoothed is not None
-        and round(smoothed) <= airquality.POOR_LEVEL
-        and (previous is None or round(previous) > airquality.POOR_LEVEL)
+        alert is not None
         # the air of hours ago, seen after newer readings: history, not an alert
         and session.execute(graded.where(Frame.captured_at > frame.captured_at).limit(1)).first()
         is None
@@ -309,7 +308,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
                 frame_id=frame.id,
                 created_at=frame.received_at,
                 smoothed_level=smoothed,
-                category=airquality.category(smoothed),
+                category=alert,
                 delivered=False,
                 attempts=0,
             )

@@ -172,6 +172,27 @@ def test_alert_when_the_smoothed_level_turns_poor(
     assert alerts[0]["delivery"] == "no_webhook"  # recorded; nothing is configured to send it
 
 
+def test_air_getting_worse_again_is_a_second_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Poor, then Very Poor: one alert for each category entered, worst last (entering Very
+    Poor from Poor raised none before); getting better raises none."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    for level, n in ((3, 8), (1, 12), (3, 12)):
+        for k in range(n):
+            city["clock"].advance(minutes=20)
+            post(client, city, "sky1", level, seed=100 * level + k)
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings) if r["smoothed_level"]]
+    alerts = client.get("/air/alerts").json()
+    assert [a["category"] for a in alerts] == ["Very Poor", "Poor"]
+    assert min(smoothed) < 2.5  # it did reach Very Poor, and came back to Poor without an alert
+    assert 2.5 <= smoothed[-1] < 4.5
+
+
 def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

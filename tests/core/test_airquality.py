@@ -253,3 +253,23 @@ class TestIsopleths:
         lon, lat, level = smooth_field()
         f = interpolate(lon, lat, level, bbox=(0, 0, 1, 1), method="idw", resolution=16)
         assert bands(f) == []
+
+
+@pytest.mark.parametrize(
+    ("previous", "smoothed", "alert"),
+    [
+        (None, 4.0, "Poor"),  # a camera's first smoothed level
+        (None, 5.0, None),
+        (5.0, 4.0, "Poor"),  # Fair → Poor
+        (7.0, 2.0, "Very Poor"),  # Good → Very Poor at once
+        (4.0, 2.0, "Very Poor"),  # Poor → Very Poor: worse again (was no alert)
+        (3.0, 2.4, "Very Poor"),
+        (2.0, 3.0, None),  # Very Poor → Poor: better
+        (3.0, 4.0, None),  # within Poor
+        (1.0, 1.0, None),
+        (5.0, 4.5, None),  # 4.5 is Fair (category rounds half up); Python's round made it 4
+        (4.6, 4.49, "Poor"),
+    ],
+)
+def test_alert_category(previous: float | None, smoothed: float, alert: str | None) -> None:
+    assert airquality.alert_category(smoothed, previous) == alert
