@@ -126,11 +126,19 @@ def fit_box(points: NDArray[np.float64]) -> Fit:
     def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.asarray((points - (x[3:6] + signs * x[6:9]) @ axes_of(x)).ravel())
 
-    x = least_squares(residual, np.concatenate([np.zeros(3), mid, half])).x
-    axes, half = axes_of(x), np.abs(x[6:9])
-    centre = x[3:6] @ axes
+    x0 = np.concatenate([np.zeros(3), mid, half])
+    x = least_squares(residual, x0).x
+
+    def box_of(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        axes, half = axes_of(x), np.abs(x[6:9])
+        centre = x[3:6] @ axes
+        return axes, half, centre, (SIGNS * half) @ axes + centre
+
+    # points that are no box's corners can pull the refined box beyond them: keep the closer
+    axes, half, centre, corners = min(
+        (box_of(x), box_of(x0)), key=lambda box: _nearest_rms(points, box[3])
+    )
     dims = sorted((2 * half).tolist(), reverse=True)
-    corners = (SIGNS * half) @ axes + centre
     rms = _nearest_rms(points, corners)
     return Fit(
         "box",
@@ -268,15 +276,15 @@ def fit_cylinder(points: NDArray[np.float64]) -> Fit | None:
 
 
 GOOD_FIT = 0.05
-"""A fit whose RMS is within this fraction of its largest dimension explains the points."""
+"""A fit whose RMS is within this fraction of the points' extent explains them."""
 
 
-def _rank(fit: Fit) -> tuple[int, int, float]:
-    """Fits that explain the points first, and among them the one that accounts for the most
-    of its own corners. The six corners of a right-angled prism are six of a box's eight: the
-    box fits them as closely (two corners unseen), and the prism, which has no corner unseen,
-    is the answer; a box seen with one corner hidden is still a box (no prism fits it)."""
-    size = max(fit.dimensions.values())
+def _rank(fit: Fit, size: float) -> tuple[int, int, float]:
+    """Fits that explain the points (RMS within ``GOOD_FIT`` of the points' extent ``size``)
+    first, and among them the one that accounts for the most of its own corners. The six
+    corners of a right-angled prism are six of a box's eight: the box fits them as closely (two
+    corners unseen), and the prism, which has no corner unseen, is the answer; a box seen with
+    one corner hidden is still a box (no prism fits it)."""
     if fit.rms <= GOOD_FIT * size:
         return (0, fit.hidden, fit.rms)
     return (1, 0, fit.rms)
@@ -293,4 +301,5 @@ def match(points: ArrayLike) -> list[Fit]:
     cylinder = fit_cylinder(p)
     if cylinder is not None:
         fits.append(cylinder)
-    return sorted(fits, key=_rank)
+    size = float(np.ptp(p, axis=0).max())
+    return sorted(fits, key=lambda f: _rank(f, size))
