@@ -150,7 +150,8 @@ def test_retention_and_orphan_sweep_delete_objects(
     new = client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=4), headers=headers)
     assert len(keys(bucket)) == 4
 
-    assert client.post("/admin/retention/sweep", headers=admin).json() == {"frames": 3, "files": 3}
+    swept = client.post("/admin/retention/sweep", headers=admin).json()
+    assert swept == {"frames": 3, "files": 3, "images": 0}
     sha = new.json()["sha256"]
     assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
     for r in old:
@@ -164,6 +165,37 @@ def test_retention_and_orphan_sweep_delete_objects(
     assert retention.sweep_orphans(s3_app.state.sessionmaker, store, min_age_s=0) == 1
     assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
     assert table_counts(engine)["frames"] == 1
+
+
+def test_history_retention_deletes_the_objects_and_keeps_the_rows(
+    settings: Settings, s3_url: str, bucket: Any, admin: dict[str, str], app: Any
+) -> None:
+    """VANTAGE_HISTORY_RETENTION_DAYS with the S3 store: the old frames' objects go after the
+    frame retention, their rows stay."""
+    history = settings.model_copy(update={"history_retention_days": 365.0})
+    s3_app = create_app(s3_settings(history, s3_url, bucket.name))
+    clock = Clock()
+    s3_app.state.policy = replace(s3_app.state.policy, clock=clock)
+    with TestClient(s3_app, raise_server_exceptions=False) as client:
+        headers = rig_camera(client, admin)
+        old = [
+            client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=s), headers=headers)
+            for s in (1, 2, 3)
+        ]
+        clock.advance(days=40)
+        new = client.post(
+            "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=4), headers=headers
+        )
+        swept = client.post("/admin/retention/sweep", headers=admin).json()
+        assert swept == {"frames": 0, "files": 3, "images": 3}
+        sha = new.json()["sha256"]
+        assert keys(bucket) == {f"city/frames/{sha[:2]}/{sha}.jpg"}
+        for r in old:
+            frame = client.get(f"/frames/{r.json()['frame_id']}", headers=admin)
+            assert frame.status_code == 200
+            assert frame.json()["stored"] is False
+            image = client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin)
+            assert image.status_code == 404
 
 
 def test_store_down_is_503_and_nothing_is_stored(
