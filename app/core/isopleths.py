@@ -293,6 +293,33 @@ def interpolate(
     return Field(glon, glat, z.reshape(shape), np.asarray(uncertainty).reshape(shape), kind)
 
 
+def cell_size_m(f: Field) -> tuple[float, float]:
+    """A grid cell's width and height [m] at the grid's middle latitude."""
+    lat_mid = math.radians(float(f.lat[len(f.lat) // 2]))
+    dx = math.radians(float(f.lon[1] - f.lon[0])) * EARTH_RADIUS * math.cos(lat_mid)
+    dy = math.radians(float(f.lat[1] - f.lat[0])) * EARTH_RADIUS
+    return dx, dy
+
+
+def band_at(f: Field, lon: NDArray[np.float64], lat: NDArray[np.float64]) -> list[str | None]:
+    """The category the bands give each point: the field linearly interpolated there (as the
+    contours are), None outside the painted cells. Where the grid is coarser than the cameras'
+    spacing, a camera can lie in another category's band than its own reading."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    z = RegularGridInterpolator(
+        (f.lat, f.lon), f.value, method="linear", bounds_error=False, fill_value=np.nan
+    )(np.column_stack([lat, lon]))
+    out: list[str | None] = []
+    for v in z:
+        if not np.isfinite(v):
+            out.append(None)
+            continue
+        k = int(np.searchsorted(BAND_EDGES, v, side="right")) - 1
+        out.append(BANDS[min(max(k, 0), len(BANDS) - 1)][0])
+    return out
+
+
 def bands(f: Field) -> list[dict[str, Any]]:
     """GeoJSON features, one per category present: filled contours between the category
     boundaries, valid (shapely), exteriors counter-clockwise (RFC 7946 right-hand rule)."""

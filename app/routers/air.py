@@ -439,6 +439,24 @@ def isopleths_geojson(
     """City-wide category bands (RFC 7946 GeoJSON), one feature per category present."""
     st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
     features = isopleths.bands(f) if f is not None else []
+    drawn: list[str | None] = [None] * len(st)
+    warnings = []
+    cell = None
+    if f is not None:
+        drawn = isopleths.band_at(f, np.array([s.lon for s in st]), np.array([s.lat for s in st]))
+        cell = [round(v, 1) for v in isopleths.cell_size_m(f)]
+        off = sum(
+            1
+            for s, d in zip(st, drawn, strict=True)
+            if d is not None and d != airquality.category(s.level)
+        )
+        if off:
+            warnings.append(
+                f"{off} of {len(st)} cameras lie in the band of another category than their"
+                f" own reading, with cells of {cell[0]:.0f} × {cell[1]:.0f} m: ask for a"
+                " smaller bbox or a larger resolution (up to 512); cameras close together"
+                " that disagree stay so at any resolution"
+            )
     body = {
         "type": "FeatureCollection",
         "features": features,
@@ -453,10 +471,14 @@ def isopleths_geojson(
                 "lon": s.lon,
                 "lat": s.lat,
                 "level": s.level,
+                "category": airquality.category(s.level),
+                "band": band,
                 "captured_at": s.captured_at.isoformat(),
             }
-            for s in st
+            for s, band in zip(st, drawn, strict=True)
         ],
+        "cell_m": cell,
+        "warnings": warnings,
         "uncertainty": None
         if f is None
         else {

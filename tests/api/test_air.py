@@ -142,6 +142,10 @@ def test_end_to_end(client: TestClient, admin: dict[str, str], city: dict[str, A
     assert fc["type"] == "FeatureCollection"
     assert fc["method"] == "idw"
     assert len(fc["cameras"]) == 12
+    # what the map shows at each camera, and a warning whenever that is not its own category
+    off = [c for c in fc["cameras"] if c["band"] not in (None, c["category"])]
+    assert bool(off) == bool(fc["warnings"])
+    assert len(fc["cell_m"]) == 2
     names = [f["properties"]["category"] for f in fc["features"]]
     assert len(names) == len(set(names))
     for f in fc["features"]:

@@ -10,7 +10,14 @@ import pytest
 from shapely.geometry import Point, shape
 
 from app.core import airquality
-from app.core.isopleths import IsoplethError, bands, default_bbox, interpolate
+from app.core.isopleths import (
+    IsoplethError,
+    band_at,
+    bands,
+    cell_size_m,
+    default_bbox,
+    interpolate,
+)
 
 # very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
 CLEAN = np.array([30.0, 78.0, 180.0])
@@ -248,6 +255,49 @@ class TestIsopleths:
         assert box[3] == 90.0
         assert box[0] < 179.5
         assert box[1] < 89.9
+
+    def test_band_at_agrees_with_the_polygons(self) -> None:
+        """``band_at`` (what the answer says the map shows at each camera) against the band
+        polygons themselves, away from their boundaries."""
+        lon, lat, level = smooth_field()
+        f = interpolate(lon, lat, level, bbox=default_bbox(lon, lat), resolution=96)
+        geoms = {ft["properties"]["category"]: shape(ft["geometry"]) for ft in bands(f)}
+        drawn = band_at(f, lon, lat)
+        checked = 0
+        for x, y, v, d in zip(lon, lat, level, drawn, strict=True):
+            if any(abs(v - e) < 0.4 for e in (2.5, 4.5, 6.5, 8.5)):
+                continue
+            assert d == airquality.category(v)
+            assert geoms[d].buffer(1e-4).contains(Point(x, y))
+            checked += 1
+        assert checked > 30
+        assert band_at(f, np.array([0.0]), np.array([0.0])) == [None]  # off the grid
+
+    def test_cells_coarser_than_the_cameras_are_told(self) -> None:
+        """Two cities 300 km apart under the default bbox: at 128 cells a side (2.6 km) a
+        smooth field puts cameras in other categories' bands; at 512 (640 m), none."""
+        rng = np.random.default_rng(0)
+        lon = np.r_[9.19 + rng.uniform(0, 0.05, 10), 12.49 + rng.uniform(0, 0.05, 10)]
+        lat = np.r_[45.46 + rng.uniform(0, 0.05, 10), 41.9 + rng.uniform(0, 0.05, 10)]
+        level = np.round(np.clip(5.5 + 4.5 * np.sin(lon * 40) * np.cos(lat * 40), 1, 10))
+        wrong = {}
+        for resolution in (128, 512):
+            f = interpolate(lon, lat, level, bbox=default_bbox(lon, lat), resolution=resolution)
+            drawn = band_at(f, lon, lat)
+            wrong[resolution] = sum(
+                d != airquality.category(v) for d, v in zip(drawn, level, strict=True)
+            )
+            assert cell_size_m(f)[0] == pytest.approx(
+                (default_bbox(lon, lat)[2] - default_bbox(lon, lat)[0])
+                / (resolution - 1)
+                * np.pi
+                / 180
+                * 6_371_008.8
+                * np.cos(np.radians(f.lat[resolution // 2])),
+                rel=1e-9,
+            )
+        assert wrong[128] >= 3
+        assert wrong[512] == 0
 
     def test_no_field_no_features(self) -> None:
         lon, lat, level = smooth_field()
