@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Collection, Generator, Iterable, Iterator
+from collections.abc import Callable, Collection, Generator, Iterable, Iterator
 from contextlib import closing
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from itertools import islice
 
-from sqlalchemy import delete, select, update
+from sqlalchemy import ColumnElement, delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import (
@@ -77,35 +77,16 @@ def sweep(
     the images of those received more than ``days`` ago, and the expired packs."""
     now = policy.now()
     cutoff = now - timedelta(days=max(days, history_days or days))
-    frames = files = images = 0
-    while True:
-        with sessions() as session:
-            keep = _kept(session)
-            rows = session.execute(
-                select(Frame.id, Frame.stored_path)
-                .where(Frame.received_at < cutoff)
-                .order_by(Frame.received_at)
-                .limit(BATCH + len(keep))
-            ).all()
-            doomed = [r for r in rows if r[0] not in keep][:BATCH]
-            if not doomed:
-                break
-            ids = [r[0] for r in doomed]
-            for table in (PanelVerdict, SkyVerdict, Verdict):
-                session.execute(delete(table).where(table.frame_id.in_(ids)))
-            session.execute(delete(Frame).where(Frame.id.in_(ids)))
-            # files of their own, which identical frames may share (a frame in a pack goes
-            # with its pack)
-            paths = {r[1] for r in doomed if r[1] is not None and pack_of(r[1]) is None}
-            still = _referenced(session, paths)
-            session.commit()
-        gone = sorted(paths - still)
-        store.delete(gone)
-        files += len(gone)
-        frames += len(ids)
+    frames, files = _in_batches(sessions, store, [Frame.received_at < cutoff], _delete_rows)
+    images = 0
     cutoff = now - timedelta(days=days)
     if history_days is not None and history_days > days:
-        images, dropped = _drop_images(sessions, store, cutoff)
+        images, dropped = _in_batches(
+            sessions,
+            store,
+            [Frame.received_at < cutoff, Frame.stored_path.is_not(None)],
+            _forget_images,
+        )
         files += dropped
     if packs := store.expired_packs(cutoff):
         _move_kept(sessions, store, policy, set(packs), cutoff)
@@ -114,28 +95,41 @@ def sweep(
     return Swept(frames, files, images)
 
 
-def _drop_images(
-    sessions: sessionmaker[Session], store: FrameStore, cutoff: datetime
+def _delete_rows(session: Session, ids: list[str]) -> None:
+    for table in (PanelVerdict, SkyVerdict, Verdict):
+        session.execute(delete(table).where(table.frame_id.in_(ids)))
+    session.execute(delete(Frame).where(Frame.id.in_(ids)))
+
+
+def _forget_images(session: Session, ids: list[str]) -> None:
+    """The rows stay, saying the frame has no image any more."""
+    session.execute(update(Frame).where(Frame.id.in_(ids)).values(stored_path=None))
+
+
+def _in_batches(
+    sessions: sessionmaker[Session],
+    store: FrameStore,
+    where: list[ColumnElement[bool]],
+    act: Callable[[Session, list[str]], None],
 ) -> tuple[int, int]:
-    """Forget the images of the frames received before ``cutoff`` that nothing keeps, their
-    rows staying: the rows first (committed), then files of their own no row refers to any
-    more. A frame in a pack goes with its pack. Returns (frames, files)."""
+    """``act`` on the frames matching ``where`` that nothing keeps, ``BATCH`` at a time, each
+    batch committed before the files of their own that no row refers to any more are deleted
+    (which identical frames may share; a frame in a pack goes with its pack). Returns (frames,
+    files)."""
     frames = files = 0
     while True:
         with sessions() as session:
             keep = _kept(session)
             rows = session.execute(
                 select(Frame.id, Frame.stored_path)
-                .where(Frame.received_at < cutoff, Frame.stored_path.is_not(None))
+                .where(*where)
                 .order_by(Frame.received_at)
                 .limit(BATCH + len(keep))
             ).all()
             doomed = [r for r in rows if r[0] not in keep][:BATCH]
             if not doomed:
                 return frames, files
-            session.execute(
-                update(Frame).where(Frame.id.in_([r[0] for r in doomed])).values(stored_path=None)
-            )
+            act(session, [r[0] for r in doomed])
             paths = {r[1] for r in doomed if r[1] is not None and pack_of(r[1]) is None}
             still = _referenced(session, paths)
             session.commit()
