@@ -439,17 +439,14 @@ def isopleths_geojson(
     """City-wide category bands (RFC 7946 GeoJSON), one feature per category present."""
     st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
     features = isopleths.bands(f) if f is not None else []
+    own = [airquality.category(s.level) for s in st]
     drawn: list[str | None] = [None] * len(st)
     warnings = []
     cell = None
     if f is not None:
         drawn = isopleths.band_at(f, np.array([s.lon for s in st]), np.array([s.lat for s in st]))
         cell = [round(v, 1) for v in isopleths.cell_size_m(f)]
-        off = sum(
-            1
-            for s, d in zip(st, drawn, strict=True)
-            if d is not None and d != airquality.category(s.level)
-        )
+        off = sum(1 for o, d in zip(own, drawn, strict=True) if d is not None and d != o)
         if off:
             warnings.append(
                 f"{off} of {len(st)} cameras lie in the band of another category than their"
@@ -471,11 +468,11 @@ def isopleths_geojson(
                 "lon": s.lon,
                 "lat": s.lat,
                 "level": s.level,
-                "category": airquality.category(s.level),
+                "category": category,
                 "band": band,
                 "captured_at": s.captured_at.isoformat(),
             }
-            for s, band in zip(st, drawn, strict=True)
+            for s, category, band in zip(st, own, drawn, strict=True)
         ],
         "cell_m": cell,
         "warnings": warnings,
