@@ -157,6 +157,11 @@ class VerdictBase(Out):
     modes: list[int] = Field(description="Most frequent level per channel [R, G, B] (0–255).")
     means: list[float] = Field(description="Mean level per channel [R, G, B].")
     reason: str | None = Field(default=None, description="Why no conclusion was drawn.")
+    roi: list[int] | list[list[int]] | None = Field(
+        default=None,
+        description="The camera's region of interest they were measured in (null: the whole "
+        "frame).",
+    )
 
 
 class PanelVerdictOut(VerdictBase):
@@ -235,6 +240,10 @@ class BaselineOut(Out):
     condition_number: float
     shrinkage: float = Field(description="Variance added to Σ̂'s diagonal [level²].")
     frame_ids: list[str] | None
+    roi: list[int] | list[list[int]] | None = Field(
+        description="The region of interest its images were measured in (null: whole images); "
+        "it judges only frames measured in the same region."
+    )
 
 
 class TaskOut(Out):

@@ -29,11 +29,15 @@ SHARED_DATA = ROOT.parent / "shared" / "data"
 ADMIN_TOKEN = "test-admin-token-0123456789abcdef"
 
 
-def migrate(url: str) -> None:
+def alembic_config(url: str) -> Config:
     cfg = Config(str(ROOT / "alembic.ini"))
     cfg.attributes["database_url"] = url
     cfg.attributes["configure_logger"] = False
-    command.upgrade(cfg, "head")
+    return cfg
+
+
+def migrate(url: str, revision: str = "head") -> None:
+    command.upgrade(alembic_config(url), revision)
 
 
 @pytest.fixture(scope="session")

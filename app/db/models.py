@@ -83,6 +83,9 @@ class Baseline(Base):
     shrinkage: Mapped[float] = mapped_column(Float)
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
     """Stored frames it was trained from (kept by the retention sweep), or none for uploads."""
+    roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
+    """The region of interest its images were measured in (null: whole images). It judges only
+    frames measured in the same region: modes of another part of the view are not comparable."""
 
 
 class TaskStatus(enum.StrEnum):
@@ -224,6 +227,8 @@ class Verdict(Base):
     """Why no conclusion was drawn, when none was."""
     details: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """Further numbers behind the verdict (features, quality gate readings)."""
+    roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
+    """The camera's region of interest the statistics were measured in; null: the whole frame."""
 
     frame: Mapped[Frame] = relationship(back_populates="verdict", lazy="raise")
 

@@ -119,6 +119,7 @@ def _train_from_files(
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=None,
+        roi=camera.region,
         now=policy.now(),
     )
     return BaselineOut.model_validate(row)
@@ -133,7 +134,7 @@ def _train_from_frames(
     policy: Policy,
 ) -> BaselineOut:
     registry.get_panel(session, panel_id)
-    modes = training.modes_of_frames(session, panel_id, frame_ids)
+    modes, region = training.modes_of_frames(session, panel_id, frame_ids)
     row = training.train_baseline(
         session,
         panel_id,
@@ -141,6 +142,7 @@ def _train_from_frames(
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=frame_ids,
+        roi=region,
         now=policy.now(),
     )
     return BaselineOut.model_validate(row)

@@ -55,7 +55,12 @@ def category_message(category: str | None) -> str | None:
 
 
 def verdict_out(verdict: Verdict) -> VerdictOut:
-    common = {"modes": verdict.modes, "means": verdict.means, "reason": verdict.reason}
+    common = {
+        "modes": verdict.modes,
+        "means": verdict.means,
+        "reason": verdict.reason,
+        "roi": verdict.roi,
+    }
     if isinstance(verdict, PanelVerdict):
         return PanelVerdictOut(
             panel_id=verdict.panel_id,

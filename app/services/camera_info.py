@@ -10,6 +10,9 @@ from dataclasses import dataclass
 from app.core.stats import Polygon, Roi
 from app.db.models import Camera, CameraKind
 
+Region = list[int] | list[list[int]] | None
+"""A region of interest as cameras store it: [x, y, w, h], [[x, y], ...], or None (whole)."""
+
 
 @dataclass(frozen=True, slots=True)
 class CameraInfo:
@@ -35,6 +38,24 @@ class CameraInfo:
             x, y, w, h = (int(v) for v in r if isinstance(v, int))
             roi = (x, y, w, h)
         return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
+
+    @property
+    def region(self) -> Region:
+        """The region as the camera's ``roi`` stores it: [x, y, w, h], [[x, y], ...] or None."""
+        if self.polygon is not None:
+            return [[x, y] for x, y in self.polygon]
+        return list(self.roi) if self.roi is not None else None
+
+
+def describe_region(region: Region) -> str:
+    """A region in a few words, for reasons and errors."""
+    if region is None:
+        return "the whole frame"
+    if region and isinstance(region[0], list):
+        xs, ys = [p[0] for p in region], [p[1] for p in region]
+        box = [min(xs), min(ys), max(xs) - min(xs), max(ys) - min(ys)]
+        return f"a {len(region)}-vertex polygon roi within {box}"
+    return f"roi {region}"
 
 
 def one_view(cameras: Sequence[Camera]) -> Camera | None:

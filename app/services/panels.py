@@ -34,6 +34,7 @@ from app.db.models import (
     TaskStatus,
 )
 from app.errors import NotFound
+from app.services.camera_info import describe_region
 from app.services.policy import Policy
 from app.services.verdicts import stats_columns
 
@@ -185,10 +186,16 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     elif panel.baseline_id is not None:
         row = session.get(Baseline, panel.baseline_id)
         assert row is not None
-        result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
-        verdict.method, verdict.baseline_id = "baseline", row.id
-        verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
-        verdict.p_value, verdict.threshold = result.p_value, result.threshold
+        if row.roi != camera.region:  # modes of another part of the view: not comparable
+            verdict.reason = (
+                f"the baseline was measured in {describe_region(row.roi)}, not in this camera's "
+                f"{describe_region(camera.region)}: retrain it (POST /panels/{panel.id}/baseline)"
+            )[:200]
+        else:
+            result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
+            verdict.method, verdict.baseline_id = "baseline", row.id
+            verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
+            verdict.p_value, verdict.threshold = result.p_value, result.threshold
     elif model_row is not None and decoded.features is not None:
         model = as_core_model(model_row)
         p_dirty = float(model.probability(decoded.features))

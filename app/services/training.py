@@ -16,7 +16,7 @@ from app.core import soiling
 from app.core.fleet import FEATURES
 from app.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
 from app.errors import Unprocessable, VantageError
-from app.services.camera_info import CameraInfo, one_view, uploads_in
+from app.services.camera_info import CameraInfo, Region, describe_region, one_view, uploads_in
 from app.services.ingest import Decoded, analyse
 from app.services.panels import lock_panel
 
@@ -68,10 +68,17 @@ def modes_of(decoded: Sequence[Decoded]) -> NDArray[np.float64]:
 
 def modes_of_frames(
     session: Session, panel_id: str, frame_ids: Sequence[str]
-) -> NDArray[np.float64]:
-    """Mode vectors of stored frames of this panel's cameras, in the order given."""
+) -> tuple[NDArray[np.float64], Region]:
+    """Mode vectors of stored frames of this panel's cameras, in the order given, and the one
+    region of interest they were all measured in (422 when they differ)."""
     rows = session.execute(
-        select(PanelVerdict.frame_id, PanelVerdict.mode_r, PanelVerdict.mode_g, PanelVerdict.mode_b)
+        select(
+            PanelVerdict.frame_id,
+            PanelVerdict.mode_r,
+            PanelVerdict.mode_g,
+            PanelVerdict.mode_b,
+            PanelVerdict.roi,
+        )
         .join(Frame, Frame.id == PanelVerdict.frame_id)
         .where(PanelVerdict.frame_id.in_(frame_ids), PanelVerdict.panel_id == panel_id)
     ).all()
@@ -82,7 +89,35 @@ def modes_of_frames(
             f"frames not found for panel {panel_id!r}: {', '.join(missing[:10])}",
             missing=missing,
         )
-    return np.array([found[f] for f in frame_ids], dtype=np.float64)
+    regions = {r[0]: r[4] for r in rows}
+    region = regions[frame_ids[0]]
+    elsewhere = [f for f in frame_ids if regions[f] != region]
+    if elsewhere:
+        raise Unprocessable(
+            f"the frames were measured in different regions of interest: {frame_ids[0]} in "
+            f"{describe_region(region)}, {elsewhere[0]} in {describe_region(regions[elsewhere[0]])}"
+            " (the camera's roi changed between them); train from frames of one region",
+            code="mixed_regions",
+        )
+    return np.array([found[f] for f in frame_ids], dtype=np.float64), region
+
+
+def check_region_in_use(session: Session, panel_id: str, region: Region) -> None:
+    """Refuse a baseline no camera of the panel could use: one measured in a region of
+    interest none of the panel's cameras in service measures now (a panel with no camera yet
+    may be trained for any)."""
+    cameras = session.scalars(
+        select(Camera).where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+    ).all()
+    if cameras and all(CameraInfo.of(c).region != region for c in cameras):
+        now = "; ".join(f"{c.id}: {describe_region(CameraInfo.of(c).region)}" for c in cameras)
+        raise Unprocessable(
+            f"these images were measured in {describe_region(region)}, but the panel's cameras "
+            f"now measure another region ({now}), so the baseline would judge none of their "
+            "frames: train from frames taken since the roi changed, or upload images naming "
+            "the camera (camera_id)",
+            code="region_not_in_use",
+        )
 
 
 def train_baseline(
@@ -93,10 +128,13 @@ def train_baseline(
     significance: float,
     shrinkage: float,
     frame_ids: list[str] | None,
+    roi: Region,
     now: datetime,
 ) -> Baseline:
-    """Fit and store the panel's baseline; verdicts use it from the next frame on."""
+    """Fit and store the panel's baseline, measured in region ``roi``; verdicts use it from the
+    next frame on."""
     panel = lock_panel(session, panel_id)
+    check_region_in_use(session, panel_id, roi)
     try:
         fit = soiling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
     except soiling.BaselineError as exc:
@@ -113,6 +151,7 @@ def train_baseline(
         condition_number=fit.condition_number,
         shrinkage=fit.shrinkage,
         frame_ids=frame_ids,
+        roi=roi,
     )
     session.add(row)
     session.flush()

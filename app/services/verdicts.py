@@ -63,4 +63,6 @@ CLASSIFIERS: dict[CameraKind, Classifier] = {
 
 def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
     """The verdict on a prepared frame, by its camera's kind."""
-    return CLASSIFIERS[prepared.camera.kind](session, prepared, policy)
+    verdict = CLASSIFIERS[prepared.camera.kind](session, prepared, policy)
+    verdict.roi = prepared.camera.region
+    return verdict

@@ -219,6 +219,86 @@ class TestBaseline:
         assert r.json()["verdict"]["clean"] is True
 
 
+def beside_a_wall(rgb: np.ndarray, seed: int) -> bytes:
+    """A panel photo whose right half (x ≥ 80 of 160) is a blue wall."""
+    photo = panel_jpeg(rgb, seed=seed)
+    image = cv2.imdecode(np.frombuffer(photo, np.uint8), cv2.IMREAD_COLOR)
+    rng = np.random.default_rng(seed)
+    image[:, 80:] = np.clip(rng.normal((60, 90, 170), 6, (120, 80, 3)), 0, 255)
+    return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+
+
+PANEL_PART, WALL_PART = [0, 0, 60, 120], [100, 0, 60, 120]
+
+
+class TestRegionOfInterest:
+    """A baseline describes the modes of one region of the view. Frames measured in another
+    (the camera's roi changed since) are not judged by it: a wall compared with a panel's
+    clean baseline was called dirty, and three such frames sent a robot."""
+
+    def post(self, client: TestClient, farm: dict[str, Any], seed: int) -> Any:
+        farm["clock"].advance(minutes=10)
+        r = client.post(
+            "/cameras/c1/frames",
+            content=beside_a_wall(CLEAN_RGB, seed=seed),
+            headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        return r.json()
+
+    def roi(self, client: TestClient, admin: dict[str, str], region: list[int]) -> None:
+        r = client.patch("/cameras/c1", json={"roi": region}, headers=admin)
+        assert r.status_code == 200, r.text
+
+    def test_a_new_region_is_not_judged_by_the_old_baseline(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        self.roi(client, admin, PANEL_PART)
+        r = train(client, admin, [beside_a_wall(CLEAN_RGB, seed=i) for i in range(8)])
+        assert r.status_code == 201, r.text
+        assert r.json()["roi"] == PANEL_PART
+        v = self.post(client, farm, seed=20)["verdict"]
+        assert (v["clean"], v["roi"]) == (True, PANEL_PART)
+
+        self.roi(client, admin, WALL_PART)
+        for seed in range(21, 25):
+            v = self.post(client, farm, seed=seed)["verdict"]
+            assert v["clean"] is None, v
+            assert v["roi"] == WALL_PART
+            assert "baseline was measured in roi [0, 0, 60, 120]" in v["reason"]
+            assert "retrain it (POST /panels/p1/baseline)" in v["reason"]
+        s = status(client, admin)
+        assert (s["state"], s["open_task"], s["dirty_streak"]) == ("clean", None, 0)
+        assert (
+            client.post("/cleaning/claim", headers=bearer(farm["robots"]["r1"])).status_code == 204
+        )
+
+        self.roi(client, admin, PANEL_PART)  # back where the baseline was measured
+        assert self.post(client, farm, seed=25)["verdict"]["clean"] is True
+
+    def test_a_baseline_is_trained_from_frames_of_the_region_in_use(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        self.roi(client, admin, PANEL_PART)
+        panel = [self.post(client, farm, seed=i)["frame_id"] for i in range(6)]
+        self.roi(client, admin, WALL_PART)
+        r = client.post("/panels/p1/baseline", json={"frame_ids": panel}, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.json()["code"] == "region_not_in_use"
+        assert "c1: roi [100, 0, 60, 120]" in r.json()["detail"]
+
+        wall = [self.post(client, farm, seed=i)["frame_id"] for i in range(6, 12)]
+        r = client.post("/panels/p1/baseline", json={"frame_ids": wall + panel}, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.json()["code"] == "mixed_regions"
+        assert client.get("/panels/p1/baseline", headers=admin).status_code == 404
+
+        r = client.post("/panels/p1/baseline", json={"frame_ids": wall}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["roi"] == WALL_PART
+        assert self.post(client, farm, seed=12)["verdict"]["clean"] is True
+
+
 class TestVerdicts:
     def test_clean_and_dirty(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
         train(client, admin, clean_set(10))
