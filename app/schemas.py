@@ -472,6 +472,13 @@ class RigCreate(Schema):
         default=None, min_length=2, max_length=2, description="[cx, cy] [px]."
     )
     cameras: list[CalibratedCamera] | None = None
+    calibration_id: str | None = Field(
+        default=None,
+        max_length=64,
+        description="Instead of ``cameras``: a stereo calibration (POST /calibrations/stereo). "
+        "Its left camera is the world frame (R = I, t = 0) and the right one sits at its R "
+        "and T, in the units of the board's square_size.",
+    )
 
 
 class RigOut(Out):

@@ -33,7 +33,7 @@ from app.schemas import (
     TriangulateIn,
     TriangulateOut,
 )
-from app.services import grid
+from app.services import calibrations, grid
 from app.settings import Settings
 from app.uploads import Form, content_type, read_form
 
@@ -47,10 +47,13 @@ router = APIRouter(prefix="/rigs", tags=["stereo"])
     responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
 def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
-    """Register a 4-camera cross (f_px, ax, ay, principal_point) or 2+ calibrated cameras."""
+    """Register a 4-camera cross (f_px, ax, ay, principal_point), or 2+ calibrated cameras
+    (``cameras``, or the ``calibration_id`` of a stereo calibration)."""
     if session.get(Rig, body.id) is not None:
         raise Conflict(f"a rig with id {body.id!r} already exists")
     if body.kind == "cross":
+        if body.cameras is not None or body.calibration_id is not None:
+            raise Unprocessable("a cross rig takes f_px, ax, ay and principal_point")
         if body.f_px is None or body.ax is None or body.ay is None:
             raise Unprocessable("a cross rig needs f_px, ax and ay")
         cx, cy = body.principal_point or [0.0, 0.0]
@@ -60,9 +63,16 @@ def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
             "ay": body.ay,
             "principal_point": [cx, cy],
         }
+    elif body.calibration_id is not None:
+        if body.cameras is not None:
+            raise Unprocessable("give the cameras or a calibration_id, not both")
+        cameras = calibrations.stereo_cameras(session, body.calibration_id)
+        spec = {"cameras": cameras, "calibration_id": body.calibration_id}
     else:
         if not body.cameras or len(body.cameras) < 2:
-            raise Unprocessable("a calibrated rig needs at least 2 cameras")
+            raise Unprocessable(
+                "a calibrated rig needs at least 2 cameras, or the calibration_id of a stereo pair"
+            )
         for i, c in enumerate(body.cameras):
             r = np.array(c.R)
             if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:

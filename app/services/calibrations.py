@@ -203,3 +203,23 @@ def get(session: Session, calibration_id: str) -> Calibration:
     if row is None:
         raise NotFound(f"no calibration {calibration_id!r}")
     return row
+
+
+def stereo_cameras(session: Session, calibration_id: str) -> list[dict[str, Any]]:
+    """The two cameras of a stereo calibration as a calibrated rig's: the left one is the world
+    frame, the right one at the pair's R and T (OpenCV's: x_right = R x_left + T)."""
+    row = session.get(Calibration, calibration_id)
+    if row is None:
+        raise Unprocessable(f"no calibration {calibration_id!r}", code="no_such_calibration")
+    if row.kind != "stereo":
+        raise Unprocessable(
+            f"calibration {calibration_id!r} is of one camera; a rig needs a stereo pair "
+            "(POST /calibrations/stereo), or cameras given with their R and t",
+            code="not_a_stereo_calibration",
+        )
+    r = row.result
+    identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    return [
+        {"K": r["left"]["K"], "dist": r["left"]["dist"], "R": identity, "t": [0.0, 0.0, 0.0]},
+        {"K": r["right"]["K"], "dist": r["right"]["dist"], "R": r["R"], "t": r["T"]},
+    ]
