@@ -237,18 +237,20 @@ def retire_camera(
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
 def list_frames(
-    camera_id: CameraId, session: SessionDep, _: Admin, limit: Limit = 50, offset: Offset = 0
+    camera_id: CameraId,
+    session: SessionDep,
+    _: Admin,
+    since: Annotated[UtcTime | None, Query(description="Taken at or after (RFC 3339).")] = None,
+    until: Annotated[UtcTime | None, Query(description="Taken before (RFC 3339).")] = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
 ) -> list[FrameOut]:
-    """A camera's frames with their verdicts, newest first."""
-    registry.get_camera(session, camera_id)
-    frames = session.scalars(
-        select(Frame)
-        .where(Frame.camera_id == camera_id)
-        .options(selectinload(Frame.verdict))
-        .order_by(Frame.captured_at.desc(), Frame.id)
-        .limit(limit)
-        .offset(offset)
-    ).all()
+    """A camera's frames with their verdicts, newest first; those taken in [since, until)."""
+    if since and until and since >= until:
+        raise Unprocessable("since must be before until")
+    frames = registry.frames_of(
+        session, camera_id, since=since, until=until, limit=limit, offset=offset
+    )
     return [frame_out(f, f.verdict) for f in frames]
 
 

@@ -12,7 +12,7 @@ from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import ColumnElement, and_, func, literal_column, or_, select
+from sqlalchemy import and_, func, literal_column, or_, select
 from sqlalchemy.orm import Session, selectinload
 
 from app.core import airquality, soiling
@@ -29,6 +29,7 @@ from app.db.models import (
 from app.errors import NotFound, Unprocessable
 from app.services.camera_info import CameraInfo, one_view, uploads_in
 from app.services.policy import Policy
+from app.services.registry import taken_in
 from app.services.verdicts import stats_columns
 
 if TYPE_CHECKING:
@@ -391,24 +392,10 @@ def readings(
         SkyVerdict.smoothed_level,
         SkyVerdict.reason,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-    q = q.where(*_in_range(camera_id, since, until))
+    q = q.where(*taken_in(camera_id, since, until))
     return session.execute(
         q.order_by(Frame.captured_at.desc(), Frame.id).limit(limit).offset(offset)
     ).all()
-
-
-def _in_range(
-    camera_id: str | None, since: datetime | None, until: datetime | None
-) -> list[ColumnElement[bool]]:
-    """Conditions on frames: one camera's (or all), taken in [since, until)."""
-    conditions = []
-    if camera_id is not None:
-        conditions.append(Frame.camera_id == camera_id)
-    if since is not None:
-        conditions.append(Frame.captured_at >= since)
-    if until is not None:
-        conditions.append(Frame.captured_at < until)
-    return conditions
 
 
 SLOT_S = 900
@@ -448,7 +435,7 @@ def aggregate(
         .group_by(slot, Frame.camera_id)  # this order: SQLite scans the readings, not the
         # (camera, time) index with a lookup per row (3.4 against 11 s for 1.7 M readings)
     )
-    q = q.where(*_in_range(camera_id, since, until))
+    q = q.where(*taken_in(camera_id, since, until))
     spans: dict[int, tuple[datetime, datetime]] = {}  # slot → its bucket's (start, end)
     sums: dict[tuple[str, datetime, datetime], list[float]] = {}
     for row in session.execute(q):

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import datetime
 from typing import TypeVar
 
-from sqlalchemy import event, select
+from sqlalchemy import ColumnElement, event, select
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, selectinload
 
 from app.db.models import Camera, CameraKind, Frame, Panel, Robot
 from app.errors import Conflict, NotFound, Unprocessable
@@ -211,3 +212,38 @@ def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
     if _retire(get_robot(session, robot_id), "vr", policy):
         cleaning.release_all(session, robot_id, policy)
         session.flush()
+
+
+def taken_in(
+    camera_id: str | None, since: datetime | None, until: datetime | None
+) -> list[ColumnElement[bool]]:
+    """Conditions on frames: one camera's (or all), taken in [since, until)."""
+    conditions = []
+    if camera_id is not None:
+        conditions.append(Frame.camera_id == camera_id)
+    if since is not None:
+        conditions.append(Frame.captured_at >= since)
+    if until is not None:
+        conditions.append(Frame.captured_at < until)
+    return conditions
+
+
+def frames_of(
+    session: Session,
+    camera_id: str,
+    *,
+    since: datetime | None,
+    until: datetime | None,
+    limit: int,
+    offset: int,
+) -> Sequence[Frame]:
+    """A camera's frames taken in [since, until), newest first, with their verdicts."""
+    get_camera(session, camera_id)
+    return session.scalars(
+        select(Frame)
+        .where(*taken_in(camera_id, since, until))
+        .options(selectinload(Frame.verdict))
+        .order_by(Frame.captured_at.desc(), Frame.id)
+        .limit(limit)
+        .offset(offset)
+    ).all()

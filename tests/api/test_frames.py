@@ -81,6 +81,37 @@ class TestPostFrame:
         listed = client.get("/cameras/cam-1/frames", headers=admin).json()
         assert [f["frame_id"] for f in listed] == [out["frame_id"]]
 
+    def test_the_frames_of_a_time_range_are_listed(
+        self, client: TestClient, camera: dict[str, Any], admin: dict[str, str]
+    ) -> None:
+        """A camera's frames taken in [since, until), newest first, paged within the range."""
+        ids = {}
+        for hour in range(8, 14):
+            r = client.post(
+                "/cameras/cam-1/frames",
+                content=make_jpeg(16, 16, (hour * 10, 0, 0)),
+                headers=cam_headers(camera),
+                params={"captured_at": f"2026-05-01T{hour:02d}:00:00Z"},
+            )
+            ids[hour] = r.json()["frame_id"]
+
+        def listed(**params: Any) -> list[str]:
+            r = client.get("/cameras/cam-1/frames", params=params, headers=admin)
+            assert r.status_code == 200, r.text
+            return [f["frame_id"] for f in r.json()]
+
+        day = {"since": "2026-05-01T09:00:00Z", "until": "2026-05-01T12:00:00Z"}
+        assert listed(**day) == [ids[11], ids[10], ids[9]]
+        assert listed(**day, limit=2, offset=2) == [ids[9]]
+        assert listed(since="2026-05-01T14:00:00+01:00") == [ids[13]]  # 13:00 UTC
+        assert listed(until="2026-05-01T09:00:00") == [ids[8]]  # no offset: UTC
+        r = client.get(
+            "/cameras/cam-1/frames", params={**day, "until": day["since"]}, headers=admin
+        )
+        assert r.status_code == 422
+        r = client.get("/cameras/nope/frames", params=day, headers=admin)
+        assert r.status_code == 404
+
     @pytest.mark.parametrize("sent", ["2026-05-01T13:00:00", "2026-05-01T15:00:00+02:00"])
     def test_captured_at_without_an_offset_is_utc_and_one_with_is_converted(
         self, client: TestClient, camera: dict[str, Any], sent: str
