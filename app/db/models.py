@@ -317,6 +317,9 @@ class AirCalibrationCamera(Base):
 
     calibration_id: Mapped[str] = mapped_column(ForeignKey("air_calibrations.id"), primary_key=True)
     camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"), primary_key=True, index=True)
+    roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
+    """The camera's region of interest when the calibration was made for it: it grades the
+    camera's frames only while the camera measures them there."""
 
 
 class AirAlert(Base):

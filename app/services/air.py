@@ -27,7 +27,7 @@ from app.db.models import (
     SkyVerdict,
 )
 from app.errors import NotFound, Unprocessable
-from app.services.camera_info import CameraInfo, one_view, uploads_in
+from app.services.camera_info import CameraInfo, Region, describe_region, one_view, uploads_in
 from app.services.policy import Policy
 from app.services.registry import taken_in
 from app.services.verdicts import stats_columns
@@ -38,7 +38,21 @@ if TYPE_CHECKING:
 
 def calibration_for(session: Session, camera_id: str | None) -> AirCalibration | None:
     """The calibration that grades a camera's frames: the newest made for that camera, else
-    the newest city-wide one (made for no camera in particular). ``None``: the city-wide one.
+    the newest city-wide one (made for no camera in particular). ``None``: the city-wide one."""
+    return grading(session, camera_id).calibration
+
+
+@dataclass(frozen=True, slots=True)
+class Grading:
+    calibration: AirCalibration | None
+    own: bool
+    """Made for this camera (not the city-wide one)."""
+    region: Region
+    """Its own: the camera's region of interest when it was made."""
+
+
+def grading(session: Session, camera_id: str | None) -> Grading:
+    """What grades a camera's frames (``calibration_for``), and whether it is its own.
 
     One query (it runs for every sky frame, on the writer): the camera's own calibrations and
     the city-wide ones, its own first. For ``None`` the join's ``camera_id IS NULL`` matches no
@@ -48,8 +62,8 @@ def calibration_for(session: Session, camera_id: str | None) -> AirCalibration |
         AirCalibrationCamera.calibration_id == AirCalibration.id,
         AirCalibrationCamera.camera_id == camera_id,
     )
-    return session.scalars(
-        select(AirCalibration)
+    row = session.execute(
+        select(AirCalibration, AirCalibrationCamera.camera_id, AirCalibrationCamera.roi)
         .outerjoin(AirCalibrationCamera, mine)
         .where(or_(AirCalibrationCamera.camera_id.is_not(None), AirCalibration.city_wide))
         .order_by(
@@ -59,6 +73,9 @@ def calibration_for(session: Session, camera_id: str | None) -> AirCalibration |
         )
         .limit(1)
     ).first()
+    if row is None:
+        return Grading(None, False, None)
+    return Grading(row[0], row[1] is not None, row[2])
 
 
 def release_camera(session: Session, camera_id: str) -> None:
@@ -167,12 +184,14 @@ def calibrate(
     none, it is the city-wide calibration of every camera without one of its own.
     """
     cameras = sorted(set(camera_ids))
+    sky: dict[str, Camera] = {}
     if cameras:
-        sky = set(
-            session.scalars(
-                select(Camera.id).where(Camera.id.in_(cameras), Camera.kind == CameraKind.sky)
+        sky = {
+            c.id: c
+            for c in session.scalars(
+                select(Camera).where(Camera.id.in_(cameras), Camera.kind == CameraKind.sky)
             )
-        )
+        }
         missing = [c for c in cameras if c not in sky]
         if missing:
             raise Unprocessable(
@@ -214,7 +233,9 @@ def calibrate(
         method=method,
         regression=regression,
         city_wide=not cameras,
-        cameras=[AirCalibrationCamera(camera_id=c) for c in cameras],
+        cameras=[
+            AirCalibrationCamera(camera_id=c, roi=CameraInfo.of(sky[c]).region) for c in cameras
+        ],
     )
     session.add(row)
     session.flush()
@@ -257,12 +278,18 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     )
     if decoded.features is not None:
         verdict.details = {"features": decoded.features.tolist()}
-    cal_row = calibration_for(session, camera.id)
+    how = grading(session, camera.id)
+    cal_row = how.calibration
     regression = as_regression(cal_row) if cal_row is not None else None
     if decoded.quality is not None:
         verdict.reason = decoded.quality
     elif cal_row is None:
         verdict.reason = "air-quality model not calibrated (POST /air/calibration)"
+    elif how.own and how.region != camera.region:  # another part of the view
+        verdict.reason = (
+            f"its own calibration was made when it measured {describe_region(how.region)}, "
+            f"not {describe_region(camera.region)}: calibrate it again (POST /air/calibration)"
+        )[:200]
     elif cal_row.method == "regression" and regression and decoded.features is not None:
         verdict.calibration_id = cal_row.id
         verdict.level = regression.level(decoded.features)

@@ -494,6 +494,38 @@ def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibratio
     assert [c["city_wide"] for c in listed] == [True, True, False]
 
 
+def test_a_camera_whose_region_changed_is_not_graded_by_the_calibration_made_for_the_old(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """sky1's own calibration (a regression) was made while it measured the sky. Its region
+    moved down onto the street, and the street was graded by it: level 10, Very Good. Until
+    it is calibrated again its frames get no level; back on the sky, they are graded again.
+    The city-wide calibration grades every region."""
+    city_wide = calibrate(client, admin).json()
+    own = calibrate(client, admin, "sky1", applies_to=["sky1"], method="regression")
+    assert own.status_code == 201, own.text
+    v = post(client, city, "sky1", 10, seed=1)
+    assert v["level"] == 10, v
+
+    street = [0, 65, 160, 35]
+    for camera in ("sky1", "sky2"):
+        r = client.patch(f"/cameras/{camera}", json={"roi": street}, headers=admin)
+        assert r.status_code == 200, r.text
+    for seed in range(2, 5):
+        city["clock"].advance(minutes=10)
+        v = post(client, city, "sky1", 10, seed=seed)
+        assert (v["level"], v["roi"]) == (None, street), v
+        assert "made when it measured roi [0, 0, 160, 55], not roi [0, 65, 160, 35]" in v["reason"]
+    other = post(client, city, "sky2", 10, seed=5)  # graded city-wide, in any region
+    assert other["calibration_id"] == city_wide["id"]
+
+    r = client.patch("/cameras/sky1", json={"roi": [0, 0, 160, 55]}, headers=admin)
+    assert r.status_code == 200, r.text
+    v = post(client, city, "sky1", 10, seed=6)
+    assert (v["calibration_id"], v["roi"]) == (own.json()["id"], [0, 0, 160, 55])
+    assert v["level"] == 10
+
+
 def test_uploads_for_cameras_are_measured_in_their_region(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

@@ -10,9 +10,10 @@ from sqlalchemy import create_engine, text
 from tests.conftest import migrate
 
 
-def test_verdicts_and_baselines_take_their_cameras_region(tmp_path: Path) -> None:
-    """Before a4aaa009e2ad no row said which region it was measured in: each verdict takes its
-    camera's, each baseline that of its panel's first camera in service."""
+def test_verdicts_baselines_and_calibrations_take_their_cameras_region(tmp_path: Path) -> None:
+    """Before a4aaa009e2ad and 83094b1d8bb0 no row said which region it was measured in: each
+    verdict, and each air calibration made for a camera, takes its camera's; each baseline that
+    of its panel's first camera in service."""
     url = f"sqlite:///{tmp_path / 'old.db'}"
     migrate(url, "362c29eee263")
     t = "2026-06-01 08:00:00.000000"
@@ -70,11 +71,25 @@ def test_verdicts_and_baselines_take_their_cameras_region(tmp_path: Path) -> Non
                 ),
                 {"id": bid, "p": panel, "t": t},
             )
+        conn.execute(
+            text(
+                "INSERT INTO air_calibrations (id, created_at, clusters, warnings, n_images, "
+                "city_wide) VALUES ('k', :t, '[]', '[]', 5, 0)"
+            ),
+            {"t": t},
+        )
+        conn.execute(
+            text(
+                "INSERT INTO air_calibration_cameras (calibration_id, camera_id) "
+                "VALUES ('k', 'a'), ('k', 'c')"
+            )
+        )
 
     migrate(url)
     with engine.connect() as conn:
         verdicts = dict(conn.execute(text("SELECT camera_id, roi FROM verdicts")).all())
         baselines = dict(conn.execute(text("SELECT panel_id, roi FROM baselines")).all())
+        links = dict(conn.execute(text("SELECT camera_id, roi FROM air_calibration_cameras")).all())
     engine.dispose()
     assert {c: json.loads(r) for c, r in verdicts.items()} == {
         "a": [1, 2, 30, 40],
@@ -85,3 +100,4 @@ def test_verdicts_and_baselines_take_their_cameras_region(tmp_path: Path) -> Non
         "p1": [[0, 0], [9, 0], [0, 9]],
         "p2": None,
     }
+    assert {c: json.loads(r) for c, r in links.items()} == {"a": [1, 2, 30, 40], "c": None}
