@@ -94,18 +94,19 @@ def _from_frames(
 ) -> AirCalibrationOut:
     if len(body.frame_ids) != len(body.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
-    modes, feats = air.of_frames(session, body.frame_ids)
+    stored = air.of_frames(session, body.frame_ids)
     row = air.calibrate(
         session,
-        modes,
+        stored.modes,
         body.levels,
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=body.frame_ids,
         now=policy.now(),
         method=method,
-        features=feats,
+        features=stored.features,
         camera_ids=applies_to,
+        regions=stored.regions,
     )
     return _calibration_out(row)
 

@@ -175,10 +175,13 @@ def calibrate(
     features: NDArray[np.float64] | None = None,
     camera_ids: Sequence[str] = (),
     warnings: Sequence[str] = (),
+    regions: Sequence[tuple[str, str, Region]] = (),
 ) -> AirCalibration:
     """The level clusters (always) and, for ``method="regression"``, the regression too.
 
     ``warnings`` are kept in the model beside its own (levels pooled for want of images).
+    ``regions``: (frame, camera, region) of stored frames it is made from; a camera it is made
+    for must have measured its own frames among them where it measures now.
 
     Made for ``camera_ids`` (sky cameras), it grades those cameras' frames from now on; made for
     none, it is the city-wide calibration of every camera without one of its own.
@@ -198,6 +201,16 @@ def calibrate(
                 f"applies_to: no sky camera {missing[0]!r}"
                 + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
                 code="not_a_sky_camera",
+            )
+    for frame_id, camera_id, region in regions:
+        now_at = CameraInfo.of(sky[camera_id]).region if camera_id in sky else region
+        if region != now_at:
+            raise Unprocessable(
+                f"frame {frame_id} of camera {camera_id!r} was measured in "
+                f"{describe_region(region)}, but the camera now measures "
+                f"{describe_region(now_at)}: a calibration made for it from that frame would "
+                "grade another part of the view; use frames taken since its roi changed",
+                code="region_not_in_use",
             )
     regression = None
     if method == "regression":
@@ -242,10 +255,17 @@ def calibrate(
     return row
 
 
-def of_frames(
-    session: Session, frame_ids: Sequence[str]
-) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-    """Mode vectors and (when every frame kept them) sky features of stored sky frames."""
+@dataclass(frozen=True, slots=True)
+class StoredSkies:
+    modes: NDArray[np.float64]
+    features: NDArray[np.float64] | None
+    """None unless every frame kept them."""
+    regions: list[tuple[str, str, Region]]
+    """(frame, camera, the region it was measured in) of each frame."""
+
+
+def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
+    """Mode vectors, sky features and regions of stored sky frames."""
     rows = session.execute(
         select(
             SkyVerdict.frame_id,
@@ -253,6 +273,8 @@ def of_frames(
             SkyVerdict.mode_g,
             SkyVerdict.mode_b,
             SkyVerdict.details,
+            SkyVerdict.camera_id,
+            SkyVerdict.roi,
         ).where(SkyVerdict.frame_id.in_(frame_ids))
     ).all()
     found = {r[0]: r for r in rows}
@@ -261,9 +283,10 @@ def of_frames(
         raise Unprocessable(f"no sky frames {', '.join(missing[:10])}", missing=missing)
     modes = np.array([found[f][1:4] for f in frame_ids], dtype=np.float64)
     feats = [(found[f][4] or {}).get("features") for f in frame_ids]
+    regions = [(f, found[f][5], found[f][6]) for f in frame_ids]
     if any(x is None for x in feats):
-        return modes, None
-    return modes, np.array(feats, dtype=np.float64)
+        return StoredSkies(modes, None, regions)
+    return StoredSkies(modes, np.array(feats, dtype=np.float64), regions)
 
 
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:

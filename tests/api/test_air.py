@@ -526,6 +526,46 @@ def test_a_camera_whose_region_changed_is_not_graded_by_the_calibration_made_for
     assert v["level"] == 10
 
 
+def test_a_camera_calibrated_from_its_stored_frames_in_the_region_it_measures(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """sky1's stored frames, labelled, calibrate it. Frames measured in a region it no longer
+    measures may not make its own calibration (it would grade another part of the view); they
+    may still make a city-wide one."""
+    ids, levels = [], []
+    for level in (1, 3, 5, 7, 10):
+        for k in range(8):
+            city["clock"].advance(minutes=5)
+            r = client.post(
+                "/cameras/sky1/frames",
+                content=sky_jpeg(level, seed=100 * level + k),
+                headers={
+                    "Authorization": f"Bearer {city['tokens']['sky1'][0]}",
+                    "Content-Type": "image/jpeg",
+                },
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["frame_id"])
+            levels.append(level)
+    body = {"frame_ids": ids, "levels": levels}
+    own = client.post("/air/calibration", json=body, headers=admin, params={"applies_to": "sky1"})
+    assert own.status_code == 201, own.text
+    assert own.json()["camera_ids"] == ["sky1"]
+    for level in (1, 10):
+        v = post(client, city, "sky1", level, seed=900 + level)
+        assert (v["level"], v["calibration_id"]) == (level, own.json()["id"])
+
+    r = client.patch("/cameras/sky1", json={"roi": [0, 0, 160, 50]}, headers=admin)
+    assert r.status_code == 200, r.text
+    again = client.post("/air/calibration", json=body, headers=admin, params={"applies_to": "sky1"})
+    assert again.status_code == 422, again.text
+    assert again.json()["code"] == "region_not_in_use"
+    assert "camera now measures roi [0, 0, 160, 50]" in again.json()["detail"]
+    city_wide = client.post("/air/calibration", json=body, headers=admin)
+    assert city_wide.status_code == 201, city_wide.text
+    assert len(client.get("/air/calibrations").json()) == 2
+
+
 def test_uploads_for_cameras_are_measured_in_their_region(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
