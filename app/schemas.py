@@ -439,6 +439,13 @@ class CalibratedCamera(Schema):
     )
     R: list[list[Finite]] = Field(description="3 × 3 rotation, world → camera.")
     t: list[Finite] = Field(description="Translation, x_cam = R X + t [world units].")
+    image_size: list[Annotated[int, Field(ge=1, le=100_000)]] | None = Field(
+        default=None,
+        min_length=2,
+        max_length=2,
+        description="[width, height] [px] of the images K was calibrated for: the laser "
+        "endpoints refuse images of another size (422 wrong_image_size).",
+    )
 
     @field_validator("K", "R")
     @classmethod

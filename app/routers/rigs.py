@@ -109,6 +109,16 @@ def _views(row: Rig) -> list[View]:
     ]
 
 
+def _sizes(row: Rig) -> list[tuple[int, int] | None]:
+    """Per camera, the image size its K was calibrated for, when known."""
+    if row.kind == "cross":
+        return [None] * 4
+    return [
+        (int(c["image_size"][0]), int(c["image_size"][1])) if c.get("image_size") else None
+        for c in row.spec["cameras"]
+    ]
+
+
 def _clean(values: np.ndarray) -> list[float | None]:
     return [None if not math.isfinite(float(v)) else float(v) for v in values]
 
@@ -181,7 +191,7 @@ async def _rig_and_form(
 
 
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
-    dot = grid.locate_dot(_geometry(row), files, max_pixels)
+    dot = grid.locate_dot(_geometry(row), files, max_pixels, _sizes(row))
     return LaserDotOut(
         point=dot.point.tolist(),
         pixels=[list(p) if p is not None else None for p in dot.pixels],
@@ -233,6 +243,7 @@ async def laser_grid_measure(
             origin=form.fields.get("origin", []),
             base_plane=form.fields.get("base_plane", []),
             max_pixels=settings.max_pixels,
+            sizes=_sizes(row),
         ),
     )
 

@@ -219,7 +219,20 @@ def stereo_cameras(session: Session, calibration_id: str) -> list[dict[str, Any]
         )
     r = row.result
     identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    left, right = r["left"], r["right"]
     return [
-        {"K": r["left"]["K"], "dist": r["left"]["dist"], "R": identity, "t": [0.0, 0.0, 0.0]},
-        {"K": r["right"]["K"], "dist": r["right"]["dist"], "R": r["R"], "t": r["T"]},
+        {
+            "K": left["K"],
+            "dist": left["dist"],
+            "R": identity,
+            "t": [0.0, 0.0, 0.0],
+            "image_size": left.get("image_size"),
+        },
+        {
+            "K": right["K"],
+            "dist": right["dist"],
+            "R": r["R"],
+            "t": r["T"],
+            "image_size": right.get("image_size"),
+        },
     ]

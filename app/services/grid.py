@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
 
 from app.core import laser, laser_grid
@@ -14,6 +16,8 @@ from app.schemas import Finite, LaserGridOut
 from app.services import vision
 
 Files = list[tuple[str | None, bytes]]
+Sizes = Sequence[tuple[int, int] | None]
+"""Per camera, the [width, height] its K was calibrated for, or None when not known."""
 T = TypeVar("T")
 
 
@@ -33,7 +37,23 @@ def _field(raw: list[str], name: str, adapter: TypeAdapter[T]) -> T | None:
         raise Unprocessable(f"{name}{where}: {error['msg']}") from None
 
 
-def locate_dot(geo: Geometry, files: Files, max_pixels: int) -> laser.Dot:
+def _decode(k: int, data: bytes, sizes: Sizes, max_pixels: int) -> NDArray[np.uint8]:
+    """Camera k's image, refused when it is not of the size its K was calibrated for: K in
+    pixels of another size puts every ray elsewhere (twice the pixels, twice the focal length
+    and principal point), and the figures come out confidently wrong."""
+    image = vision.decode(data, max_pixels=max_pixels)
+    size = sizes[k] if k < len(sizes) else None
+    h, w = image.shape[:2]
+    if size is not None and (w, h) != tuple(size):
+        raise Unprocessable(
+            f"camera {k + 1}'s image is {w}×{h} px, but the camera was calibrated for "
+            f"{size[0]}×{size[1]}: send images of that size (or calibrate at this one)",
+            code="wrong_image_size",
+        )
+    return image
+
+
+def locate_dot(geo: Geometry, files: Files, max_pixels: int, sizes: Sizes = ()) -> laser.Dot:
     """The laser dot from one dot-mode image per camera, in camera order (``/laser/dot``, and
     the grid's origin)."""
     n_cams = len(geo.f)
@@ -41,7 +61,9 @@ def locate_dot(geo: Geometry, files: Files, max_pixels: int) -> laser.Dot:
         raise Unprocessable(
             f"send one image per camera, in camera order: {n_cams}, got {len(files)}"
         )
-    spots = [laser.find_spots(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
+    spots = [
+        laser.find_spots(_decode(k, data, sizes, max_pixels)) for k, (_, data) in enumerate(files)
+    ]
     try:
         dot = laser.locate(spots, geo.triangulate)
     except ValueError as exc:
@@ -57,10 +79,11 @@ def origin_from(
     origin: list[str],
     n_cams: int,
     max_pixels: int,
+    sizes: Sizes = (),
 ) -> tuple[np.ndarray | None, list[str]]:
     """The laser dot's 3-D point, from dot-mode images or from its pixels in each view."""
     if dot_files:
-        return locate_dot(geo, dot_files, max_pixels).point, []
+        return locate_dot(geo, dot_files, max_pixels, sizes).point, []
     pixels = _field(origin, "origin", _PIXELS)
     if pixels is None:
         return None, [
@@ -89,6 +112,7 @@ def measure(
     origin: list[str],
     base_plane: list[str],
     max_pixels: int,
+    sizes: Sizes = (),
 ) -> LaserGridOut:
     n_cams = len(geo.f)
     if len(files) != n_cams:
@@ -99,8 +123,10 @@ def measure(
     plane = None if plane_raw is None else np.array(plane_raw)
     if plane is not None and np.linalg.norm(plane[:3]) == 0:
         raise Unprocessable("base_plane needs a non-zero normal (a, b, c)")
-    point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels)
-    nodes = [laser_grid.detect(vision.decode(data, max_pixels=max_pixels)) for _, data in files]
+    point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels, sizes)
+    nodes = [
+        laser_grid.detect(_decode(k, data, sizes, max_pixels)) for k, (_, data) in enumerate(files)
+    ]
     blind = [k + 1 for k, n in enumerate(nodes) if len(n.uv) == 0]
     if len(blind) > n_cams - 2:
         raise Unprocessable(

@@ -339,6 +339,7 @@ def test_a_rig_made_from_a_stereo_calibration_locates_known_points(
     r = client.post("/rigs", json=rig, headers=admin)
     assert r.status_code == 201, r.text
     assert r.json()["spec"]["calibration_id"] == stereo["id"]
+    assert [c["image_size"] for c in r.json()["spec"]["cameras"]] == [[640, 480]] * 2
 
     rng = np.random.default_rng(41)
     truth = rng.uniform([-50, -80, 450], [150, 80, 750], (40, 3))

@@ -172,6 +172,50 @@ def test_laser_dot_not_found(client: TestClient, admin: dict[str, str]) -> None:
     assert r.status_code == 422
 
 
+def test_images_of_another_size_than_calibrated_are_refused(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """The cross of ``render_views`` as calibrated cameras (R = I, t = (−Xi, Yi, 0); Y flips)
+    whose K is for 640×480. The same scene photographed at 1280×960 puts the dot at twice the
+    pixels: it was located at (0.250, 0.180, 0.500) instead of (0.05, 0.03, 1.0), with a
+    reprojection error of 0.05 px."""
+    import cv2
+
+    k = [[RIG.f, 0.0, RIG.cx], [0.0, RIG.f, RIG.cy], [0.0, 0.0, 1.0]]
+    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    centres = [(0.15, 0.0), (-0.15, 0.0), (0.0, 0.1), (0.0, -0.1)]
+    cameras = [{"K": k, "R": eye, "t": [-x, y, 0.0], "image_size": [640, 480]} for x, y in centres]
+    rig = {"id": "sized", "kind": "calibrated", "cameras": cameras}
+    assert client.post("/rigs", json=rig, headers=admin).status_code == 201
+    truth = np.array([0.05, -0.03, 1.0])
+    images = render_views(RIG, truth)
+    r = client.post("/rigs/sized/laser/dot", files=as_files(images), headers=admin)
+    assert r.status_code == 200, r.text
+    np.testing.assert_allclose(r.json()["point"], [0.05, 0.03, 1.0], atol=0.001)
+    pixels = r.json()["pixels"]
+
+    def doubled(png: bytes) -> bytes:
+        image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        big = cv2.resize(image, (1280, 960), interpolation=cv2.INTER_CUBIC)
+        return cv2.imencode(".png", big)[1].tobytes()
+
+    r = client.post(
+        "/rigs/sized/laser/dot", files=as_files([doubled(b) for b in images]), headers=admin
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["code"] == "wrong_image_size"
+    assert "camera 1's image is 1280×960 px" in r.json()["detail"]
+    assert "calibrated for 640×480" in r.json()["detail"]
+    r = client.post(
+        "/rigs/sized/laser/grid",
+        files=as_files([doubled(b) for b in images]),
+        data={"origin": json.dumps(pixels)},
+        headers=admin,
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["code"] == "wrong_image_size"
+
+
 def test_shape_match(client: TestClient, admin: dict[str, str]) -> None:
     import itertools
 
