@@ -234,7 +234,7 @@ def retire_camera(
 @router.get(
     "/cameras/{camera_id}/frames",
     response_model=list[FrameOut],
-    responses={**AUTH_ERRORS, **NOT_FOUND},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
 )
 def list_frames(
     camera_id: CameraId,
