@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Body, Response
+from fastapi import APIRouter, Body, Query, Response
 
 from app.deps import (
     IdFilter,
@@ -91,12 +91,28 @@ def list_tasks(
     policy: PolicyDep,
     _: RobotOrAdmin,
     panel_id: IdFilter = None,
+    robot_id: IdFilter = None,
+    status: Annotated[
+        list[Literal["open", "pending", "claimed", "completed", "closed", "failed", "cancelled"]],
+        Query(
+            description="Only tasks of these statuses, as they read now (a claim whose lease "
+            "ran out is pending); open: pending, claimed or completed awaiting confirmation."
+        ),
+    ] = [],  # noqa: B006
     limit: Limit = 100,
     offset: Offset = 0,
 ) -> list[TaskOut]:
-    """Cleaning tasks, newest first."""
+    """Cleaning tasks, newest first: a panel's, a robot's, of the statuses given."""
     now = policy.now()
-    rows = cleaning.list_tasks(session, panel_id=panel_id, limit=limit, offset=offset)
+    rows = cleaning.list_tasks(
+        session,
+        panel_id=panel_id,
+        robot_id=robot_id,
+        statuses=status,
+        now=now,
+        limit=limit,
+        offset=offset,
+    )
     return [TaskOut(**task_view(t, now)) for t in rows]
 
 

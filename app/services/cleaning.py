@@ -9,17 +9,18 @@ transaction takes the database's write lock first (``BEGIN IMMEDIATE``).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import datetime
 
-from sqlalchemy import and_, or_, select
+from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
 from app.core.panel_state import TaskPhase, task_phase
-from app.db.models import CleaningTask, TaskStatus
+from app.db.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 from app.errors import Conflict, NotFound
 from app.services.policy import Policy
 
 
-def _claimable(now: object) -> object:
+def _claimable(now: datetime) -> ColumnElement[bool]:
     return or_(
         CleaningTask.status == TaskStatus.pending,
         and_(CleaningTask.status == TaskStatus.claimed, CleaningTask.lease_expires_at <= now),
@@ -41,7 +42,7 @@ def claim_next(session: Session, robot_id: str, policy: Policy) -> CleaningTask 
     now = policy.now()
     task = session.scalars(
         select(CleaningTask)
-        .where(_claimable(now))  # type: ignore[arg-type]
+        .where(_claimable(now))
         .order_by(CleaningTask.created_at, CleaningTask.id)
         .limit(1)
         .with_for_update(skip_locked=True)
@@ -136,12 +137,37 @@ def get_task(session: Session, task_id: str) -> CleaningTask:
     return task
 
 
+def _shown_as(status: str, now: datetime) -> ColumnElement[bool]:
+    """Tasks whose status reads ``status`` at ``now`` (a claim whose lease ran out reads
+    pending); ``open``: pending, claimed or completed awaiting confirmation."""
+    if status == "pending":
+        return _claimable(now)
+    if status == "claimed":
+        return and_(CleaningTask.status == TaskStatus.claimed, CleaningTask.lease_expires_at > now)
+    if status == "open":
+        return CleaningTask.status.in_(OPEN_TASK_STATUSES)
+    return CleaningTask.status == TaskStatus(status)
+
+
 def list_tasks(
-    session: Session, *, panel_id: str | None, limit: int, offset: int
+    session: Session,
+    *,
+    panel_id: str | None,
+    robot_id: str | None = None,
+    statuses: Sequence[str] = (),
+    now: datetime,
+    limit: int,
+    offset: int,
 ) -> Sequence[CleaningTask]:
+    """Tasks newest first: a panel's, a robot's, of the statuses given (as they read at
+    ``now``)."""
     q = select(CleaningTask)
     if panel_id is not None:
         q = q.where(CleaningTask.panel_id == panel_id)
+    if robot_id is not None:
+        q = q.where(CleaningTask.robot_id == robot_id)
+    if statuses:
+        q = q.where(or_(*(_shown_as(s, now) for s in statuses)))
     return session.scalars(
         q.order_by(CleaningTask.created_at.desc(), CleaningTask.id).limit(limit).offset(offset)
     ).all()

@@ -471,6 +471,35 @@ class TestRobotLoop:
         assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r1).status_code == 409
         assert client.post(f"/cleaning/tasks/{task_id}/fail", headers=r2).status_code == 409
 
+    def test_tasks_listed_by_status_as_they_read_and_by_robot(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """A failed task, then a second one claimed by r2 whose lease runs out: it reads
+        pending, and is listed so, not as claimed."""
+        r1, r2 = bearer(farm["robots"]["r1"]), bearer(farm["robots"]["r2"])
+        dirty_with_a_task(client, admin, farm)
+        failed = client.post("/cleaning/claim", headers=r1).json()["task_id"]
+        assert client.post(f"/cleaning/tasks/{failed}/fail", headers=r1).status_code == 200
+        post_frame(client, farm, CLEAN_RGB + DUST)
+        second = client.post("/cleaning/claim", headers=r2).json()["task_id"]
+
+        def listed(**params: Any) -> list[tuple[str, str]]:
+            r = client.get("/cleaning/tasks", params=params, headers=admin)
+            assert r.status_code == 200, r.text
+            return [(t["task_id"], t["status"]) for t in r.json()]
+
+        assert listed(status="claimed") == [(second, "claimed")]
+        assert listed(status="pending") == []
+        assert listed(status=["open", "failed"]) == [(second, "claimed"), (failed, "failed")]
+        assert listed(robot_id="r1") == [(failed, "failed")]
+        farm["clock"].advance(minutes=11)  # r2's lease runs out
+        assert listed(status="claimed") == []
+        assert listed(status="pending") == [(second, "pending")]
+        assert listed(status="open", robot_id="r2") == [(second, "pending")]
+        assert listed(status="closed") == []
+        r = client.get("/cleaning/tasks", params={"status": "lost"}, headers=admin)
+        assert r.status_code == 422
+
     def test_fail_is_idempotent_and_a_new_task_follows(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
