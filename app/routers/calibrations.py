@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 from functools import partial
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.deps import Admin, PolicyDep, RecordId, SessionDep, SettingsDep, image_work
+from app.deps import (
+    Admin,
+    Limit,
+    Offset,
+    PolicyDep,
+    RecordId,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
 from app.errors import Unprocessable, UnsupportedMediaType
 from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.services import calibrations
@@ -30,10 +39,12 @@ Square = Annotated[
 ]
 
 
+def _out(row: Any) -> dict[str, Any]:
+    return {"id": row.id, "created_at": row.created_at.isoformat(), "kind": row.kind, **row.result}
+
+
 def _body(row: Any) -> JSONResponse:
-    return JSONResponse(
-        {"id": row.id, "created_at": row.created_at.isoformat(), **row.result}, status_code=201
-    )
+    return JSONResponse(_out(row), status_code=201)
 
 
 async def _form(request: Request, limit: int) -> Any:
@@ -128,8 +139,23 @@ async def calibrate_stereo(
     return _body(row)
 
 
+@router.get("", responses=AUTH_ERRORS)
+def list_calibrations(
+    session: SessionDep,
+    _: Admin,
+    kind: Annotated[
+        Literal["single", "stereo"] | None,
+        Query(description="Only cameras (single) or only stereo pairs."),
+    ] = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
+) -> JSONResponse:
+    """Calibrations, newest first (a stereo pair's id makes a rig: POST /rigs)."""
+    rows = calibrations.listed(session, kind=kind, limit=limit, offset=offset)
+    return JSONResponse([_out(row) for row in rows])
+
+
 @router.get("/{calibration_id}", responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_calibration(calibration_id: RecordId, session: SessionDep, _: Admin) -> JSONResponse:
     """One calibration."""
-    row = calibrations.get(session, calibration_id)
-    return JSONResponse({"id": row.id, "created_at": row.created_at.isoformat(), **row.result})
+    return JSONResponse(_out(calibrations.get(session, calibration_id)))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import uuid
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
@@ -11,6 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.core import calibration
@@ -196,6 +198,15 @@ def calibrate_pair(
     session.add(row)
     session.flush()
     return row
+
+
+def listed(session: Session, *, kind: str | None, limit: int, offset: int) -> Sequence[Calibration]:
+    """Calibrations newest first (only of ``kind``, single or stereo, when given)."""
+    q = select(Calibration)
+    if kind is not None:
+        q = q.where(Calibration.kind == kind)
+    q = q.order_by(Calibration.created_at.desc(), Calibration.id)
+    return session.scalars(q.limit(limit).offset(offset)).all()
 
 
 def get(session: Session, calibration_id: str) -> Calibration:

@@ -334,6 +334,8 @@ def test_a_rig_made_from_a_stereo_calibration_locates_known_points(
     assert r.status_code == 201, r.text
     stereo = r.json()
     assert stereo["baseline"] == pytest.approx(100.0, rel=0.01)
+    pairs = client.get("/calibrations", params={"kind": "stereo"}, headers=admin).json()
+    assert [(c["id"], c["kind"], c["T"]) for c in pairs] == [(stereo["id"], "stereo", stereo["T"])]
 
     rig = {"id": "pair", "kind": "calibrated", "calibration_id": stereo["id"]}
     r = client.post("/rigs", json=rig, headers=admin)
@@ -359,6 +361,11 @@ def test_a_rig_needs_a_stereo_calibration(client: TestClient, admin: dict[str, s
         client, admin, [(f"v{i}.jpg", b) for i, b in enumerate(rendered_views(6, seed=42))]
     )
     assert status == 201, single
+    assert single["kind"] == "single"
+    listed = client.get("/calibrations", headers=admin).json()
+    assert [(c["id"], c["kind"]) for c in listed] == [(single["id"], "single")]
+    assert client.get("/calibrations", params={"kind": "stereo"}, headers=admin).json() == []
+    assert client.get("/calibrations").status_code == 401
     cases = [
         ({"calibration_id": single["id"]}, "not_a_stereo_calibration"),
         ({"calibration_id": "nope"}, "no_such_calibration"),
