@@ -279,7 +279,7 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
 @router.get(
     "/readings",
     response_model=list[AirReading] | list[AirAggregate],
-    responses=UNPROCESSABLE,
+    responses={**NOT_FOUND, **UNPROCESSABLE},
 )
 def readings(
     session: SessionDep,
@@ -302,6 +302,8 @@ def readings(
     if since and until and since >= until:
         raise Unprocessable("since must be before until")
     zone = _zone(tz)
+    if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
+        air.sky_camera(session, camera_id)
     if aggregate == "none":
         rows = air.readings(
             session, camera_id=camera_id, since=since, until=until, limit=limit, offset=offset
@@ -333,7 +335,7 @@ def _zone(name: str) -> ZoneInfo:
         ) from None
 
 
-@router.get("/alerts", response_model=list[AirAlertOut])
+@router.get("/alerts", response_model=list[AirAlertOut], responses=NOT_FOUND)
 def alerts(
     session: SessionDep,
     settings: SettingsDep,
@@ -344,6 +346,8 @@ def alerts(
 ) -> list[AirAlertOut]:
     """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, with where
     each one's webhook delivery stands."""
+    if camera_id is not None:
+        air.sky_camera(session, camera_id)
     rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)
     now = policy.now()
     retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None

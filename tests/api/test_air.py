@@ -274,8 +274,20 @@ class TestBadInput:
         r = client.post("/air/calibration", files=files, data={"levels": ["11"]}, headers=admin)
         assert r.status_code == 422
 
-    def test_unknown_camera(self, client: TestClient) -> None:
+    def test_unknown_camera(self, client: TestClient, admin: dict[str, str]) -> None:
+        """A misspelt camera id is a 404, not an empty history (a dashboard showed none)."""
         assert client.get("/air/cameras/none/latest").status_code == 404
+        rig = {"id": "rig0", "kind": "rig"}
+        assert client.post("/cameras", json=rig, headers=admin).status_code == 201
+        for camera in ("none", "rig0"):
+            for path, params in (
+                ("/air/readings", {}),
+                ("/air/readings", {"aggregate": "daily"}),
+                ("/air/alerts", {}),
+            ):
+                r = client.get(path, params={"camera_id": camera, **params})
+                assert r.status_code == 404, (path, params, r.text)
+                assert r.json()["detail"] == f"no sky camera {camera!r}"
 
     def test_calibration_needs_admin(self, client: TestClient) -> None:
         assert (
