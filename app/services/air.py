@@ -27,7 +27,14 @@ from app.db.models import (
     SkyVerdict,
 )
 from app.errors import NotFound, Unprocessable
-from app.services.camera_info import CameraInfo, Region, describe_region, one_view, uploads_in
+from app.services.camera_info import (
+    CameraInfo,
+    Region,
+    describe_region,
+    one_view,
+    region_now,
+    uploads_in,
+)
 from app.services.policy import Policy
 from app.services.registry import taken_in
 from app.services.verdicts import stats_columns
@@ -203,7 +210,7 @@ def calibrate(
                 code="not_a_sky_camera",
             )
     for frame_id, camera_id, region in regions:
-        now_at = CameraInfo.of(sky[camera_id]).region if camera_id in sky else region
+        now_at = region_now(sky[camera_id]) if camera_id in sky else region
         if region != now_at:
             raise Unprocessable(
                 f"frame {frame_id} of camera {camera_id!r} was measured in "
@@ -246,9 +253,7 @@ def calibrate(
         method=method,
         regression=regression,
         city_wide=not cameras,
-        cameras=[
-            AirCalibrationCamera(camera_id=c, roi=CameraInfo.of(sky[c]).region) for c in cameras
-        ],
+        cameras=[AirCalibrationCamera(camera_id=c, roi=region_now(sky[c])) for c in cameras],
     )
     session.add(row)
     session.flush()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from app.core.stats import Polygon, Roi
 from app.db.models import Camera, CameraKind
@@ -27,6 +27,19 @@ class CameraInfo:
     polygon: Polygon | None = None
     """The region as a polygon instead of ``roi``'s rectangle."""
 
+    region: Region = field(init=False, compare=False)
+    """The region as the camera's ``roi`` stores it: [x, y, w, h], [[x, y], ...] or None. Built
+    once per snapshot (the token cache keeps one per camera) rather than once per frame: it is
+    both stored with each verdict and compared with a panel baseline's. Read it, never change it."""
+
+    def __post_init__(self) -> None:
+        region: Region = None
+        if self.polygon is not None:
+            region = [[x, y] for x, y in self.polygon]
+        elif self.roi is not None:
+            region = list(self.roi)
+        object.__setattr__(self, "region", region)
+
     @classmethod
     def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
         r = camera.roi
@@ -39,12 +52,10 @@ class CameraInfo:
             roi = (x, y, w, h)
         return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
 
-    @property
-    def region(self) -> Region:
-        """The region as the camera's ``roi`` stores it: [x, y, w, h], [[x, y], ...] or None."""
-        if self.polygon is not None:
-            return [[x, y] for x, y in self.polygon]
-        return list(self.roi) if self.roi is not None else None
+
+def region_now(camera: Camera) -> Region:
+    """The region ``camera`` measures now, as verdicts and models record theirs."""
+    return CameraInfo.of(camera).region
 
 
 def describe_region(region: Region) -> str:

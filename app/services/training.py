@@ -16,7 +16,14 @@ from app.core import soiling
 from app.core.fleet import FEATURES
 from app.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
 from app.errors import Unprocessable, VantageError
-from app.services.camera_info import CameraInfo, Region, describe_region, one_view, uploads_in
+from app.services.camera_info import (
+    CameraInfo,
+    Region,
+    describe_region,
+    one_view,
+    region_now,
+    uploads_in,
+)
 from app.services.ingest import Decoded, analyse
 from app.services.panels import lock_panel
 
@@ -109,8 +116,8 @@ def check_region_in_use(session: Session, panel_id: str, region: Region) -> None
     cameras = session.scalars(
         select(Camera).where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
     ).all()
-    if cameras and all(CameraInfo.of(c).region != region for c in cameras):
-        now = "; ".join(f"{c.id}: {describe_region(CameraInfo.of(c).region)}" for c in cameras)
+    if cameras and all(region_now(c) != region for c in cameras):
+        now = "; ".join(f"{c.id}: {describe_region(region_now(c))}" for c in cameras)
         raise Unprocessable(
             f"these images were measured in {describe_region(region)}, but the panel's cameras "
             f"now measure another region ({now}), so the baseline would judge none of their "
