@@ -20,7 +20,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import Camera, Panel, Robot
-from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized
+from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized, Unprocessable
 from app.security import hash_token
 from app.services import rate_limit, registry
 from app.services.camera_info import CameraInfo, TokenCache
@@ -177,6 +177,27 @@ def _utc(value: datetime) -> datetime:
 
 UtcTime = Annotated[datetime, AfterValidator(_utc)]
 """A time given by a client: RFC 3339, UTC when it carries no offset."""
+
+
+@dataclass(frozen=True, slots=True)
+class TimeRange:
+    """[since, until): either end may be open."""
+
+    since: datetime | None
+    until: datetime | None
+
+
+def _time_range(
+    since: Annotated[UtcTime | None, Query(description="At or after (RFC 3339).")] = None,
+    until: Annotated[UtcTime | None, Query(description="Before (RFC 3339).")] = None,
+) -> TimeRange:
+    if since and until and since >= until:
+        raise Unprocessable("since must be before until")
+    return TimeRange(since, until)
+
+
+TimeRangeQuery = Annotated[TimeRange, Depends(_time_range)]
+"""The ``since`` and ``until`` query parameters of a listing by time."""
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 

@@ -25,7 +25,7 @@ from app.deps import (
     PolicyDep,
     SessionDep,
     SettingsDep,
-    UtcTime,
+    TimeRangeQuery,
     image_work,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
@@ -283,9 +283,8 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
 )
 def readings(
     session: SessionDep,
+    span: TimeRangeQuery,
     camera_id: IdFilter = None,
-    since: UtcTime | None = None,
-    until: UtcTime | None = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
     tz: Annotated[
         str,
@@ -299,8 +298,7 @@ def readings(
 ) -> list[AirReading] | list[AirAggregate]:
     """Readings newest first, paginated; or their hourly or daily means, over every reading
     in the range, in the time zone ``tz`` (its local hours and days; UTC by default)."""
-    if since and until and since >= until:
-        raise Unprocessable("since must be before until")
+    since, until = span.since, span.until
     zone = _zone(tz)
     if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
         air.sky_camera(session, camera_id)

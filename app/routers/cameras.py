@@ -22,6 +22,7 @@ from app.deps import (
     PolicyDep,
     RecordId,
     SessionDep,
+    TimeRangeQuery,
     UploadTargetDep,
     UtcTime,
 )
@@ -240,16 +241,13 @@ def list_frames(
     camera_id: CameraId,
     session: SessionDep,
     _: Admin,
-    since: Annotated[UtcTime | None, Query(description="Taken at or after (RFC 3339).")] = None,
-    until: Annotated[UtcTime | None, Query(description="Taken before (RFC 3339).")] = None,
+    span: TimeRangeQuery,
     limit: Limit = 50,
     offset: Offset = 0,
 ) -> list[FrameOut]:
     """A camera's frames with their verdicts, newest first; those taken in [since, until)."""
-    if since and until and since >= until:
-        raise Unprocessable("since must be before until")
     frames = registry.frames_of(
-        session, camera_id, since=since, until=until, limit=limit, offset=offset
+        session, camera_id, since=span.since, until=span.until, limit=limit, offset=offset
     )
     return [frame_out(f, f.verdict) for f in frames]
 

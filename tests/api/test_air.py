@@ -125,7 +125,13 @@ def test_end_to_end(client: TestClient, admin: dict[str, str], city: dict[str, A
     )
     assert naive.status_code == 200, naive.text
     assert len(naive.json()) == 3
-    for bad in ({"since": "0001-01-01T00:00:00+14:00"}, {"until": "9999-12-31T23:59:59-14:00"}):
+    empty = {"since": times[0], "until": times[0]}  # [t, t) holds nothing: a mistaken range
+    for bad in (
+        {"since": "0001-01-01T00:00:00+14:00"},
+        {"until": "9999-12-31T23:59:59-14:00"},
+        empty,
+        {**empty, "aggregate": "daily"},
+    ):
         r = client.get("/air/readings", params=bad)
         assert r.status_code == 422, r.text
         assert r.headers["content-type"] == "application/problem+json"
