@@ -229,6 +229,10 @@ class Verdict(Base):
     """Further numbers behind the verdict (features, quality gate readings)."""
     roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
     """The camera's region of interest the statistics were measured in; null: the whole frame."""
+    usable: Mapped[bool] = mapped_column(Boolean, server_default=true())
+    """False when the quality gate found the region unusable (night, glare, blank, greyscale,
+    occluded; ``reason`` says which): its modes say nothing of the panel or the sky, and no
+    baseline or calibration may be made from it."""
 
     frame: Mapped[Frame] = relationship(back_populates="verdict", lazy="raise")
 

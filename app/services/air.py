@@ -37,7 +37,7 @@ from app.services.camera_info import (
 )
 from app.services.policy import Policy
 from app.services.registry import taken_in
-from app.services.verdicts import stats_columns
+from app.services.verdicts import check_usable, stats_columns
 
 if TYPE_CHECKING:
     from app.services.ingest import Prepared
@@ -280,12 +280,15 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
             SkyVerdict.details,
             SkyVerdict.camera_id,
             SkyVerdict.roi,
+            SkyVerdict.usable,
+            SkyVerdict.reason,
         ).where(SkyVerdict.frame_id.in_(frame_ids))
     ).all()
     found = {r[0]: r for r in rows}
     missing = [f for f in frame_ids if f not in found]
     if missing:
         raise Unprocessable(f"no sky frames {', '.join(missing[:10])}", missing=missing)
+    check_usable([(r[0], r[8]) for r in rows if not r[7]])
     modes = np.array([found[f][1:4] for f in frame_ids], dtype=np.float64)
     feats = [(found[f][4] or {}).get("features") for f in frame_ids]
     regions = [(f, found[f][5], found[f][6]) for f in frame_ids]

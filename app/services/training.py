@@ -16,6 +16,7 @@ from app.core import soiling
 from app.core.fleet import FEATURES
 from app.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
 from app.errors import Unprocessable, VantageError
+from app.services import verdicts
 from app.services.camera_info import (
     CameraInfo,
     Region,
@@ -85,6 +86,8 @@ def modes_of_frames(
             PanelVerdict.mode_g,
             PanelVerdict.mode_b,
             PanelVerdict.roi,
+            PanelVerdict.usable,
+            PanelVerdict.reason,
         )
         .join(Frame, Frame.id == PanelVerdict.frame_id)
         .where(PanelVerdict.frame_id.in_(frame_ids), PanelVerdict.panel_id == panel_id)
@@ -96,6 +99,7 @@ def modes_of_frames(
             f"frames not found for panel {panel_id!r}: {', '.join(missing[:10])}",
             missing=missing,
         )
+    verdicts.check_usable([(r[0], r[6]) for r in rows if not r[5]])
     regions = {r[0]: r[4] for r in rows}
     region = regions[frame_ids[0]]
     elsewhere = [f for f in frame_ids if regions[f] != region]

@@ -7,13 +7,14 @@ CPU-heavy belongs in ``ingest.analyse``, which runs in parallel before.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from sqlalchemy.orm import Session
 
 from app.core.stats import ChannelStats
 from app.db.models import CameraKind, Verdict
+from app.errors import Unprocessable
 from app.services.policy import Policy
 
 if TYPE_CHECKING:
@@ -65,4 +66,18 @@ def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
     """The verdict on a prepared frame, by its camera's kind."""
     verdict = CLASSIFIERS[prepared.camera.kind](session, prepared, policy)
     verdict.roi = prepared.camera.region
+    verdict.usable = prepared.decoded.quality is None
     return verdict
+
+
+def check_usable(unusable: Sequence[tuple[str, str | None]]) -> None:
+    """Refuse a model made from frames the quality gate found unusable (frame id, its reason):
+    the modes of a night, glare or blank frame say nothing of the panel or the sky. Uploaded
+    images are refused alike (``decode_all``)."""
+    if unusable:
+        problems = [f"{frame_id}: {reason or 'unusable'}" for frame_id, reason in unusable]
+        raise Unprocessable(
+            "unusable frames: " + "; ".join(problems[:10]),
+            code="unusable_frames",
+            unusable=[frame_id for frame_id, _ in unusable],
+        )

@@ -14,6 +14,7 @@ from fastapi.testclient import TestClient
 from shapely.geometry import shape
 
 from tests.api.test_solar import Clock
+from tests.conftest import make_jpeg
 from tests.core.test_airquality import CLEAN, HAZE
 
 
@@ -582,6 +583,41 @@ def test_a_camera_calibrated_from_its_stored_frames_in_the_region_it_measures(
     city_wide = client.post("/air/calibration", json=body, headers=admin)
     assert city_wide.status_code == 201, city_wide.text
     assert len(client.get("/air/calibrations").json()) == 2
+
+
+def test_no_calibration_from_stored_frames_the_quality_gate_found_unusable(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A night frame labelled with the day's level (the reference station measures day and
+    night) was taken into the calibration: its modes are the dark, not the air. Uploaded, it is
+    refused by name; stored, it is refused alike and nothing is made."""
+    ids, levels = [], []
+    for level in (1, 3, 5, 7, 10):
+        for k in range(8):
+            city["clock"].advance(minutes=5)
+            night = level == 5 and k == 0
+            r = client.post(
+                "/cameras/sky1/frames",
+                content=make_jpeg(160, 120, (4, 4, 8)) if night else sky_jpeg(level, seed=k),
+                headers={
+                    "Authorization": f"Bearer {city['tokens']['sky1'][0]}",
+                    "Content-Type": "image/jpeg",
+                },
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["frame_id"])
+            levels.append(level)
+    dark = ids[16]
+    r = client.get(f"/frames/{dark}", headers=admin)
+    assert r.json()["verdict"]["reason"].startswith("too dark to judge"), r.text
+    body = {"frame_ids": ids, "levels": levels}
+    r = client.post("/air/calibration", json=body, headers=admin)
+    assert r.status_code == 422, r.text
+    assert (r.json()["code"], r.json()["unusable"]) == ("unusable_frames", [dark])
+    assert f"{dark}: too dark to judge" in r.json()["detail"]
+    assert client.get("/air/calibrations").json() == []
+    rest = {"frame_ids": ids[:16] + ids[17:], "levels": levels[:16] + levels[17:]}
+    assert client.post("/air/calibration", json=rest, headers=admin).status_code == 201
 
 
 def test_uploads_for_cameras_are_measured_in_their_region(

@@ -186,6 +186,32 @@ class TestBaseline:
         r = client.post("/panels/p1/baseline", json={"frame_ids": ["nope"]}, headers=admin)
         assert r.status_code == 422
 
+    def test_not_from_stored_frames_the_quality_gate_found_unusable(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """Five clean frames and one taken at dusk (gain 0.1: too dark to judge). Uploaded, the
+        dark image is refused by name; stored, it was taken into the baseline as clean, and its
+        modes (a tenth of the others) stretched the clean class toward black."""
+        ids = []
+        for i, f in enumerate([*clean_set(5), panel_jpeg(CLEAN_RGB, gain=0.1)]):
+            r = client.post(
+                "/cameras/c1/frames",
+                content=f,
+                headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+                params={"captured_at": f"2026-05-0{i + 1}T12:00:00Z"},
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["frame_id"])
+        assert r.json()["verdict"]["reason"].startswith("too dark to judge")
+        r = client.post("/panels/p1/baseline", json={"frame_ids": ids}, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert (r.json()["code"], r.json()["unusable"]) == ("unusable_frames", ids[5:])
+        assert f"{ids[5]}: too dark to judge" in r.json()["detail"]
+        assert client.get("/panels/p1/baseline", headers=admin).status_code == 404
+        r = client.post("/panels/p1/baseline", json={"frame_ids": ids[:5]}, headers=admin)
+        assert r.status_code == 201, r.text
+
     def test_uploads_are_measured_in_the_region_the_panels_cameras_share(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:

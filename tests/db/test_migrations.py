@@ -101,3 +101,57 @@ def test_verdicts_baselines_and_calibrations_take_their_cameras_region(tmp_path:
         "p2": None,
     }
     assert {c: json.loads(r) for c, r in links.items()} == {"a": [1, 2, 30, 40], "c": None}
+
+
+def test_verdicts_the_quality_gate_refused_are_marked_unusable(tmp_path: Path) -> None:
+    """Before 5b7e2c9d41f3 only the reason said a frame was unusable: the quality gate's
+    reasons mark it so; other reasons (no baseline yet) and none leave it usable."""
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    migrate(url, "83094b1d8bb0")
+    t = "2026-06-01 08:00:00.000000"
+    reasons = {
+        "dark": "too dark to judge (night?): 95% of pixels below level 31",
+        "blank": "blank frame: no detail in any channel (lens covered or camera fault?)",
+        "glare": "glare: 41% of the region is saturated",
+        "grey": "greyscale frame (camera in night mode?)",
+        "occluded": "occluded: 73% of the region is black",
+        "waiting": "no baseline: train one (POST /panels/{id}/baseline) or a fleet model",
+        "judged": None,
+    }
+    engine = create_engine(url)
+    with engine.begin() as conn:
+        conn.execute(
+            text(
+                "INSERT INTO cameras (id, kind, token_hash, created_at) VALUES ('c', 'rig', :h, :t)"
+            ),
+            {"h": "c" * 64, "t": t},
+        )
+        for fid, reason in reasons.items():
+            conn.execute(
+                text(
+                    "INSERT INTO frames (id, camera_id, captured_at, received_at, width, height, "
+                    "size_bytes, sha256) VALUES (:id, 'c', :t, :t, 64, 48, 1, :id)"
+                ),
+                {"id": fid, "t": t},
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO verdicts (frame_id, kind, camera_id, mode_r, mode_g, mode_b, "
+                    "mean_r, mean_g, mean_b, reason) VALUES (:f, 'rig', 'c', 1, 2, 3, 1, 2, 3, :r)"
+                ),
+                {"f": fid, "r": reason},
+            )
+
+    migrate(url)
+    with engine.connect() as conn:
+        usable = dict(conn.execute(text("SELECT frame_id, usable FROM verdicts")).all())
+    engine.dispose()
+    assert {f: bool(u) for f, u in usable.items()} == {
+        "dark": False,
+        "blank": False,
+        "glare": False,
+        "grey": False,
+        "occluded": False,
+        "waiting": True,
+        "judged": True,
+    }
