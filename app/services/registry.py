@@ -21,7 +21,15 @@ from app.services.policy import Policy
 
 
 def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
-    if session.get(type(row), row.id) is not None:
+    existing = session.get(type(row), row.id)
+    if existing is not None:
+        retired = getattr(existing, "retired_at", None)
+        if retired is not None:  # its history keeps the id: a new one would inherit it
+            raise Conflict(
+                f"a {what} with id {row.id!r} was retired at {retired.isoformat()}; ids are not "
+                f"reused (its history is kept under it): choose another id",
+                code=f"{what}_retired",
+            )
         raise Conflict(f"a {what} with id {row.id!r} already exists")
     session.add(row)
     try:

@@ -222,6 +222,10 @@ class TestRetire:
         out = client.get("/cameras/cam", headers=admin).json()
         assert out["retired_at"] is not None
         assert out["name"] == "East"
+        again = client.post("/cameras", json={"id": "cam", "kind": "panel"}, headers=admin)
+        assert again.status_code == 409, again.text  # its history keeps the id
+        assert again.json()["code"] == "camera_retired"
+        assert "ids are not reused" in again.json()["detail"]
         frames = client.get("/cameras/cam/frames", headers=admin).json()
         assert [f["frame_id"] for f in frames] == [first["frame_id"]]
 

@@ -610,7 +610,8 @@ class TestRobotChanges:
         r = client.post("/robots/r1/token", headers=admin)
         assert r.status_code == 409, r.text
         assert r.json()["code"] == "robot_retired"
-        assert client.post("/robots", json={"id": "r1"}, headers=admin).status_code == 409
+        r = client.post("/robots", json={"id": "r1"}, headers=admin)
+        assert (r.status_code, r.json()["code"]) == (409, "robot_retired"), r.text
 
     def test_a_new_token_shuts_out_the_old_one_at_once(
         self, client: TestClient, admin: dict[str, str], farm: Any
