@@ -478,6 +478,14 @@ class RigCreate(Schema):
     principal_point: list[Finite] | None = Field(
         default=None, min_length=2, max_length=2, description="[cx, cy] [px]."
     )
+    image_size: list[Annotated[int, Field(ge=1, le=100_000)]] | None = Field(
+        default=None,
+        min_length=2,
+        max_length=2,
+        description="Cross rig: [width, height] [px] of the images f_px and principal_point "
+        "are in, the same for the four cameras: the laser endpoints refuse images of another "
+        "size (422 wrong_image_size). Calibrated rigs give it per camera.",
+    )
     cameras: list[CalibratedCamera] | None = None
     calibration_id: str | None = Field(
         default=None,

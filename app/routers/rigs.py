@@ -62,7 +62,10 @@ def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
             "ax": body.ax,
             "ay": body.ay,
             "principal_point": [cx, cy],
+            "image_size": body.image_size,
         }
+    elif body.image_size is not None:
+        raise Unprocessable("a calibrated rig gives image_size per camera (cameras[i].image_size)")
     elif body.calibration_id is not None:
         if body.cameras is not None:
             raise Unprocessable("give the cameras or a calibration_id, not both")
@@ -112,7 +115,8 @@ def _views(row: Rig) -> list[View]:
 def _sizes(row: Rig) -> list[tuple[int, int] | None]:
     """Per camera, the image size its K was calibrated for, when known."""
     if row.kind == "cross":
-        return [None] * 4
+        size = row.spec.get("image_size")  # none on rigs registered before it was asked
+        return [(int(size[0]), int(size[1])) if size else None] * 4
     return [
         (int(c["image_size"][0]), int(c["image_size"][1])) if c.get("image_size") else None
         for c in row.spec["cameras"]

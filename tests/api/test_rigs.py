@@ -179,7 +179,6 @@ def test_images_of_another_size_than_calibrated_are_refused(
     whose K is for 640×480. The same scene photographed at 1280×960 puts the dot at twice the
     pixels: it was located at (0.250, 0.180, 0.500) instead of (0.05, 0.03, 1.0), with a
     reprojection error of 0.05 px."""
-    import cv2
 
     k = [[RIG.f, 0.0, RIG.cx], [0.0, RIG.f, RIG.cy], [0.0, 0.0, 1.0]]
     eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
@@ -193,11 +192,6 @@ def test_images_of_another_size_than_calibrated_are_refused(
     assert r.status_code == 200, r.text
     np.testing.assert_allclose(r.json()["point"], [0.05, 0.03, 1.0], atol=0.001)
     pixels = r.json()["pixels"]
-
-    def doubled(png: bytes) -> bytes:
-        image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-        big = cv2.resize(image, (1280, 960), interpolation=cv2.INTER_CUBIC)
-        return cv2.imencode(".png", big)[1].tobytes()
 
     r = client.post(
         "/rigs/sized/laser/dot", files=as_files([doubled(b) for b in images]), headers=admin
@@ -214,6 +208,60 @@ def test_images_of_another_size_than_calibrated_are_refused(
     )
     assert r.status_code == 422, r.text
     assert r.json()["code"] == "wrong_image_size"
+
+
+def doubled(png: bytes) -> bytes:
+    """The image at twice its width and height (a camera switched to a larger resolution)."""
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    big = cv2.resize(image, (1280, 960), interpolation=cv2.INTER_CUBIC)
+    return cv2.imencode(".png", big)[1].tobytes()
+
+
+def test_a_cross_rig_refuses_images_of_another_size_than_its_own(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """The cross's f_px and principal point are pixels of 640×480 images. Sent 1280×960
+    photos of the dot at (0.05, −0.03, 1.0) m, a cross that does not know its size answers
+    200 with a point tens of centimetres off; one registered with its image_size refuses them."""
+    truth = np.array([0.05, -0.03, 1.0])
+    images = render_views(RIG, truth)
+    big = [doubled(b) for b in images]
+    assert client.post("/rigs", json=CELL, headers=admin).status_code == 201
+    r = client.post("/rigs/cell/laser/dot", files=as_files(big), headers=admin)
+    assert r.status_code == 200, r.text
+    assert np.linalg.norm(np.array(r.json()["point"]) - truth) > 0.1  # confidently wrong
+
+    sized = {**CELL, "id": "sized", "image_size": [640, 480]}
+    r = client.post("/rigs", json=sized, headers=admin)
+    assert r.status_code == 201, r.text
+    assert r.json()["spec"]["image_size"] == [640, 480]
+    r = client.post("/rigs/sized/laser/dot", files=as_files(images), headers=admin)
+    assert r.status_code == 200, r.text
+    assert np.linalg.norm(np.array(r.json()["point"]) - truth) < 0.001
+    pixels = r.json()["pixels"]
+    r = client.post("/rigs/sized/laser/dot", files=as_files(big), headers=admin)
+    assert (r.status_code, r.json()["code"]) == (422, "wrong_image_size"), r.text
+    assert "camera 1's image is 1280×960 px" in r.json()["detail"]
+    r = client.post(
+        "/rigs/sized/laser/grid",
+        files=as_files(big),
+        data={"origin": json.dumps(pixels)},
+        headers=admin,
+    )
+    assert (r.status_code, r.json()["code"]) == (422, "wrong_image_size"), r.text
+
+    k = [[RIG.f, 0.0, RIG.cx], [0.0, RIG.f, RIG.cy], [0.0, 0.0, 1.0]]
+    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    two = [{"K": k, "R": eye, "t": [x, 0.0, 0.0]} for x in (0.0, -0.3)]
+    r = client.post(
+        "/rigs",
+        json={"id": "pair", "kind": "calibrated", "cameras": two, "image_size": [640, 480]},
+        headers=admin,
+    )
+    assert r.status_code == 422, r.text
+    assert "per camera" in r.json()["detail"]
 
 
 def test_shape_match(client: TestClient, admin: dict[str, str]) -> None:
