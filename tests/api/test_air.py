@@ -3,6 +3,7 @@ isopleths (GeoJSON and PNG)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -90,6 +91,29 @@ def post(client: TestClient, city: dict[str, Any], camera: str, level: float, se
     )
     assert r.status_code == 201, r.text
     return r.json()["verdict"]
+
+
+def labelled_frames(
+    client: TestClient, city: dict[str, Any], image: Callable[[int, int], bytes]
+) -> tuple[list[str], list[int]]:
+    """Eight frames of sky1 at each of levels 1, 3, 5, 7 and 10, five minutes apart
+    (``image(level, k)`` for the k-th of a level): their ids and levels."""
+    ids, levels = [], []
+    for level in (1, 3, 5, 7, 10):
+        for k in range(8):
+            city["clock"].advance(minutes=5)
+            r = client.post(
+                "/cameras/sky1/frames",
+                content=image(level, k),
+                headers={
+                    "Authorization": f"Bearer {city['tokens']['sky1'][0]}",
+                    "Content-Type": "image/jpeg",
+                },
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["frame_id"])
+            levels.append(level)
+    return ids, levels
 
 
 def test_end_to_end(client: TestClient, admin: dict[str, str], city: dict[str, Any]) -> None:
@@ -551,21 +575,7 @@ def test_a_camera_calibrated_from_its_stored_frames_in_the_region_it_measures(
     """sky1's stored frames, labelled, calibrate it. Frames measured in a region it no longer
     measures may not make its own calibration (it would grade another part of the view); they
     may still make a city-wide one."""
-    ids, levels = [], []
-    for level in (1, 3, 5, 7, 10):
-        for k in range(8):
-            city["clock"].advance(minutes=5)
-            r = client.post(
-                "/cameras/sky1/frames",
-                content=sky_jpeg(level, seed=100 * level + k),
-                headers={
-                    "Authorization": f"Bearer {city['tokens']['sky1'][0]}",
-                    "Content-Type": "image/jpeg",
-                },
-            )
-            assert r.status_code == 201, r.text
-            ids.append(r.json()["frame_id"])
-            levels.append(level)
+    ids, levels = labelled_frames(client, city, lambda level, k: sky_jpeg(level, 100 * level + k))
     body = {"frame_ids": ids, "levels": levels}
     own = client.post("/air/calibration", json=body, headers=admin, params={"applies_to": "sky1"})
     assert own.status_code == 201, own.text
@@ -591,22 +601,10 @@ def test_no_calibration_from_stored_frames_the_quality_gate_found_unusable(
     """A night frame labelled with the day's level (the reference station measures day and
     night) was taken into the calibration: its modes are the dark, not the air. Uploaded, it is
     refused by name; stored, it is refused alike and nothing is made."""
-    ids, levels = [], []
-    for level in (1, 3, 5, 7, 10):
-        for k in range(8):
-            city["clock"].advance(minutes=5)
-            night = level == 5 and k == 0
-            r = client.post(
-                "/cameras/sky1/frames",
-                content=make_jpeg(160, 120, (4, 4, 8)) if night else sky_jpeg(level, seed=k),
-                headers={
-                    "Authorization": f"Bearer {city['tokens']['sky1'][0]}",
-                    "Content-Type": "image/jpeg",
-                },
-            )
-            assert r.status_code == 201, r.text
-            ids.append(r.json()["frame_id"])
-            levels.append(level)
+    night = make_jpeg(160, 120, (4, 4, 8))
+    ids, levels = labelled_frames(
+        client, city, lambda level, k: night if (level, k) == (5, 0) else sky_jpeg(level, seed=k)
+    )
     dark = ids[16]
     r = client.get(f"/frames/{dark}", headers=admin)
     assert r.json()["verdict"]["reason"].startswith("too dark to judge"), r.text
