@@ -176,6 +176,11 @@ class PanelVerdictOut(VerdictBase):
     )
     state: str | None = Field(description="The panel's state after this verdict.")
     method: str | None = Field(default=None, description="baseline (T²) or fleet.")
+    baseline_id: str | None = Field(
+        default=None,
+        description="The baseline that judged it: the panel's newest measured in the camera's "
+        "region (a panel watched from several views has one per view).",
+    )
     p_dirty: float | None = Field(default=None, description="Fleet model: p(needs cleaning).")
     late: bool = Field(
         default=False,

@@ -10,7 +10,16 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.db.models import Baseline, CameraKind
-from app.deps import Admin, PanelId, PolicyDep, RobotOrAdmin, SessionDep, SettingsDep, image_work
+from app.deps import (
+    ID_PATTERN,
+    Admin,
+    PanelId,
+    PolicyDep,
+    RobotOrAdmin,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
@@ -206,12 +215,27 @@ async def train_baseline(
     response_model=BaselineOut,
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
-def get_baseline(panel_id: PanelId, session: SessionDep, _: RobotOrAdmin) -> BaselineOut:
-    """The baseline the panel's verdicts use."""
+def get_baseline(
+    panel_id: PanelId,
+    session: SessionDep,
+    _: RobotOrAdmin,
+    camera_id: Annotated[
+        str | None,
+        Query(
+            pattern=ID_PATTERN,
+            description="The baseline that judges this camera's frames (the panel's newest "
+            "measured in its region) instead of the panel's newest.",
+        ),
+    ] = None,
+) -> BaselineOut:
+    """The panel's newest baseline, or the one judging a camera's frames. A panel watched by
+    cameras with different regions of interest has one in use per region."""
     panel = registry.get_panel(session, panel_id)
-    if panel.baseline_id is None:
-        raise NotFound(f"panel {panel_id!r} has no baseline")
-    return BaselineOut.model_validate(session.get(Baseline, panel.baseline_id))
+    if camera_id is None:
+        if panel.baseline_id is None:
+            raise NotFound(f"panel {panel_id!r} has no baseline")
+        return BaselineOut.model_validate(session.get(Baseline, panel.baseline_id))
+    return BaselineOut.model_validate(panels.judging(session, panel, camera_id))
 
 
 def status_out(status: panels.Status, policy: Policy) -> PanelStatus:

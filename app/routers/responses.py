@@ -71,6 +71,7 @@ def verdict_out(verdict: Verdict) -> VerdictOut:
             threshold=verdict.threshold,
             state=verdict.state,
             method=verdict.method,
+            baseline_id=verdict.baseline_id,
             p_dirty=verdict.p_dirty,
             late=bool(verdict.late),
             **common,

@@ -26,6 +26,7 @@ from app.core.panel_state import (
 from app.db.models import (
     OPEN_TASK_STATUSES,
     Baseline,
+    Camera,
     CleaningTask,
     FleetModel,
     Frame,
@@ -34,7 +35,7 @@ from app.db.models import (
     TaskStatus,
 )
 from app.errors import NotFound
-from app.services.camera_info import describe_region
+from app.services.camera_info import Region, describe_region, region_now
 from app.services.policy import Policy
 from app.services.verdicts import stats_columns
 
@@ -159,6 +160,45 @@ def is_late(panel: Panel, task: CleaningTask | None, captured_at: datetime) -> b
     return captured_at < task.completed_at
 
 
+BASELINES_SEARCHED = 100
+"""How many of a panel's baselines (newest first) are searched for one of a camera's region."""
+
+
+def baseline_for(session: Session, panel: Panel, region: Region) -> Baseline | None:
+    """The baseline that judges frames measured in ``region``: the panel's newest one measured
+    there. A panel watched by cameras with different views (regions) has one in use per view;
+    most panels have one camera, and their newest baseline is it (no further query)."""
+    if panel.baseline_id is None:
+        return None
+    newest = session.get(Baseline, panel.baseline_id)
+    assert newest is not None
+    if newest.roi == region:
+        return newest
+    older = session.scalars(
+        select(Baseline)
+        .where(Baseline.panel_id == panel.id, Baseline.id != newest.id)
+        .order_by(Baseline.created_at.desc(), Baseline.id.desc())
+        .limit(BASELINES_SEARCHED)
+    )
+    return next((b for b in older if b.roi == region), None)
+
+
+def judging(session: Session, panel: Panel, camera_id: str) -> Baseline:
+    """The baseline that judges the frames of the panel's camera ``camera_id`` (404 when the
+    camera is not the panel's, or no baseline was measured in its region)."""
+    camera = session.get(Camera, camera_id)
+    if camera is None or camera.panel_id != panel.id:
+        raise NotFound(f"panel {panel.id!r} has no camera {camera_id!r}")
+    region = region_now(camera)
+    row = baseline_for(session, panel, region)
+    if row is None:
+        raise NotFound(
+            f"no baseline of panel {panel.id!r} was measured in camera {camera_id!r}'s "
+            f"{describe_region(region)}"
+        )
+    return row
+
+
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
     """A panel camera's verdict: the panel's own T² baseline, else the fleet model.
 
@@ -184,12 +224,12 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     if decoded.quality is not None:
         verdict.reason = decoded.quality
     elif panel.baseline_id is not None:
-        row = session.get(Baseline, panel.baseline_id)
-        assert row is not None
-        if row.roi != camera.region:  # modes of another part of the view: not comparable
+        row = baseline_for(session, panel, camera.region)
+        if row is None:  # modes of another part of the view: not comparable
             verdict.reason = (
-                f"the baseline was measured in {describe_region(row.roi)}, not in this camera's "
-                f"{describe_region(camera.region)}: retrain it (POST /panels/{panel.id}/baseline)"
+                f"no baseline of this panel was measured in this camera's "
+                f"{describe_region(camera.region)}: train one from its frames "
+                f"(POST /panels/{panel.id}/baseline)"
             )[:200]
         else:
             result = soiling.classify(as_core_baseline(row), decoded.stats.modes)

@@ -291,8 +291,9 @@ class TestRegionOfInterest:
             v = self.post(client, farm, seed=seed)["verdict"]
             assert v["clean"] is None, v
             assert v["roi"] == WALL_PART
-            assert "baseline was measured in roi [0, 0, 60, 120]" in v["reason"]
-            assert "retrain it (POST /panels/p1/baseline)" in v["reason"]
+            assert "no baseline of this panel was measured in" in v["reason"]
+            assert "camera's roi [100, 0, 60, 120]" in v["reason"]
+            assert "train one from its frames (POST /panels/p1/baseline)" in v["reason"]
         s = status(client, admin)
         assert (s["state"], s["open_task"], s["dirty_streak"]) == ("clean", None, 0)
         assert (
@@ -323,6 +324,62 @@ class TestRegionOfInterest:
         assert r.status_code == 201, r.text
         assert r.json()["roi"] == WALL_PART
         assert self.post(client, farm, seed=12)["verdict"]["clean"] is True
+
+
+SIDE_RGB = np.array([70.0, 78.0, 118.0])
+"""The same clean cells seen from the side: more of the sky's blue in their reflection."""
+
+
+def test_a_panel_watched_from_two_views_is_judged_in_each_by_its_own_baseline(
+    client: TestClient, admin: dict[str, str], farm: Any
+) -> None:
+    """c1 watches p1 from the front (roi [0, 0, 60, 120]) and c2 from the side (roi
+    [10, 10, 50, 100]), where the clean cells look bluer. A baseline per view: c2's, trained
+    after c1's, made every frame of c1 unjudged (`clean: null`, "retrain it"), and retraining
+    c1's did the same to c2; only one camera could ever be judged."""
+    c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 50, 100]}
+    r = client.post("/cameras", json=c2, headers=admin)
+    assert r.status_code == 201, r.text
+    side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
+    front = {**bearer(farm["camera"]), "Content-Type": "image/jpeg"}
+    assert client.patch("/cameras/c1", json={"roi": PANEL_PART}, headers=admin).status_code == 200
+    rng = np.random.default_rng(7)
+
+    def post(headers: dict[str, str], rgb: np.ndarray, seed: int) -> Any:
+        farm["clock"].advance(minutes=10)
+        camera = "c1" if headers is front else "c2"
+        r = client.post(
+            f"/cameras/{camera}/frames", content=panel_jpeg(rgb, seed=seed), headers=headers
+        )
+        assert r.status_code == 201, r.text
+        return r.json()
+
+    ids = {
+        name: [post(h, rgb + rng.normal(0, 2.0, 3).round(), seed=i)["frame_id"] for i in range(8)]
+        for name, h, rgb in (("c1", front, CLEAN_RGB), ("c2", side, SIDE_RGB))
+    }
+    trained = {}
+    for name in ("c1", "c2"):
+        r = client.post("/panels/p1/baseline", json={"frame_ids": ids[name]}, headers=admin)
+        assert r.status_code == 201, r.text
+        trained[name] = r.json()["id"]
+    for name in ("c1", "c2"):
+        r = client.get("/panels/p1/baseline", params={"camera_id": name}, headers=admin)
+        assert (r.status_code, r.json()["id"]) == (200, trained[name]), r.text
+    assert client.get("/panels/p1/baseline", headers=admin).json()["id"] == trained["c2"]
+    r = client.get("/panels/p1/baseline", params={"camera_id": "nope"}, headers=admin)
+    assert r.status_code == 404, r.text
+
+    for seed in (40, 41):
+        v = post(front, CLEAN_RGB, seed)["verdict"]
+        assert (v["clean"], v["baseline_id"]) == (True, trained["c1"]), v
+        v = post(side, SIDE_RGB, seed)["verdict"]
+        assert (v["clean"], v["baseline_id"]) == (True, trained["c2"]), v
+    v = post(front, CLEAN_RGB + DUST, 42)["verdict"]
+    assert (v["clean"], v["baseline_id"]) == (False, trained["c1"]), v
+    # the side's clean colour, seen from the front, is not the front's clean
+    v = post(front, SIDE_RGB, 43)["verdict"]
+    assert v["clean"] is False, v
 
 
 class TestVerdicts:
