@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta
 from functools import partial
 from typing import Annotated
 
@@ -69,11 +69,23 @@ _JPEG_BODY = {
 }
 
 
-def _captured_at(value: datetime | None) -> datetime | None:
+def _captured_at(value: datetime | None, now: datetime, settings: Settings) -> datetime | None:
+    """``captured_at`` when it is a time the service can keep a frame of: not in the future,
+    and not before the history it keeps (the longer of its two retentions). A camera whose
+    clock was reset (1970, 2000) sent frames that were stored, graded and then never seen: a
+    sky camera's latest reading and its place on the map stayed those of its last frame before
+    the reset, and a panel's state ignored every new frame as a late upload."""
     if value is None:
         return None
-    if value > datetime.now(UTC) + MAX_CLOCK_SKEW:
+    if value > now + MAX_CLOCK_SKEW:
         raise Unprocessable(f"captured_at {value.isoformat()} lies in the future", code="bad_time")
+    keep = max(settings.frame_retention_days, settings.history_retention_days or 0.0)
+    if value < now - timedelta(days=keep):
+        raise Unprocessable(
+            f"captured_at {value.isoformat()} is more than {keep:g} days ago, before the "
+            "history this service keeps: is the camera's clock set (NTP)?",
+            code="bad_time",
+        )
     return value
 
 
@@ -111,7 +123,7 @@ async def post_frame(
     # PolicyDep return), sparing two dependencies' resolution on every frame
     settings: Settings = request.app.state.settings
     policy: Policy = request.app.state.policy
-    when = _captured_at(captured_at)
+    when = _captured_at(captured_at, policy.now(), settings)
     data = await read_jpeg(request, settings.max_body_bytes)
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer

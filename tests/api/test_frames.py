@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,9 @@ from sqlalchemy import Engine
 
 from app.services.storage import PACK_HEADER
 from tests.conftest import make_jpeg, table_counts
+
+DAY = (datetime.now(UTC) - timedelta(days=2)).date().isoformat()
+"""A recent day: frames taken before the history the service keeps are refused."""
 
 
 def bomb_jpeg(width: int = 60000, height: int = 60000) -> bytes:
@@ -62,12 +66,12 @@ class TestPostFrame:
             "/cameras/cam-1/frames",
             content=body,
             headers=cam_headers(camera),
-            params={"captured_at": "2026-05-01T12:00:00Z"},
+            params={"captured_at": f"{DAY}T12:00:00Z"},
         )
         assert r.status_code == 201, r.text
         out = r.json()
         assert out["camera_id"] == "cam-1"
-        assert out["captured_at"].startswith("2026-05-01T12:00:00")
+        assert out["captured_at"].startswith(f"{DAY}T12:00:00")
         assert (out["width"], out["height"]) == (64, 48)
         # a flat colour survives JPEG to within a level or two
         np.testing.assert_allclose(out["verdict"]["modes"], [90, 140, 200], atol=2)
@@ -91,7 +95,7 @@ class TestPostFrame:
                 "/cameras/cam-1/frames",
                 content=make_jpeg(16, 16, (hour * 10, 0, 0)),
                 headers=cam_headers(camera),
-                params={"captured_at": f"2026-05-01T{hour:02d}:00:00Z"},
+                params={"captured_at": f"{DAY}T{hour:02d}:00:00Z"},
             )
             ids[hour] = r.json()["frame_id"]
 
@@ -100,11 +104,11 @@ class TestPostFrame:
             assert r.status_code == 200, r.text
             return [f["frame_id"] for f in r.json()]
 
-        day = {"since": "2026-05-01T09:00:00Z", "until": "2026-05-01T12:00:00Z"}
+        day = {"since": f"{DAY}T09:00:00Z", "until": f"{DAY}T12:00:00Z"}
         assert listed(**day) == [ids[11], ids[10], ids[9]]
         assert listed(**day, limit=2, offset=2) == [ids[9]]
-        assert listed(since="2026-05-01T14:00:00+01:00") == [ids[13]]  # 13:00 UTC
-        assert listed(until="2026-05-01T09:00:00") == [ids[8]]  # no offset: UTC
+        assert listed(since=f"{DAY}T14:00:00+01:00") == [ids[13]]  # 13:00 UTC
+        assert listed(until=f"{DAY}T09:00:00") == [ids[8]]  # no offset: UTC
         r = client.get(
             "/cameras/cam-1/frames", params={**day, "until": day["since"]}, headers=admin
         )
@@ -112,7 +116,63 @@ class TestPostFrame:
         r = client.get("/cameras/nope/frames", params=day, headers=admin)
         assert r.status_code == 404
 
-    @pytest.mark.parametrize("sent", ["2026-05-01T13:00:00", "2026-05-01T15:00:00+02:00"])
+    def test_captured_at_outside_the_history_kept_is_refused(
+        self, client: TestClient, camera: dict[str, Any], engine: Engine, settings: Any
+    ) -> None:
+        """Not more than 10 minutes ahead, and not before the history kept (30 days here): a
+        camera whose clock was reset to 1970 had every frame stored and graded, then shown
+        nowhere (neither as a sky camera's latest reading nor on the map, and a panel took
+        each for a late upload)."""
+        assert settings.frame_retention_days == 30
+        assert settings.history_retention_days is None
+        now = datetime.now(UTC)
+        refused = [
+            now + timedelta(minutes=20),
+            datetime(1970, 1, 1, tzinfo=UTC),
+            datetime(2000, 1, 1, tzinfo=UTC),
+            now - timedelta(days=30, minutes=5),
+        ]
+        before = table_counts(engine), stored_files(settings.data_dir)
+        for when in refused:
+            r = client.post(
+                "/cameras/cam-1/frames",
+                content=make_jpeg(seed=1, noise=3),
+                headers=cam_headers(camera),
+                params={"captured_at": when.isoformat()},
+            )
+            assert (r.status_code, r.json()["code"]) == (422, "bad_time"), r.text
+            assert r.headers["content-type"] == "application/problem+json"
+        assert (table_counts(engine), stored_files(settings.data_dir)) == before
+        assert "is the camera's clock set" in r.json()["detail"]
+        for i, when in enumerate([now + timedelta(minutes=5), now - timedelta(days=29)]):
+            r = client.post(
+                "/cameras/cam-1/frames",
+                content=make_jpeg(seed=2 + i, noise=3),
+                headers=cam_headers(camera),
+                params={"captured_at": when.isoformat()},
+            )
+            assert r.status_code == 201, r.text
+
+    def test_the_history_kept_is_the_longer_retention(
+        self, app: Any, settings: Any, admin: dict[str, str]
+    ) -> None:
+        """Rows kept for a year (history_retention_days) take frames of the last year. (``app``
+        empties the tables; this test runs an app of its own settings.)"""
+        from app.main import create_app
+
+        year = create_app(settings.model_copy(update={"history_retention_days": 365.0}))
+        with TestClient(year, raise_server_exceptions=False) as client:
+            r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
+            for days, status in ((200, 201), (366, 422)):
+                r2 = client.post(
+                    "/cameras/cam-1/frames",
+                    content=make_jpeg(seed=days, noise=3),
+                    headers=cam_headers(r.json()),
+                    params={"captured_at": (datetime.now(UTC) - timedelta(days=days)).isoformat()},
+                )
+                assert r2.status_code == status, r2.text
+
+    @pytest.mark.parametrize("sent", [f"{DAY}T13:00:00", f"{DAY}T15:00:00+02:00"])
     def test_captured_at_without_an_offset_is_utc_and_one_with_is_converted(
         self, client: TestClient, camera: dict[str, Any], sent: str
     ) -> None:
@@ -123,7 +183,7 @@ class TestPostFrame:
             params={"captured_at": sent},
         )
         assert r.status_code == 201, r.text
-        assert r.json()["captured_at"] == "2026-05-01T13:00:00Z"
+        assert r.json()["captured_at"] == f"{DAY}T13:00:00Z"
 
     def test_multipart_upload(self, client: TestClient, camera: dict[str, Any]) -> None:
         r = client.post(
@@ -425,7 +485,7 @@ class TestIdempotency:
         self, client: TestClient, camera: dict[str, Any], engine: Engine
     ) -> None:
         body = make_jpeg(seed=2, noise=5)
-        params = {"captured_at": "2026-05-01T12:00:00Z"}
+        params = {"captured_at": f"{DAY}T12:00:00Z"}
         r1 = client.post(
             "/cameras/cam-1/frames", content=body, headers=cam_headers(camera), params=params
         )
@@ -438,7 +498,7 @@ class TestIdempotency:
             "/cameras/cam-1/frames",
             content=body,
             headers=cam_headers(camera),
-            params={"captured_at": "2026-05-01T12:01:00Z"},
+            params={"captured_at": f"{DAY}T12:01:00Z"},
         )
         assert r3.json()["frame_id"] != r1.json()["frame_id"]
         assert table_counts(engine)["frames"] == 2
@@ -567,7 +627,7 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
                 "/cameras/cam-1/frames",
                 content=body,
                 headers=cam_headers(camera),
-                params={"captured_at": f"2026-01-01T00:00:{i:02d}Z"},
+                params={"captured_at": f"{DAY}T00:00:{i:02d}Z"},
             )
             for i in range(50)
         ]

@@ -176,7 +176,7 @@ class TestBaseline:
                 "/cameras/c1/frames",
                 content=f,
                 headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
-                params={"captured_at": f"2026-05-0{i + 1}T12:00:00Z"},
+                params={"captured_at": f"2026-05-2{i + 1}T12:00:00Z"},
             )
             assert r.json()["verdict"]["reason"].startswith("no baseline")
             ids.append(r.json()["frame_id"])
@@ -198,7 +198,7 @@ class TestBaseline:
                 "/cameras/c1/frames",
                 content=f,
                 headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
-                params={"captured_at": f"2026-05-0{i + 1}T12:00:00Z"},
+                params={"captured_at": f"2026-05-2{i + 1}T12:00:00Z"},
             )
             assert r.status_code == 201, r.text
             ids.append(r.json()["frame_id"])
