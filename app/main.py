@@ -15,6 +15,7 @@ from fastapi import FastAPI
 
 from app import __version__
 from app.core import triangulation
+from app.cors import PublicReadCors
 from app.db.session import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
@@ -136,6 +137,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(
         BodyLimitMiddleware, body=settings.max_body_bytes, bulk=settings.max_upload_bytes
     )
+    if settings.cors_origins:
+        app.add_middleware(PublicReadCors, origins=settings.cors_origins)
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
     for module in (
         cameras,  # first: the frame upload is matched first

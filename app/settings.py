@@ -46,6 +46,12 @@ class Settings(BaseSettings):
         description="Keep frames' rows (verdicts, readings, trends) this long [d], their images"
         " only for frame_retention_days; default: the rows go with their images.",
     )
+    cors_origins: list[str] = Field(
+        default=["*"],
+        description="Origins whose pages may read the public GET /air/... endpoints (a "
+        "dashboard served elsewhere); [] for none. JSON in the environment: "
+        '["https://dashboard.example.org"].',
+    )
     retention_sweep_seconds: float = Field(
         default=3600.0, gt=0, description="How often old frames are swept [s]."
     )
