@@ -34,6 +34,7 @@ from app.routers import (
 from app.security import admin_token_hash
 from app.services import rate_limit, retention, webhooks
 from app.services.camera_info import TokenCache
+from app.services.isopleth_cache import MapCache
 from app.services.policy import Policy
 from app.services.storage import StoreUnavailable, frame_store
 from app.services.writer import GroupCommitWriter
@@ -132,6 +133,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )
     app.state.frame_store = frame_store(settings)
+    app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
 
     install_error_handlers(app)
     app.add_middleware(

@@ -52,6 +52,12 @@ class Settings(BaseSettings):
         "dashboard served elsewhere); [] for none. JSON in the environment: "
         '["https://dashboard.example.org"].',
     )
+    isopleth_cache_seconds: float = Field(
+        default=30.0,
+        ge=0,
+        description="Serve an isopleth map (GeoJSON or PNG) computed this recently for the same "
+        "request instead of computing it again [s]; 0: compute every time.",
+    )
     retention_sweep_seconds: float = Field(
         default=3600.0, gt=0, description="How often old frames are swept [s]."
     )

@@ -81,6 +81,7 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
         admin_token=ADMIN_TOKEN,  # type: ignore[arg-type]
         log_json=True,
         rate_limit_per_minute=0,  # on only where a test is about it
+        isopleth_cache_seconds=0,  # likewise: maps are computed afresh for each request
     )
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Annotated, Any, Literal
@@ -10,7 +12,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 from pydantic import StringConstraints
 from sqlalchemy.orm import Session
 
@@ -39,6 +41,7 @@ from app.schemas import (
     AirReading,
 )
 from app.services import air, training, webhooks
+from app.services.isopleth_cache import MapCache, not_modified
 from app.services.policy import Policy
 from app.uploads import content_type, read_form, read_json
 
@@ -427,10 +430,32 @@ def _field(
     return st, f, box, now
 
 
+def _cached_map(
+    request: Request, key: tuple[object, ...], compute: Callable[[], bytes], media_type: str
+) -> Response:
+    """The map for ``key``, computed at most once per ``VANTAGE_ISOPLETH_CACHE_SECONDS``;
+    304 when the client's ``If-None-Match`` names it."""
+    cache: MapCache = request.app.state.isopleth_cache
+    body, etag = cache.get(key, compute)
+    headers = {"ETag": etag, "Cache-Control": f"public, max-age={int(cache.ttl)}"}
+    if not_modified(request.headers.get("if-none-match"), etag):
+        return Response(status_code=304, headers=headers)
+    return Response(body, media_type=media_type, headers=headers)
+
+
+MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **UNPROCESSABLE,
+    304: {"description": "Not modified: the map named by If-None-Match is current."},
+}
+
+
 @router.get(
-    "/isopleths", responses={**UNPROCESSABLE, 200: {"content": {"application/geo+json": {}}}}
+    "/isopleths",
+    response_class=Response,
+    responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
 )
 def isopleths_geojson(
+    request: Request,
     session: SessionDep,
     policy: PolicyDep,
     bbox: Bbox = None,
@@ -438,9 +463,30 @@ def isopleths_geojson(
     method: Method = "idw",
     resolution: Resolution = 128,
     max_distance: MaxDistance = 5000.0,
-) -> JSONResponse:
-    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present."""
-    st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
+) -> Response:
+    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present.
+
+    Kept for ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (30): ``computed_at`` says when it was made,
+    and its ETag answers ``If-None-Match`` with 304."""
+
+    def compute() -> bytes:
+        st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
+        body = _geojson(st, f, box, now, window, method, max_distance)
+        return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+
+    key = ("geojson", bbox, window, method, resolution, max_distance)
+    return _cached_map(request, key, compute, "application/geo+json")
+
+
+def _geojson(
+    st: list[air.Station],
+    f: isopleths.Field | None,
+    box: tuple[float, float, float, float] | None,
+    now: datetime,
+    window: int,
+    method: str,
+    max_distance: float,
+) -> dict[str, Any]:
     features = isopleths.bands(f) if f is not None else []
     own = [airquality.category(s.level) for s in st]
     drawn: list[str | None] = [None] * len(st)
@@ -457,7 +503,7 @@ def isopleths_geojson(
                 " smaller bbox or a larger resolution (up to 512); cameras close together"
                 " that disagree stay so at any resolution"
             )
-    body = {
+    return {
         "type": "FeatureCollection",
         "features": features,
         "bbox": list(box) if box else None,
@@ -487,15 +533,15 @@ def isopleths_geojson(
             "mean": float(np.nanmean(f.uncertainty)),
         },
     }
-    return JSONResponse(body, media_type="application/geo+json")
 
 
 @router.get(
     "/isopleths.png",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}}, **UNPROCESSABLE},
+    responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
 )
 def isopleths_png(
+    request: Request,
     session: SessionDep,
     policy: PolicyDep,
     bbox: Bbox = None,
@@ -504,8 +550,12 @@ def isopleths_png(
     resolution: Resolution = 128,
     max_distance: MaxDistance = 5000.0,
 ) -> Response:
-    """The bands drawn, with the camera positions and a legend."""
+    """The bands drawn, with the camera positions and a legend (kept as the GeoJSON is)."""
     from app.services.airmap import render
 
-    st, f, box, _ = _field(session, policy, bbox, window, method, resolution, max_distance)
-    return Response(render(f, st, box), media_type="image/png")
+    def compute() -> bytes:
+        st, f, box, _ = _field(session, policy, bbox, window, method, resolution, max_distance)
+        return render(f, st, box)
+
+    key = ("png", bbox, window, method, resolution, max_distance)
+    return _cached_map(request, key, compute, "image/png")

@@ -14,6 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 from shapely.geometry import shape
 
+from app.services.isopleth_cache import MapCache
 from tests.api.test_solar import Clock
 from tests.conftest import make_jpeg
 from tests.core.test_airquality import CLEAN, HAZE
@@ -341,6 +342,51 @@ def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
     assert [c["camera_id"] for c in fc["cameras"]] == ["sky1", "sky3"]
     assert client.get("/air/cameras/sky2/latest").json()["level"] == 7
     assert len(client.get("/air/readings", params={"camera_id": "sky2"}).json()) == 1
+
+
+def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
+) -> None:
+    """Dashboards poll the public map; each poll computed it again (kriging over thousands
+    of cameras takes seconds). A map is kept for the cache period (30 s by default) per
+    request, says when it was computed, and answers If-None-Match with 304; after the period
+    a reading taken meanwhile shows."""
+    cache = MapCache(ttl=30.0, clock=lambda: seconds[0])
+    seconds = [1000.0]
+    app.state.isopleth_cache = cache
+    calibrate(client, admin)
+    for cam in ("sky1", "sky2", "sky3"):
+        post(client, city, cam, 7, seed=1)
+    first = client.get("/air/isopleths")
+    assert first.status_code == 200, first.text
+    assert first.headers["cache-control"] == "public, max-age=30"
+    etag = first.headers["etag"]
+    assert [c["camera_id"] for c in first.json()["cameras"]] == ["sky1", "sky2", "sky3"]
+
+    post(client, city, "sky4", 3, seed=2)  # a new reading, within the period
+    seconds[0] += 29
+    again = client.get("/air/isopleths")
+    assert (again.content, again.headers["etag"]) == (first.content, etag)
+    assert again.json()["computed_at"] == first.json()["computed_at"]
+    r = client.get("/air/isopleths", headers={"If-None-Match": etag})
+    assert (r.status_code, r.content, r.headers["etag"]) == (304, b"", etag)
+    other = client.get("/air/isopleths", params={"method": "kriging"})  # another request
+    assert [c["camera_id"] for c in other.json()["cameras"]][-1] == "sky4"
+    png = client.get("/air/isopleths.png")
+    assert png.headers["content-type"] == "image/png"
+    assert (
+        client.get("/air/isopleths.png", headers={"If-None-Match": png.headers["etag"]}).status_code
+        == 304
+    )
+
+    seconds[0] += 2  # the period is over: computed again, with sky4
+    later = client.get("/air/isopleths", headers={"If-None-Match": etag})
+    assert later.status_code == 200, later.text
+    assert later.headers["etag"] != etag
+    assert [c["camera_id"] for c in later.json()["cameras"]][-1] == "sky4"
+    bad = client.get("/air/isopleths", params={"bbox": "1,2,0,3"})  # errors are not kept
+    assert bad.status_code == 422
+    assert "etag" not in bad.headers
 
 
 def test_a_map_from_two_cameras(
