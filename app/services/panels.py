@@ -160,10 +160,6 @@ def is_late(panel: Panel, task: CleaningTask | None, captured_at: datetime) -> b
     return captured_at < task.completed_at
 
 
-BASELINES_SEARCHED = 100
-"""How many of a panel's baselines (newest first) are searched for one of a camera's region."""
-
-
 def baseline_for(session: Session, panel: Panel, region: Region) -> Baseline | None:
     """The baseline that judges frames measured in ``region``: the panel's newest one measured
     there. A panel watched by cameras with different views (regions) has one in use per view;
@@ -174,13 +170,13 @@ def baseline_for(session: Session, panel: Panel, region: Region) -> Baseline | N
     assert newest is not None
     if newest.roi == region:
         return newest
-    older = session.scalars(
-        select(Baseline)
+    older = session.execute(  # ids and regions only: the fits are read for the one chosen
+        select(Baseline.id, Baseline.roi)
         .where(Baseline.panel_id == panel.id, Baseline.id != newest.id)
         .order_by(Baseline.created_at.desc(), Baseline.id.desc())
-        .limit(BASELINES_SEARCHED)
-    )
-    return next((b for b in older if b.roi == region), None)
+    ).all()
+    chosen = next((bid for bid, roi in older if roi == region), None)
+    return None if chosen is None else session.get(Baseline, chosen)
 
 
 def judging(session: Session, panel: Panel, camera_id: str) -> Baseline:
