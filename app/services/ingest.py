@@ -213,6 +213,20 @@ def find_original(session: Session, frame: Frame) -> tuple[Frame, Verdict] | Non
     return original, original.verdict
 
 
+def check_same_frame(original: Frame, frame: Frame) -> None:
+    """Refuse (422) an Idempotency-Key used before for other bytes: answering with the original
+    frame told a camera whose key counter restarted (a reboot) that its new frame was stored,
+    and the frame was lost. The key names one request's content (the IETF draft on the header
+    answers its reuse with another payload with 422)."""
+    if original.idempotency_key is not None and original.sha256 != frame.sha256:
+        raise Unprocessable(
+            f"Idempotency-Key {original.idempotency_key!r} was used for another frame "
+            f"(frame {original.id}, taken at {original.captured_at.isoformat()}): "
+            "send a new frame with a new key",
+            code="idempotency_key_reused",
+        )
+
+
 def record(
     session: Session, prepared: Prepared, policy: Policy, *, retry: bool = False
 ) -> Recorded:
@@ -226,6 +240,7 @@ def record(
     # this job again with ``may_repeat`` forced on)
     original = find_original(session, prepared.frame) if prepared.may_repeat or retry else None
     if original is not None:
+        check_same_frame(original[0], prepared.frame)
         return Recorded(*original, replay=True)
     verdict = conclude(session, prepared, policy)
     insert_rows(session, prepared.frame, verdict)

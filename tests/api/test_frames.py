@@ -481,6 +481,30 @@ class TestIdempotency:
         assert "idempotent-replay" not in first.headers
         assert table_counts(engine)["frames"] == 1
 
+    def test_a_key_used_again_for_another_frame_is_refused(
+        self, client: TestClient, camera: dict[str, Any], engine: Engine
+    ) -> None:
+        """A camera whose key counter restarted (a reboot) sent a new frame under an old key:
+        it got the old frame's 201 (a replay), and the new frame was lost without a word."""
+        headers = {**cam_headers(camera), "Idempotency-Key": "1"}
+        first = client.post(
+            "/cameras/cam-1/frames", content=make_jpeg(seed=1, noise=5), headers=headers
+        )
+        assert first.status_code == 201, first.text
+        counts = table_counts(engine)
+        other = client.post(
+            "/cameras/cam-1/frames", content=make_jpeg(seed=9, noise=5), headers=headers
+        )
+        assert other.status_code == 422, other.text
+        assert other.headers["content-type"] == "application/problem+json"
+        assert other.json()["code"] == "idempotency_key_reused"
+        assert first.json()["frame_id"] in other.json()["detail"]
+        assert table_counts(engine) == counts
+        fresh = {**headers, "Idempotency-Key": "1-after-reboot"}
+        r = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=9, noise=5), headers=fresh)
+        assert r.status_code == 201, r.text
+        assert r.json()["frame_id"] != first.json()["frame_id"]
+
     def test_same_bytes_and_capture_time(
         self, client: TestClient, camera: dict[str, Any], engine: Engine
     ) -> None:
