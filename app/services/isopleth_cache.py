@@ -21,13 +21,23 @@ Clock = Callable[[], float]
 
 
 class MapCache:
-    """The last ``max_entries`` maps (a PNG or a GeoJSON body, tens of kB to a few MB)."""
+    """The maps served last (a PNG or a GeoJSON body, tens of kB to a few MB each), at most
+    ``max_entries`` of them and ``max_bytes`` in all: a bbox varied at every request costs
+    memory only up to that."""
 
-    def __init__(self, ttl: float, max_entries: int = 64, clock: Clock = time.monotonic) -> None:
+    def __init__(
+        self,
+        ttl: float,
+        max_entries: int = 64,
+        max_bytes: int = 64 * 1024 * 1024,
+        clock: Clock = time.monotonic,
+    ) -> None:
         self.ttl = ttl
         self.max_entries = max_entries
+        self.max_bytes = max_bytes
         self.clock = clock
         self._items: OrderedDict[Hashable, tuple[float, bytes, str]] = OrderedDict()
+        self._bytes = 0
         self._lock = threading.Lock()
 
     def get(self, key: Hashable, compute: Callable[[], bytes]) -> tuple[bytes, str]:
@@ -40,12 +50,15 @@ class MapCache:
                 return item[1], item[2]
         body = compute()  # outside the lock: two first requests may both compute it
         etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
-        if self.ttl > 0:
+        if self.ttl > 0 and len(body) <= self.max_bytes:
             with self._lock:
+                old = self._items.pop(key, None)
+                self._bytes -= len(old[1]) if old else 0
                 self._items[key] = (now, body, etag)
-                self._items.move_to_end(key)
-                while len(self._items) > self.max_entries:
-                    self._items.popitem(last=False)
+                self._bytes += len(body)
+                while len(self._items) > self.max_entries or self._bytes > self.max_bytes:
+                    _, (_, dropped, _) = self._items.popitem(last=False)
+                    self._bytes -= len(dropped)
         return body, etag
 
 
