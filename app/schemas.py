@@ -284,6 +284,12 @@ class TrendOut(Out):
     crossing_at: datetime | None = Field(description="Forecast: fitted F reaches the threshold.")
 
 
+class ViewOut(Out):
+    camera_id: str
+    baseline_id: str | None = Field(description="None: no baseline of its region yet.")
+    trend: TrendOut
+
+
 class PanelVerdictSummary(PanelVerdictOut):
     frame_id: str
     captured_at: datetime
@@ -297,7 +303,12 @@ class PanelStatus(Out):
     ineffective: bool = Field(description="The last cleaning did not make the panel clean.")
     dirty_streak: int
     baseline_id: str | None
-    trend: TrendOut
+    trend: TrendOut = Field(description="Of the panel's newest baseline's verdicts.")
+    views: list[ViewOut] = Field(
+        default_factory=list,
+        description="Each camera in service: the baseline judging its frames (the panel's newest "
+        "of its region) and their trend.",
+    )
 
 
 class Trigger(Out):

@@ -42,6 +42,7 @@ from app.schemas import (
     TrendOut,
     Trigger,
     TwoSampleOut,
+    ViewOut,
 )
 from app.services import panels, registry, training
 from app.services.camera_info import CameraInfo
@@ -245,7 +246,6 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         base: dict[str, Any] = verdict_out(verdict).model_dump()
         last = PanelVerdictSummary(**base, frame_id=frame.id, captured_at=frame.captured_at)
     now = policy.now()
-    trend = status.trend
     return PanelStatus(
         panel_id=status.panel.id,
         state=status.state.value,
@@ -254,13 +254,21 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         ineffective=status.panel.ineffective,
         dirty_streak=status.panel.dirty_streak,
         baseline_id=status.panel.baseline_id,
-        trend=TrendOut(
-            points=trend.points,
-            slope_per_day=trend.slope_per_day,
-            f_now=trend.f_now,
-            threshold=trend.threshold,
-            crossing_at=trend.crossing_at,
-        ),
+        trend=trend_out(status.trend),
+        views=[
+            ViewOut(camera_id=v.camera_id, baseline_id=v.baseline_id, trend=trend_out(v.trend))
+            for v in status.views
+        ],
+    )
+
+
+def trend_out(trend: panels.Trend) -> TrendOut:
+    return TrendOut(
+        points=trend.points,
+        slope_per_day=trend.slope_per_day,
+        f_now=trend.f_now,
+        threshold=trend.threshold,
+        crossing_at=trend.crossing_at,
     )
 
 

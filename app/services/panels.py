@@ -271,13 +271,18 @@ camera's retries) is noise, and extrapolated it forecast crossings seconds away 
 4·10⁷ a day from four frames posted back to back, within 0.3 s)."""
 
 
-def soiling_trend(session: Session, panel: Panel, now: datetime) -> Trend:
+def soiling_trend(
+    session: Session, panel: Panel, now: datetime, baseline: Baseline | None = None
+) -> Trend:
     """F over time since the panel was last clean by decree (baseline or cleaning), and when
-    its fitted line (Theil–Sen, robust to a few glare-struck frames) will cross the threshold."""
-    if panel.baseline_id is None:
-        return Trend(0, None, None, None, None)
-    baseline = session.get(Baseline, panel.baseline_id)
-    assert baseline is not None
+    its fitted line (Theil–Sen, robust to a few glare-struck frames) will cross the threshold.
+
+    Of the verdicts of ``baseline`` (one view's), by default the panel's newest."""
+    if baseline is None:
+        if panel.baseline_id is None:
+            return Trend(0, None, None, None, None)
+        baseline = session.get(Baseline, panel.baseline_id)
+        assert baseline is not None
     since = baseline.created_at
     last_clean = session.scalar(
         select(CleaningTask.closed_at)
@@ -345,12 +350,43 @@ def latest_verdict(session: Session, panel_id: str) -> tuple[Frame, PanelVerdict
 
 
 @dataclass(frozen=True, slots=True)
+class View:
+    """One of the panel's cameras in service: the baseline judging its frames, and their
+    trend."""
+
+    camera_id: str
+    baseline_id: str | None
+    trend: Trend
+
+
+@dataclass(frozen=True, slots=True)
 class Status:
     panel: Panel
     state: PanelState
     task: CleaningTask | None
     last: tuple[Frame, PanelVerdict] | None
     trend: Trend
+    views: list[View]
+
+
+def views(session: Session, panel: Panel, now: datetime) -> list[View]:
+    """Each camera in service of the panel, with its view's baseline and that one's trend (a
+    panel watched from several views has a baseline, and a trend, per view)."""
+    cameras = session.scalars(
+        select(Camera)
+        .where(Camera.panel_id == panel.id, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+    ).all()
+    out = []
+    for camera in cameras:
+        baseline = baseline_for(session, panel, region_now(camera))
+        trend = (
+            soiling_trend(session, panel, now, baseline)
+            if baseline is not None
+            else Trend(0, None, None, None, None)
+        )
+        out.append(View(camera.id, baseline.id if baseline else None, trend))
+    return out
 
 
 def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
@@ -364,7 +400,12 @@ def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
         facts(panel, task, now, fleet_available=fleet_available), debounce=policy.debounce
     )
     return Status(
-        panel, state, task, latest_verdict(session, panel_id), soiling_trend(session, panel, now)
+        panel,
+        state,
+        task,
+        latest_verdict(session, panel_id),
+        soiling_trend(session, panel, now),
+        views(session, panel, now),
     )
 
 

@@ -381,6 +381,16 @@ def test_a_panel_watched_from_two_views_is_judged_in_each_by_its_own_baseline(
     v = post(front, SIDE_RGB, 43)["verdict"]
     assert v["clean"] is False, v
 
+    # the status gives each view its baseline and the trend of its own verdicts (the panel's
+    # `trend` is its newest baseline's: the side's)
+    s = status(client, admin)
+    assert s["baseline_id"] == trained["c2"]
+    assert [(v["camera_id"], v["baseline_id"], v["trend"]["points"]) for v in s["views"]] == [
+        ("c1", trained["c1"], 4),
+        ("c2", trained["c2"], 2),
+    ]
+    assert s["trend"]["points"] == 2
+
 
 class TestVerdicts:
     def test_clean_and_dirty(self, client: TestClient, admin: dict[str, str], farm: Any) -> None:
