@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.db.models import Camera, Panel, Robot
 from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized, Unprocessable
 from app.security import hash_token
-from app.services import rate_limit, registry
+from app.services import panels, rate_limit, registry
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
 from app.settings import Settings
@@ -220,9 +220,13 @@ async def image_work(request: Request, fn: Callable[..., T], *args: Any, **kwarg
 
 
 def _info(session: Session, camera: Camera) -> CameraInfo:
-    has_baseline = camera.panel_id is not None and (
-        session.scalar(select(Panel.baseline_id).where(Panel.id == camera.panel_id)) is not None
-    )
+    """The camera as the ingest path reads it; ``panel_has_baseline``: its view (region) has a
+    baseline, so the fleet model's features need not be computed."""
+    panel = session.get(Panel, camera.panel_id) if camera.panel_id is not None else None
+    info = CameraInfo.of(camera)
+    if panel is None or panel.baseline_id is None:
+        return info
+    has_baseline = panels.baseline_for(session, panel, info.region) is not None
     return CameraInfo.of(camera, panel_has_baseline=has_baseline)
 
 

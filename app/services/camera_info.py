@@ -21,8 +21,11 @@ class CameraInfo:
     panel_id: str | None
     roi: Roi | None
     panel_has_baseline: bool = False
-    """When true, the fleet-model features need not be computed (possibly stale: it only ever
-    turns from false to true, and a stale false costs a little work, never a wrong verdict)."""
+    """The panel has a baseline of this camera's view (region): the fleet-model features need
+    not be computed. Possibly stale: a stale false costs a little work, never a wrong verdict;
+    a stale true (another process moved the camera's roi to a view with no baseline, within
+    the token cache's seconds) leaves that view's frames unjudged (``clean: null``) for as long,
+    where the fleet model would have judged them."""
 
     polygon: Polygon | None = None
     """The region as a polygon instead of ``roi``'s rectangle."""

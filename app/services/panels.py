@@ -196,7 +196,8 @@ def judging(session: Session, panel: Panel, camera_id: str) -> Baseline:
 
 
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
-    """A panel camera's verdict: the panel's own T² baseline, else the fleet model.
+    """A panel camera's verdict: the panel's own T² baseline of the camera's view (region),
+    else the fleet model.
 
     Also advances the panel's state machine (debounce, tasks). Runs in the writer's transaction.
     """
@@ -215,29 +216,30 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     now = frame.received_at
     panel = lock_panel(session, camera.panel_id)
     task = open_task(session, panel.id, lock=True)
-    model_row = None if panel.baseline_id else latest_fleet_model(session)
+    # the baseline of this camera's view (region); a view without one, like a panel without
+    # any, is judged by the fleet model when there is one
+    row = baseline_for(session, panel, camera.region)
+    model_row = None if row is not None else latest_fleet_model(session)
     fleet_available = model_row is not None
     if decoded.quality is not None:
         verdict.reason = decoded.quality
-    elif panel.baseline_id is not None:
-        row = baseline_for(session, panel, camera.region)
-        if row is None:  # modes of another part of the view: not comparable
-            verdict.reason = (
-                f"no baseline of this panel was measured in this camera's "
-                f"{describe_region(camera.region)}: train one from its frames "
-                f"(POST /panels/{panel.id}/baseline)"
-            )[:200]
-        else:
-            result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
-            verdict.method, verdict.baseline_id = "baseline", row.id
-            verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
-            verdict.p_value, verdict.threshold = result.p_value, result.threshold
+    elif row is not None:
+        result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
+        verdict.method, verdict.baseline_id = "baseline", row.id
+        verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
+        verdict.p_value, verdict.threshold = result.p_value, result.threshold
     elif model_row is not None and decoded.features is not None:
         model = as_core_model(model_row)
         p_dirty = float(model.probability(decoded.features))
         verdict.method, verdict.p_dirty = "fleet", p_dirty
         verdict.threshold = model.threshold
         verdict.clean = p_dirty < model.threshold
+    elif panel.baseline_id is not None:  # modes of another part of the view: not comparable
+        verdict.reason = (
+            f"no baseline of this panel was measured in this camera's "
+            f"{describe_region(camera.region)}: train one from its frames "
+            f"(POST /panels/{panel.id}/baseline)"
+        )[:200]
     else:
         verdict.reason = "no baseline: train one (POST /panels/{id}/baseline) or a fleet model"
     verdict.late = verdict.clean is not None and is_late(panel, task, frame.captured_at)

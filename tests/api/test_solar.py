@@ -816,6 +816,42 @@ class TestFleetModel:
         assert (v["method"], v["clean"]) == ("fleet", False)
         assert v["p_dirty"] > 0.5
 
+    def test_a_view_without_a_baseline_is_judged_by_the_fleet_model(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """c1's view of p1 has a baseline; c2, added later with another view, has none yet. Its
+        frames got `clean: null` though a fleet model could judge them, as it judges panels
+        with no baseline at all."""
+        rng = np.random.default_rng(5)
+        sand = np.array([190.0, 180.0, 160.0])
+        files, labels = [], []
+        for i in range(8):
+            c = CLEAN_RGB + rng.normal(0, 6, 3)
+            files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
+            files.append(
+                (
+                    "files",
+                    (f"d{i}.jpg", panel_jpeg(0.5 * c + 0.5 * sand, seed=50 + i), "image/jpeg"),
+                )
+            )
+            labels += ["clean", "dirty"]
+        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert train(client, admin, clean_set(8)).status_code == 201  # c1's view: the whole frame
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
+        r = client.post("/cameras", json=c2, headers=admin)
+        assert r.status_code == 201, r.text
+        side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
+
+        v = post_frame(client, farm, CLEAN_RGB)  # c1: its view's baseline
+        assert (v["method"], v["clean"]) == ("baseline", True), v
+        for rgb, clean in ((CLEAN_RGB, True), (0.5 * CLEAN_RGB + 0.5 * sand, False)):
+            farm["clock"].advance(minutes=10)
+            r = client.post("/cameras/c2/frames", content=panel_jpeg(rgb, seed=7), headers=side)
+            assert r.status_code == 201, r.text
+            v = r.json()["verdict"]
+            assert (v["method"], v["clean"], v["baseline_id"]) == ("fleet", clean, None), v
+
     def test_labels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
         files = [("files", ("a.jpg", panel_jpeg(CLEAN_RGB), "image/jpeg"))]
         r = client.post("/fleet/model", files=files, data={"labels": "shiny"}, headers=admin)
