@@ -38,7 +38,7 @@ from app.routers.responses import (
     frame_out,
 )
 from app.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
-from app.services import ingest, registry
+from app.services import ingest, registry, retention
 from app.services.camera_info import TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
@@ -79,7 +79,7 @@ def _captured_at(value: datetime | None, now: datetime, settings: Settings) -> d
         return None
     if value > now + MAX_CLOCK_SKEW:
         raise Unprocessable(f"captured_at {value.isoformat()} lies in the future", code="bad_time")
-    keep = max(settings.frame_retention_days, settings.history_retention_days or 0.0)
+    keep = retention.kept_days(settings.frame_retention_days, settings.history_retention_days)
     if value < now - timedelta(days=keep):
         raise Unprocessable(
             f"captured_at {value.isoformat()} is more than {keep:g} days ago, before the "

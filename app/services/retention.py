@@ -66,6 +66,12 @@ def _kept(session: Session) -> set[str]:
     return keep
 
 
+def kept_days(days: float, history_days: float | None) -> float:
+    """How long frames' rows are kept [d]: ``history_days`` when set, never less than ``days``
+    (the images')."""
+    return max(days, history_days or days)
+
+
 def sweep(
     sessions: sessionmaker[Session],
     store: FrameStore,
@@ -76,7 +82,7 @@ def sweep(
     """Delete frames received more than ``history_days`` (default ``days``) ago, their files,
     the images of those received more than ``days`` ago, and the expired packs."""
     now = policy.now()
-    cutoff = now - timedelta(days=max(days, history_days or days))
+    cutoff = now - timedelta(days=kept_days(days, history_days))
     frames, files = _in_batches(sessions, store, [Frame.received_at < cutoff], _delete_rows)
     images = 0
     cutoff = now - timedelta(days=days)
