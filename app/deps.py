@@ -7,7 +7,7 @@ import binascii
 import hmac
 import math
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from functools import partial
 from typing import Annotated, Any, Literal, TypeVar
@@ -224,10 +224,9 @@ def _info(session: Session, camera: Camera) -> CameraInfo:
     baseline, so the fleet model's features need not be computed."""
     panel = session.get(Panel, camera.panel_id) if camera.panel_id is not None else None
     info = CameraInfo.of(camera)
-    if panel is None or panel.baseline_id is None:
+    if panel is None or panels.baseline_for(session, panel, info.region) is None:
         return info
-    has_baseline = panels.baseline_for(session, panel, info.region) is not None
-    return CameraInfo.of(camera, panel_has_baseline=has_baseline)
+    return replace(info, panel_has_baseline=True)
 
 
 def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | None:
