@@ -792,27 +792,34 @@ class TestEvaluate:
         assert out["n_clean"] == 12
 
 
+SAND = np.array([190.0, 180.0, 160.0])
+
+
+def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
+    """The fleet model from 8 clean photos and 8 half covered in sand (seeded)."""
+    rng = np.random.default_rng(5)
+    files, labels = [], []
+    for i in range(8):
+        c = CLEAN_RGB + rng.normal(0, 6, 3)
+        d = 0.5 * c + 0.5 * SAND
+        files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
+        files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
+        labels += ["clean", "dirty"]
+    r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+    assert r.status_code == 201, r.text
+    return r
+
+
 class TestFleetModel:
     def test_train_and_judge_a_panel_without_baseline(
         self, client: TestClient, admin: dict[str, str], farm: Any
     ) -> None:
-        rng = np.random.default_rng(5)
-        sand = np.array([190.0, 180.0, 160.0])
-        files, labels = [], []
-        for i in range(8):
-            c = CLEAN_RGB + rng.normal(0, 6, 3)
-            files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
-            labels.append("clean")
-            d = 0.5 * c + 0.5 * sand
-            files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
-            labels.append("dirty")
-        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
-        assert r.status_code == 201, r.text
+        r = train_fleet(client, admin)
         assert r.json()["cv_balanced_accuracy"] == 1.0
         assert status(client, admin)["state"] == "unknown"
         v = post_frame(client, farm, CLEAN_RGB)
         assert (v["method"], v["clean"]) == ("fleet", True)
-        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * sand)
+        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * SAND)
         assert (v["method"], v["clean"]) == ("fleet", False)
         assert v["p_dirty"] > 0.5
 
@@ -822,21 +829,7 @@ class TestFleetModel:
         """c1's view of p1 has a baseline; c2, added later with another view, has none yet. Its
         frames got `clean: null` though a fleet model could judge them, as it judges panels
         with no baseline at all."""
-        rng = np.random.default_rng(5)
-        sand = np.array([190.0, 180.0, 160.0])
-        files, labels = [], []
-        for i in range(8):
-            c = CLEAN_RGB + rng.normal(0, 6, 3)
-            files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
-            files.append(
-                (
-                    "files",
-                    (f"d{i}.jpg", panel_jpeg(0.5 * c + 0.5 * sand, seed=50 + i), "image/jpeg"),
-                )
-            )
-            labels += ["clean", "dirty"]
-        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
-        assert r.status_code == 201, r.text
+        train_fleet(client, admin)
         assert train(client, admin, clean_set(8)).status_code == 201  # c1's view: the whole frame
         c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
         r = client.post("/cameras", json=c2, headers=admin)
@@ -845,7 +838,7 @@ class TestFleetModel:
 
         v = post_frame(client, farm, CLEAN_RGB)  # c1: its view's baseline
         assert (v["method"], v["clean"]) == ("baseline", True), v
-        for rgb, clean in ((CLEAN_RGB, True), (0.5 * CLEAN_RGB + 0.5 * sand, False)):
+        for rgb, clean in ((CLEAN_RGB, True), (0.5 * CLEAN_RGB + 0.5 * SAND, False)):
             farm["clock"].advance(minutes=10)
             r = client.post("/cameras/c2/frames", content=panel_jpeg(rgb, seed=7), headers=side)
             assert r.status_code == 201, r.text
