@@ -31,7 +31,13 @@ from app.deps import (
     image_work,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.routers.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    not_modified,
+)
 from app.schemas import (
     AirAggregate,
     AirAlertOut,
@@ -41,7 +47,7 @@ from app.schemas import (
     AirReading,
 )
 from app.services import air, training, webhooks
-from app.services.isopleth_cache import MapCache, not_modified
+from app.services.isopleth_cache import MapCache
 from app.services.policy import Policy
 from app.uploads import content_type, read_form, read_json
 

@@ -36,6 +36,7 @@ from app.routers.responses import (
     UNPROCESSABLE,
     UPLOAD_ERRORS,
     frame_out,
+    not_modified,
 )
 from app.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.services import ingest, registry, retention
@@ -295,7 +296,7 @@ def get_frame_image(
     # content-addressed: the bytes behind this URL never change
     etag = f'"{frame.sha256}"'
     headers = {"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"}
-    if etag in request.headers.get("if-none-match", ""):
+    if not_modified(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
     store: FrameStore = request.app.state.frame_store
     data = store.read(frame.stored_path)

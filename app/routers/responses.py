@@ -117,3 +117,11 @@ def multipart_body(*, required: bool = True, **fields: str) -> dict[str, Any]:
             "content": {"multipart/form-data": {"schema": schema}},
         }
     }
+
+
+def not_modified(if_none_match: str | None, etag: str) -> bool:
+    """Whether a client's ``If-None-Match`` names this ETag (or ``*``)."""
+    if not if_none_match:
+        return False
+    tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
+    return etag in tags or "*" in tags

@@ -60,11 +60,3 @@ class MapCache:
                     _, (_, dropped, _) = self._items.popitem(last=False)
                     self._bytes -= len(dropped)
         return body, etag
-
-
-def not_modified(if_none_match: str | None, etag: str) -> bool:
-    """Whether a client's ``If-None-Match`` names this ETag (or ``*``)."""
-    if not if_none_match:
-        return False
-    tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
-    return etag in tags or "*" in tags

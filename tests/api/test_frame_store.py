@@ -116,6 +116,16 @@ def test_frames_go_to_the_bucket_and_come_back(
     )
     assert again.status_code == 304
     assert again.content == b""
+    for tags in ("*", f'"other", W/"{sha}"'):  # RFC 9110 §13.1.2
+        held = client.get(
+            f"/frames/{r.json()['frame_id']}/image", headers={**admin, "If-None-Match": tags}
+        )
+        assert held.status_code == 304, tags
+    other = client.get(
+        f"/frames/{r.json()['frame_id']}/image", headers={**admin, "If-None-Match": '"other"'}
+    )
+    assert other.status_code == 200
+    assert other.content == body
 
     health = client.get("/health")
     assert health.status_code == 200

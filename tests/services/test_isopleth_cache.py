@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from app.services.isopleth_cache import MapCache, not_modified
+from app.services.isopleth_cache import MapCache
 
 
 def test_kept_for_its_period_then_computed_again() -> None:
@@ -60,12 +60,3 @@ def test_off_with_no_period() -> None:
     for _ in range(2):
         cache.get("k", compute)
     assert calls == [1, 1]
-
-
-def test_if_none_match() -> None:
-    etag = '"abc"'
-    assert not_modified('"abc"', etag)
-    assert not_modified('"x", W/"abc"', etag)
-    assert not_modified("*", etag)
-    assert not not_modified(None, etag)
-    assert not not_modified('"abcd"', etag)
