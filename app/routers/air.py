@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Annotated, Any, Literal
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import StringConstraints
@@ -402,20 +403,38 @@ MaxDistance = Annotated[
 ]
 
 
+@dataclass(frozen=True)
+class MapQuery:
+    """What a map is of: the query parameters both renderings take (and their cache key)."""
+
+    bbox: tuple[float, float, float, float] | None
+    window: int
+    method: Literal["idw", "kriging", "rbf"]
+    resolution: int
+    max_distance: float
+
+
+def _map_query(
+    bbox: Bbox = None,
+    window: Window = 3600,
+    method: Method = "idw",
+    resolution: Resolution = 128,
+    max_distance: MaxDistance = 5000.0,
+) -> MapQuery:
+    return MapQuery(_bbox(bbox), window, method, resolution, max_distance)
+
+
+MapQueryDep = Annotated[MapQuery, Depends(_map_query)]
+
+
 def _field(
-    session: Session,
-    policy: Policy,
-    bbox: str | None,
-    window: int,
-    method: str,
-    resolution: int,
-    max_distance: float,
+    session: Session, policy: Policy, q: MapQuery
 ) -> tuple[
     list[air.Station], isopleths.Field | None, tuple[float, float, float, float] | None, datetime
 ]:
     now = policy.now()
-    box = _bbox(bbox)
-    st = air.stations(session, since=now - timedelta(seconds=window))
+    box = q.bbox
+    st = air.stations(session, since=now - timedelta(seconds=q.window))
     if not st:
         return st, None, box, now
     lon = np.array([s.lon for s in st])
@@ -427,9 +446,9 @@ def _field(
             lat,
             np.array([s.level for s in st]),
             bbox=box,
-            method=method,  # type: ignore[arg-type]
-            resolution=resolution,
-            max_distance=max_distance,
+            method=q.method,
+            resolution=q.resolution,
+            max_distance=q.max_distance,
         )
     except isopleths.IsoplethError as exc:
         raise Unprocessable(str(exc), code="bad_field") from None
@@ -461,14 +480,7 @@ MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
     responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
 )
 def isopleths_geojson(
-    request: Request,
-    session: SessionDep,
-    policy: PolicyDep,
-    bbox: Bbox = None,
-    window: Window = 3600,
-    method: Method = "idw",
-    resolution: Resolution = 128,
-    max_distance: MaxDistance = 5000.0,
+    request: Request, session: SessionDep, policy: PolicyDep, q: MapQueryDep
 ) -> Response:
     """City-wide category bands (RFC 7946 GeoJSON), one feature per category present.
 
@@ -476,12 +488,11 @@ def isopleths_geojson(
     and its ETag answers ``If-None-Match`` with 304."""
 
     def compute() -> bytes:
-        st, f, box, now = _field(session, policy, bbox, window, method, resolution, max_distance)
-        body = _geojson(st, f, box, now, window, method, max_distance)
+        st, f, box, now = _field(session, policy, q)
+        body = _geojson(st, f, box, now, q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
-    key = ("geojson", bbox, window, method, resolution, max_distance)
-    return _cached_map(request, key, compute, "application/geo+json")
+    return _cached_map(request, ("geojson", q), compute, "application/geo+json")
 
 
 def _geojson(
@@ -489,9 +500,7 @@ def _geojson(
     f: isopleths.Field | None,
     box: tuple[float, float, float, float] | None,
     now: datetime,
-    window: int,
-    method: str,
-    max_distance: float,
+    q: MapQuery,
 ) -> dict[str, Any]:
     features = isopleths.bands(f) if f is not None else []
     own = [airquality.category(s.level) for s in st]
@@ -513,10 +522,10 @@ def _geojson(
         "type": "FeatureCollection",
         "features": features,
         "bbox": list(box) if box else None,
-        "method": method,
+        "method": q.method,
         "computed_at": now.isoformat(),
-        "window_s": window,
-        "max_distance_m": max_distance,
+        "window_s": q.window,
+        "max_distance_m": q.max_distance,
         "cameras": [
             {
                 "camera_id": s.camera_id,
@@ -547,21 +556,13 @@ def _geojson(
     responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
 )
 def isopleths_png(
-    request: Request,
-    session: SessionDep,
-    policy: PolicyDep,
-    bbox: Bbox = None,
-    window: Window = 3600,
-    method: Method = "idw",
-    resolution: Resolution = 128,
-    max_distance: MaxDistance = 5000.0,
+    request: Request, session: SessionDep, policy: PolicyDep, q: MapQueryDep
 ) -> Response:
     """The bands drawn, with the camera positions and a legend (kept as the GeoJSON is)."""
     from app.services.airmap import render
 
     def compute() -> bytes:
-        st, f, box, _ = _field(session, policy, bbox, window, method, resolution, max_distance)
+        st, f, box, _ = _field(session, policy, q)
         return render(f, st, box)
 
-    key = ("png", bbox, window, method, resolution, max_distance)
-    return _cached_map(request, key, compute, "image/png")
+    return _cached_map(request, ("png", q), compute, "image/png")
