@@ -405,6 +405,11 @@ class AirLatest(Out):
     smoothed_level: float | None = Field(description="NowCast-style weighted recent level.")
     smoothed_category: str | None
     reason: str | None
+    current: bool = Field(
+        description="The latest reading was taken in the last 3 hours. When not, the level and"
+        " category are that reading's (see captured_at), and message and the smoothed level are"
+        " null: they would speak of today's air."
+    )
 
 
 class AirReading(Out):

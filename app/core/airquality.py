@@ -139,6 +139,9 @@ def grade(calibration: Calibration, modes: ArrayLike) -> Grade:
 
 
 NOWCAST_HOURS = 12
+FRESH = timedelta(hours=3)
+"""A smoothed level needs a reading this recent (the official NowCast wants two of the last
+three hours); a camera's latest reading older than this is not today's air."""
 
 
 def nowcast(times: list[datetime], levels: list[float], now: datetime) -> float | None:
@@ -151,7 +154,7 @@ def nowcast(times: list[datetime], levels: list[float], now: datetime) -> float 
         k = int((now - t) / timedelta(hours=1))
         if 0 <= k < NOWCAST_HOURS:
             hourly.setdefault(k, []).append(v)
-    if not any(k < 3 for k in hourly):
+    if not any(k < FRESH / timedelta(hours=1) for k in hourly):
         return None
     means = {k: float(np.mean(v)) for k, v in hourly.items()}
     lo, hi = min(means.values()), max(means.values())

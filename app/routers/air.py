@@ -258,8 +258,9 @@ def list_calibrations(
 
 
 @router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
-def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
-    """A sky camera's latest reading: level, category, message, and the smoothed level."""
+def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLatest:
+    """A sky camera's latest reading: level, category, message, and the smoothed level; the
+    message and the smoothed level only while the reading is current (taken in the last 3 h)."""
     found = air.latest(session, camera_id)
     if found is None:
         return AirLatest(
@@ -271,8 +272,23 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
             smoothed_level=None,
             smoothed_category=None,
             reason="no frames yet",
+            current=False,
         )
     frame, v = found
+    age = policy.now() - frame.captured_at
+    if age >= airquality.FRESH:  # a camera gone quiet: its last reading is not today's air
+        hours = age / timedelta(hours=1)
+        return AirLatest(
+            camera_id=camera_id,
+            level=v.level,
+            category=v.category,
+            message=None,
+            captured_at=frame.captured_at,
+            smoothed_level=None,
+            smoothed_category=None,
+            reason=f"no reading in the last 3 hours: the latest was taken {hours:.0f} h ago",
+            current=False,
+        )
     smoothed = v.smoothed_level
     return AirLatest(
         camera_id=camera_id,
@@ -283,6 +299,7 @@ def latest(camera_id: CameraId, session: SessionDep) -> AirLatest:
         smoothed_level=smoothed,
         smoothed_category=airquality.category(smoothed) if smoothed is not None else None,
         reason=v.reason,
+        current=True,
     )
 
 

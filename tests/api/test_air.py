@@ -436,6 +436,37 @@ def test_window_excludes_old_readings(
     city["clock"].now -= timedelta(hours=3)
 
 
+def test_a_camera_gone_quiet_does_not_speak_of_today(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A camera's latest reading, hours old, keeps its level and time but no longer says
+    "Today's Air Quality is ..." nor gives a smoothed level (NowCast wants a reading in the
+    last 3 hours). Before, a week-old reading read as today's."""
+    calibrate(client, admin)
+    post(client, city, "sky2", 10, seed=1)
+    city["clock"].advance(hours=2, minutes=59)
+    fresh = client.get("/air/cameras/sky2/latest").json()
+    assert fresh["current"] is True
+    assert fresh["message"] == "Today's Air Quality is Very Good"
+    assert fresh["smoothed_level"] == pytest.approx(10)
+
+    city["clock"].advance(minutes=1)
+    quiet = client.get("/air/cameras/sky2/latest").json()
+    assert quiet["current"] is False
+    assert (quiet["level"], quiet["category"]) == (10, "Very Good")
+    assert quiet["captured_at"] == fresh["captured_at"]
+    assert quiet["message"] is None
+    assert quiet["smoothed_level"] is None
+    assert quiet["smoothed_category"] is None
+    assert "no reading in the last 3 hours" in quiet["reason"]
+
+    post(client, city, "sky2", 10, seed=2)  # it speaks again
+    assert client.get("/air/cameras/sky2/latest").json()["current"] is True
+    nothing = client.get("/air/cameras/sky3/latest").json()
+    assert nothing["current"] is False
+    assert nothing["reason"] == "no frames yet"
+
+
 def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> None:
     """The first POST fails (HTTP 500); the retry after the backoff is delivered."""
     import json
