@@ -114,6 +114,9 @@ class CameraOut(Out):
     retired_at: datetime | None = Field(
         None, description="When the camera was retired (DELETE); null while in service."
     )
+    last_captured_at: datetime | None = Field(
+        None, description="When its newest frame kept was taken; null when none is kept."
+    )
 
 
 class CameraCreated(CameraOut):

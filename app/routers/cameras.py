@@ -154,9 +154,20 @@ async def post_frame(
     return Response(body, status_code=201, media_type="application/json", headers=headers)
 
 
-def _with_token(camera: Camera, token: str) -> CameraCreated:
+def _out(camera: Camera, last_captured_at: datetime | None) -> CameraOut:
+    out = CameraOut.model_validate(camera)
+    out.last_captured_at = last_captured_at
+    return out
+
+
+def _shown(session: Session, camera: Camera) -> CameraOut:
+    """The camera as the API shows it, with its newest frame's capture time."""
+    return _out(camera, registry.last_captured_at(session, camera.id))
+
+
+def _with_token(session: Session, camera: Camera, token: str) -> CameraCreated:
     """The camera as the API shows it, with its upload token (shown only this once)."""
-    return CameraCreated(**CameraOut.model_validate(camera).model_dump(), token=token)
+    return CameraCreated(**_shown(session, camera).model_dump(), token=token)
 
 
 @router.post(
@@ -168,22 +179,35 @@ def _with_token(camera: Camera, token: str) -> CameraCreated:
 def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCreated:
     """Register a camera; the response carries its upload token, shown only this once."""
     camera, token = registry.create_camera(session, body)
-    return _with_token(camera, token)
+    return _with_token(session, camera, token)
 
 
 @router.get("/cameras", response_model=list[CameraOut], responses=AUTH_ERRORS)
 def list_cameras(
     session: SessionDep,
+    policy: PolicyDep,
     _: Admin,
     limit: Limit = 100,
     offset: Offset = 0,
     retired: Annotated[
         bool, Query(description="Include retired cameras (by default only those in service).")
     ] = False,
+    silent_for: Annotated[
+        int | None,
+        Query(
+            ge=1,
+            le=10 * 366 * 86400,
+            description="Only cameras with no frame taken in the last … seconds (or none kept).",
+        ),
+    ] = None,
 ) -> list[CameraOut]:
-    """List cameras, ordered by id."""
-    cameras = registry.listed(session, Camera, limit=limit, offset=offset, retired=retired)
-    return [CameraOut.model_validate(c) for c in cameras]
+    """List cameras, ordered by id, each with when its newest frame was taken; ``silent_for``
+    finds the cameras gone quiet."""
+    since = None if silent_for is None else policy.now() - timedelta(seconds=silent_for)
+    rows = registry.cameras_seen(
+        session, limit=limit, offset=offset, retired=retired, silent_since=since
+    )
+    return [_out(camera, last) for camera, last in rows]
 
 
 @router.get(
@@ -191,7 +215,7 @@ def list_cameras(
 )
 def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
     """One camera."""
-    return CameraOut.model_validate(registry.get_camera(session, camera_id))
+    return _shown(session, registry.get_camera(session, camera_id))
 
 
 @router.patch(
@@ -207,7 +231,7 @@ def update_camera(
     frame is refused (422). Frames uploaded afterwards are judged with the new values; other
     server processes pick them up within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s)."""
     tokens: TokenCache = request.app.state.camera_tokens
-    return CameraOut.model_validate(registry.update_camera(session, camera_id, body, tokens))
+    return _shown(session, registry.update_camera(session, camera_id, body, tokens))
 
 
 @router.post(
@@ -223,7 +247,7 @@ def rotate_camera_token(
     others)."""
     tokens: TokenCache = request.app.state.camera_tokens
     camera, token = registry.rotate_camera_token(session, camera_id, tokens)
-    return _with_token(camera, token)
+    return _with_token(session, camera, token)
 
 
 @router.delete(

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import TypeVar
 
-from sqlalchemy import ColumnElement, event, select
+from sqlalchemy import ColumnElement, ScalarSelect, event, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -170,6 +170,49 @@ def listed(
     if not retired:
         q = q.where(model.retired_at.is_(None))
     return session.scalars(q.order_by(model.id).limit(limit).offset(offset)).all()
+
+
+def _last_captured() -> ScalarSelect[datetime]:
+    """The capture time of a camera's newest frame kept (a correlated lookup on the
+    (camera_id, captured_at) index, one per camera)."""
+    return (
+        select(Frame.captured_at)
+        .where(Frame.camera_id == Camera.id)
+        .order_by(Frame.captured_at.desc())
+        .limit(1)
+        .correlate(Camera)
+        .scalar_subquery()
+    )
+
+
+def cameras_seen(
+    session: Session,
+    *,
+    limit: int,
+    offset: int,
+    retired: bool = False,
+    silent_since: datetime | None = None,
+) -> list[tuple[Camera, datetime | None]]:
+    """Cameras (as ``listed``) with their newest frame's capture time; with ``silent_since``,
+    only those with no frame taken since then (or none kept)."""
+    last = _last_captured()
+    q = select(Camera, last)
+    if not retired:
+        q = q.where(Camera.retired_at.is_(None))
+    if silent_since is not None:
+        q = q.where(or_(last.is_(None), last < silent_since))
+    rows = session.execute(q.order_by(Camera.id).limit(limit).offset(offset)).all()
+    return [(camera, when) for camera, when in rows]
+
+
+def last_captured_at(session: Session, camera_id: str) -> datetime | None:
+    """The capture time of the camera's newest frame kept."""
+    return session.scalars(
+        select(Frame.captured_at)
+        .where(Frame.camera_id == camera_id)
+        .order_by(Frame.captured_at.desc())
+        .limit(1)
+    ).first()
 
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:

@@ -109,3 +109,48 @@ def test_nul_characters_are_refused(client: TestClient, admin: dict[str, str]) -
         client.get("/cleaning/tasks", params={"panel_id": "\x00"}, headers=admin).status_code == 422
     )
     assert client.get("/frames/%00", headers=admin).status_code == 422
+
+
+def test_cameras_gone_quiet(client: TestClient, admin: dict[str, str]) -> None:
+    """Each camera shows when its newest frame was taken; ``silent_for`` lists those with none
+    in that many seconds (or none at all): the ones an operator must go and look at."""
+    from datetime import UTC, datetime, timedelta
+
+    from tests.conftest import make_jpeg
+
+    now = datetime.now(UTC).replace(microsecond=0)
+    taken = {"old": now - timedelta(hours=2), "new": now - timedelta(minutes=1)}
+    for cid in ("new", "none", "old", "gone"):
+        assert client.post("/cameras", json={"id": cid, "kind": "rig"}, headers=admin).is_success
+    for cid, at in [("old", taken["old"] - timedelta(hours=1)), *taken.items()]:
+        r = client.post(
+            f"/cameras/{cid}/frames",
+            params={"captured_at": at.isoformat()},
+            content=make_jpeg(seed=len(cid)),
+            headers={**admin, "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+    assert client.delete("/cameras/gone", headers=admin).status_code == 204
+
+    def seen(**params: object) -> dict[str, datetime | None]:
+        r = client.get("/cameras", params=params, headers=admin)
+        assert r.status_code == 200, r.text
+        return {
+            c["id"]: c["last_captured_at"] and datetime.fromisoformat(c["last_captured_at"])
+            for c in r.json()
+        }
+
+    assert seen() == {"new": taken["new"], "none": None, "old": taken["old"]}
+    assert seen(silent_for=3600) == {"none": None, "old": taken["old"]}
+    assert seen(silent_for=3 * 3600) == {"none": None}
+    assert seen(silent_for=3600, retired="true") == {
+        "gone": None,
+        "none": None,
+        "old": taken["old"],
+    }
+    assert seen(silent_for=3600, limit=1, offset=1) == {"old": taken["old"]}
+    one = client.get("/cameras/old", headers=admin).json()
+    assert datetime.fromisoformat(one["last_captured_at"]) == taken["old"]
+    patched = client.patch("/cameras/old", json={"name": "roof"}, headers=admin).json()
+    assert patched["last_captured_at"] == one["last_captured_at"]
+    assert client.get("/cameras", params={"silent_for": 0}, headers=admin).status_code == 422
