@@ -85,6 +85,14 @@ async def read_capped(request: Request, limit: int) -> bytes:
     A declared Content-Length over the limit is refused before a byte is read; a chunked or
     lying body is cut off when the running count passes the limit.
     """
+    coding = request.headers.get("content-encoding", "identity").strip().lower()
+    if coding != "identity":  # RFC 9110 §15.5.16
+        raise UnsupportedMediaType(
+            f"Content-Encoding {coding!r} is not accepted: send the body as it is (a JPEG is "
+            "compressed already)",
+            code="content_encoding",
+            headers={"Accept-Encoding": "identity"},
+        )
     declared = request.headers.get("content-length")
     if declared is not None:
         try:
@@ -153,14 +161,29 @@ async def read_files(
     return files
 
 
-async def read_jpeg(request: Request, limit: int) -> bytes:
+@dataclass(frozen=True, slots=True)
+class FrameUpload:
+    data: bytes
+    """The JPEG."""
+    captured_at: str | None = None
+    """A multipart upload's text field ``captured_at``, as sent (IP cameras that post a form
+    send their fields with the file)."""
+
+
+async def read_jpeg(request: Request, limit: int) -> FrameUpload:
     """The JPEG of a frame upload: a raw ``image/jpeg`` body or multipart field ``file``."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type in ("image/jpeg", "image/jpg"):
-        return await read_capped(request, limit)
+        return FrameUpload(await read_capped(request, limit))
     if content_type == "multipart/form-data":
-        [(_, data)] = await read_files(request, "file", limit)
-        return data
+        form = await read_form(request, limit, max_files=1)
+        files = form.files_of("file")
+        if not files:
+            raise Unprocessable("multipart body has no file in field 'file'", code="no_file")
+        when = form.fields.get("captured_at", [])
+        if len(when) > 1:
+            raise Unprocessable("captured_at is given more than once", code="bad_time")
+        return FrameUpload(files[0][1], when[0] if when else None)
     raise UnsupportedMediaType(
         f"expected Content-Type image/jpeg or multipart/form-data; got {content_type or 'none'!r}",
         code="not_jpeg",

@@ -10,6 +10,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request
 from fastapi.responses import Response
+from pydantic import TypeAdapter, ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
@@ -61,7 +62,14 @@ _JPEG_BODY = {
             "multipart/form-data": {
                 "schema": {
                     "type": "object",
-                    "properties": {"file": {"type": "string", "format": "binary"}},
+                    "properties": {
+                        "file": {"type": "string", "format": "binary"},
+                        "captured_at": {
+                            "type": "string",
+                            "format": "date-time",
+                            "description": "As the query parameter (either or both, equal).",
+                        },
+                    },
                     "required": ["file"],
                 }
             },
@@ -88,6 +96,30 @@ def _captured_at(value: datetime | None, now: datetime, settings: Settings) -> d
             code="bad_time",
         )
     return value
+
+
+_TIME = TypeAdapter(UtcTime)
+
+
+def _form_captured_at(
+    text: str, query: datetime | None, now: datetime, settings: Settings
+) -> datetime | None:
+    """A multipart upload's ``captured_at`` field: the same rules as the query parameter, and
+    the same time when both are given. Before, the field was ignored and the frame took the
+    time it was received."""
+    try:
+        value = _TIME.validate_python(text.strip())
+    except ValidationError:
+        raise Unprocessable(
+            f"captured_at {text[:64]!r} is not an RFC 3339 time", code="bad_time"
+        ) from None
+    if query is not None and query != value:
+        raise Unprocessable(
+            f"captured_at differs between the query ({query.isoformat()}) and the form "
+            f"({value.isoformat()})",
+            code="bad_time",
+        )
+    return _captured_at(value, now, settings)
 
 
 # the frame upload is the first route of its router, and the router the app's first: routes are
@@ -125,7 +157,10 @@ async def post_frame(
     settings: Settings = request.app.state.settings
     policy: Policy = request.app.state.policy
     when = _captured_at(captured_at, policy.now(), settings)
-    data = await read_jpeg(request, settings.max_body_bytes)
+    upload = await read_jpeg(request, settings.max_body_bytes)
+    if upload.captured_at is not None:
+        when = _form_captured_at(upload.captured_at, when, policy.now(), settings)
+    data = upload.data
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer
 

@@ -57,6 +57,16 @@ def stored_files(data_dir: Path) -> list[tuple[str, int]]:
     )
 
 
+@pytest.fixture
+def snapshot(engine: Engine, settings: Any, camera: dict[str, Any]) -> Any:
+    """What the database and the frame store hold: a refused upload leaves both as they were."""
+
+    def take() -> tuple[dict[str, int], list[tuple[str, int]]]:
+        return table_counts(engine), stored_files(settings.data_dir)
+
+    return take
+
+
 class TestPostFrame:
     def test_raw_jpeg_is_stored_with_its_verdict(
         self, client: TestClient, camera: dict[str, Any], admin: dict[str, str], settings: Any
@@ -193,6 +203,63 @@ class TestPostFrame:
         )
         assert r.status_code == 201, r.text
 
+    def test_multipart_captured_at_field(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any
+    ) -> None:
+        """An IP camera posting a form sends its time as a field beside the file: it is the
+        frame's time, as the query parameter is. Before, it was ignored (the frame took the
+        time it was received)."""
+        auth = {"Authorization": f"Bearer {camera['token']}"}
+        r = client.post(
+            "/cameras/cam-1/frames",
+            files={"file": ("f.jpg", make_jpeg(), "image/jpeg")},
+            data={"captured_at": f"{DAY}T12:00:00+02:00"},
+            headers=auth,
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["captured_at"] == f"{DAY}T10:00:00Z"
+        same = client.post(  # both, agreeing
+            "/cameras/cam-1/frames",
+            files={"file": ("f.jpg", make_jpeg(seed=1, noise=2), "image/jpeg")},
+            data={"captured_at": f"{DAY}T11:00:00Z"},
+            params={"captured_at": f"{DAY}T11:00:00Z"},
+            headers=auth,
+        )
+        assert same.status_code == 201, same.text
+        before = snapshot()
+        for data, params in [
+            ({"captured_at": "yesterday"}, {}),
+            ({"captured_at": "1970-01-01T00:00:00Z"}, {}),
+            ({"captured_at": f"{DAY}T11:00:00Z"}, {"captured_at": f"{DAY}T11:30:00Z"}),
+            ({"captured_at": [f"{DAY}T11:00:00Z", f"{DAY}T11:30:00Z"]}, {}),
+        ]:
+            bad = client.post(
+                "/cameras/cam-1/frames",
+                files={"file": ("f.jpg", make_jpeg(seed=2, noise=2), "image/jpeg")},
+                data=data,
+                params=params,
+                headers=auth,
+            )
+            assert bad.status_code == 422, (data, params)
+            assert bad.json()["code"] == "bad_time"
+        assert snapshot() == before
+
+    def test_a_compressed_body_is_refused_with_its_reason(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any
+    ) -> None:
+        import gzip
+
+        before = snapshot()
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=gzip.compress(make_jpeg()),
+            headers={**cam_headers(camera), "Content-Encoding": "gzip"},
+        )
+        assert r.status_code == 415
+        assert r.json()["code"] == "content_encoding"
+        assert r.headers["accept-encoding"] == "identity"
+        assert snapshot() == before
+
     def test_basic_auth_with_camera_id_and_token(
         self, client: TestClient, camera: dict[str, Any]
     ) -> None:
@@ -310,13 +377,6 @@ class TestPostFrame:
 
 class TestBadInput:
     """Each bad upload gets the contract's 4xx as problem+json and leaves nothing behind."""
-
-    @pytest.fixture
-    def snapshot(self, engine: Engine, settings: Any, camera: dict[str, Any]) -> Any:
-        def take() -> tuple[dict[str, int], list[tuple[str, int]]]:
-            return table_counts(engine), stored_files(settings.data_dir)
-
-        return take
 
     @pytest.mark.parametrize(
         ("body", "content_type", "status"),
