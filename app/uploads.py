@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from collections.abc import AsyncGenerator
+from collections.abc import AsyncGenerator, Collection
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -126,8 +126,13 @@ class Form:
         return [(name, data) for f, name, data in self.files if f == field]
 
 
-async def read_form(request: Request, limit: int, *, max_files: int) -> Form:
-    """A multipart body of at most ``limit`` bytes, parsed."""
+async def read_form(
+    request: Request, limit: int, *, max_files: int, parts: Collection[str] | None
+) -> Form:
+    """A multipart body of at most ``limit`` bytes, parsed. With ``parts`` (the fields the
+    route reads, files or text), any other field is refused (422): an option sent as a form
+    field instead of in the query (``-F significance=0.01``) was silently left at its default,
+    a misspelt field (``dot_file``) silently dropped."""
     body = await read_capped(request, limit)
     parser = MultiPartParser(
         request.headers, _once(body), max_files=max_files, max_fields=10_000, max_part_size=limit
@@ -148,6 +153,15 @@ async def read_form(request: Request, limit: int, *, max_files: int) -> Form:
                 fields.setdefault(key, []).append(item)
     finally:
         await form.close()
+    if parts is not None:
+        unexpected = sorted(({f for f, _, _ in files} | fields.keys()) - set(parts))
+        if unexpected:
+            raise Unprocessable(
+                f"unexpected form field(s) {', '.join(map(repr, unexpected))}: this upload "
+                f"takes {', '.join(map(repr, parts))}; its options go in the query string "
+                "(see /docs)",
+                code="unexpected_field",
+            )
     return Form(files, fields)
 
 
@@ -155,7 +169,8 @@ async def read_files(
     request: Request, field: str, limit: int, *, max_files: int = 1
 ) -> list[tuple[str | None, bytes]]:
     """The files of a multipart body's (repeated) ``field``: [(filename, bytes), ...]."""
-    files = (await read_form(request, limit, max_files=max_files)).files_of(field)
+    form = await read_form(request, limit, max_files=max_files, parts=(field,))
+    files = form.files_of(field)
     if not files:
         raise Unprocessable(f"multipart body has no file in field {field!r}", code="no_file")
     return files
@@ -176,7 +191,8 @@ async def read_jpeg(request: Request, limit: int) -> FrameUpload:
     if content_type in ("image/jpeg", "image/jpg"):
         return FrameUpload(await read_capped(request, limit))
     if content_type == "multipart/form-data":
-        form = await read_form(request, limit, max_files=1)
+        # lenient: a camera's form may carry fields of its own
+        form = await read_form(request, limit, max_files=1, parts=None)
         files = form.files_of("file")
         if not files:
             raise Unprocessable("multipart body has no file in field 'file'", code="no_file")

@@ -37,6 +37,7 @@ from app.routers.responses import (
     BODY_ERRORS,
     NOT_FOUND,
     UNPROCESSABLE,
+    multipart_body,
     not_modified,
 )
 from app.schemas import (
@@ -125,7 +126,8 @@ def _from_frames(
     "/calibration",
     status_code=201,
     response_model=AirCalibrationOut,
-    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(json=AirCalibrationFromFrames, files="files", levels="texts"),
 )
 async def calibrate(
     request: Request,
@@ -169,7 +171,9 @@ async def calibrate(
     """
     kind = content_type(request)
     if kind == "multipart/form-data":
-        form = await read_form(request, settings.max_upload_bytes, max_files=5000)
+        form = await read_form(
+            request, settings.max_upload_bytes, max_files=5000, parts=("files", "levels")
+        )
         files, raw = form.files_of("files"), form.fields.get("levels", [])
         if len(files) != len(raw):
             raise Unprocessable(f"{len(files)} files but {len(raw)} levels; give one level each")

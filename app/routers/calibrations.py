@@ -20,7 +20,13 @@ from app.deps import (
     image_work,
 )
 from app.errors import Unprocessable, UnsupportedMediaType
-from app.routers.responses import AUTH_ERRORS, BODY_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.routers.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+)
 from app.services import calibrations
 from app.services.calibrations import Board
 from app.services.policy import Policy
@@ -47,10 +53,14 @@ def _body(row: Any) -> JSONResponse:
     return JSONResponse(_out(row), status_code=201)
 
 
-async def _form(request: Request, limit: int) -> Any:
+PATTERN_FIELDS = ("pattern_cols", "pattern_rows", "square_size")
+"""Text fields a calibration upload may carry instead of the query parameters."""
+
+
+async def _form(request: Request, limit: int, *images: str) -> Any:
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send the checkerboard images as multipart/form-data")
-    return await read_form(request, limit, max_files=500)
+    return await read_form(request, limit, max_files=500, parts=(*images, *PATTERN_FIELDS))
 
 
 def _board(form: Any, default: Board) -> Board:
@@ -75,7 +85,14 @@ def _single(session: Session, files: Any, board: Board, max_pixels: int, policy:
     )
 
 
-@router.post("", status_code=201, responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE})
+@router.post(
+    "",
+    status_code=201,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        files="files", pattern_cols="text", pattern_rows="text", square_size="text"
+    ),
+)
 async def calibrate(
     request: Request,
     session: SessionDep,
@@ -89,7 +106,7 @@ async def calibrate(
     """Calibrate a camera from checkerboard images (multipart ``files``): K, distortion
     [k1, k2, p1, p2, k3], RMS and per-view reprojection error, standard deviations, and which
     views were used or rejected (and why)."""
-    form = await _form(request, settings.max_upload_bytes)
+    form = await _form(request, settings.max_upload_bytes, "files")
     files = form.files_of("files")
     if not files:
         raise Unprocessable("no images in field files")
@@ -108,7 +125,14 @@ def _pair(
     )
 
 
-@router.post("/stereo", status_code=201, responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE})
+@router.post(
+    "/stereo",
+    status_code=201,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        left="files", right="files", pattern_cols="text", pattern_rows="text", square_size="text"
+    ),
+)
 async def calibrate_stereo(
     request: Request,
     session: SessionDep,
@@ -122,7 +146,7 @@ async def calibrate_stereo(
     """Calibrate a camera pair from simultaneous views (multipart ``left`` and ``right``, in
     the same order): both cameras' intrinsics, then R, T (x_right = R x_left + T) and the
     baseline |T| with the intrinsics held fixed."""
-    form = await _form(request, settings.max_upload_bytes)
+    form = await _form(request, settings.max_upload_bytes, "left", "right")
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
     row = await image_work(
         request,

@@ -56,7 +56,9 @@ async def train(
     """
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send multipart/form-data with files and labels")
-    form = await read_form(request, settings.max_upload_bytes, max_files=5000)
+    form = await read_form(
+        request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels")
+    )
     files, labels = form.files_of("files"), form.fields.get("labels", [])
     if len(files) != len(labels):
         raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")

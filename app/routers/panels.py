@@ -63,21 +63,7 @@ Shrinkage = Annotated[
         "1/12 (integer rounding of modes) admits a channel whose mode never changes.",
     ),
 ]
-_FILES_BODY = {
-    "requestBody": {
-        "content": {
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "properties": {
-                        "files": {"type": "array", "items": {"type": "string", "format": "binary"}}
-                    },
-                }
-            },
-            "application/json": {"schema": BaselineFromFrames.model_json_schema()},
-        }
-    }
-}
+_FILES_BODY = multipart_body(json=BaselineFromFrames, files="files")
 
 
 @router.post(
@@ -347,7 +333,9 @@ async def evaluate(
     """
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send multipart/form-data with fields clean and dirty")
-    form = await read_form(request, settings.max_upload_bytes, max_files=2000)
+    form = await read_form(
+        request, settings.max_upload_bytes, max_files=2000, parts=("clean", "dirty")
+    )
     clean, dirty = form.files_of("clean"), form.files_of("dirty")
     if len(clean) < 5 or not dirty:
         raise Unprocessable(

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from pydantic import BaseModel
+
 from app.db.models import Frame, PanelVerdict, SkyVerdict, Verdict
 from app.schemas import FrameOut, PanelVerdictOut, RigVerdictOut, SkyVerdictOut, VerdictOut
 
@@ -101,9 +103,12 @@ def frame_out(frame: Frame, verdict: Verdict) -> FrameOut:
     )
 
 
-def multipart_body(*, required: bool = True, **fields: str) -> dict[str, Any]:
+def multipart_body(
+    *, required: bool = True, json: type[BaseModel] | None = None, **fields: str
+) -> dict[str, Any]:
     """``openapi_extra`` for a multipart body read by hand: field name → ``file``, ``files``
-    (repeated), ``text`` or ``texts`` (repeated)."""
+    (repeated), ``text`` or ``texts`` (repeated); ``json``: the model of the JSON body the
+    route takes instead."""
     kinds = {
         "file": {"type": "string", "format": "binary"},
         "files": {"type": "array", "items": {"type": "string", "format": "binary"}},
@@ -111,12 +116,10 @@ def multipart_body(*, required: bool = True, **fields: str) -> dict[str, Any]:
         "texts": {"type": "array", "items": {"type": "string"}},
     }
     schema = {"type": "object", "properties": {name: kinds[kind] for name, kind in fields.items()}}
-    return {
-        "requestBody": {
-            "required": required,
-            "content": {"multipart/form-data": {"schema": schema}},
-        }
-    }
+    content: dict[str, Any] = {"multipart/form-data": {"schema": schema}}
+    if json is not None:
+        content["application/json"] = {"schema": json.model_json_schema()}
+    return {"requestBody": {"required": required, "content": content}}
 
 
 def not_modified(if_none_match: str | None, etag: str) -> bool:

@@ -183,15 +183,16 @@ def _geometry(row: Rig) -> laser_grid.Geometry:
 
 
 async def _rig_and_form(
-    rig_id: str, request: Request, session: Session, settings: Settings
+    rig_id: str, request: Request, session: Session, settings: Settings, *parts: str
 ) -> tuple[Rig, Form]:
-    """The rig, and the images of a multipart upload to it."""
+    """The rig, and the images (and fields: ``parts``) of a multipart upload to it."""
     row = session.get(Rig, rig_id)
     if row is None:
         raise NotFound(f"no rig {rig_id!r}")
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
-    return row, await read_form(request, settings.max_upload_bytes, max_files=64)
+    form = await read_form(request, settings.max_upload_bytes, max_files=64, parts=parts)
+    return row, form
 
 
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
@@ -214,7 +215,7 @@ async def laser_dot(
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
-    row, form = await _rig_and_form(rig_id, request, session, settings)
+    row, form = await _rig_and_form(rig_id, request, session, settings, "files")
     return await image_work(
         request, partial(_dot, row, form.files_of("files"), settings.max_pixels)
     )
@@ -236,7 +237,9 @@ async def laser_grid_measure(
     grid's origin: its images (``dot_files``) or its pixels (``origin``, JSON, per camera
     [u, v] or null, e.g. from ``/laser/dot``). ``base_plane`` (JSON [a, b, c, d]) is fitted to
     the support surface when not given."""
-    row, form = await _rig_and_form(rig_id, request, session, settings)
+    row, form = await _rig_and_form(
+        rig_id, request, session, settings, "files", "dot_files", "origin", "base_plane"
+    )
     return await image_work(
         request,
         partial(
