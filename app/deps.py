@@ -6,14 +6,14 @@ import base64
 import binascii
 import hmac
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from functools import partial
 from typing import Annotated, Any, Literal, TypeVar
 
 import anyio
-from fastapi import Depends, Path, Query, Request
+from fastapi import Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import AfterValidator
 from sqlalchemy import select
@@ -25,6 +25,7 @@ from app.security import hash_token
 from app.services import panels, rate_limit, registry
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
+from app.services.registry import FrameKey
 from app.settings import Settings
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
@@ -194,6 +195,52 @@ def _time_range(
     if since and until and since >= until:
         raise Unprocessable("since must be before until")
     return TimeRange(since, until)
+
+
+def _cursor(
+    cursor: Annotated[
+        str | None,
+        Query(
+            max_length=200,
+            description="Where the previous page ended: the `cursor` of its `Link: rel=next` "
+            "header. Unlike `offset`, a page costs the same however deep, and rows arriving "
+            "meanwhile shift nothing.",
+        ),
+    ] = None,
+) -> FrameKey | None:
+    if cursor is None:
+        return None
+    try:
+        when, _, frame_id = base64.urlsafe_b64decode(cursor.encode()).decode().partition("|")
+        key = FrameKey(datetime.fromisoformat(when), frame_id)
+    except (ValueError, binascii.Error):
+        raise Unprocessable("cursor is not one this service gave", code="bad_cursor") from None
+    if key.captured_at.tzinfo is None or not frame_id:
+        raise Unprocessable("cursor is not one this service gave", code="bad_cursor")
+    return key
+
+
+FrameCursor = Annotated[FrameKey | None, Depends(_cursor)]
+"""The ``cursor`` query parameter of a listing of frames newest first."""
+
+
+def cursor_of(key: FrameKey) -> str:
+    """The ``cursor`` for the page after ``key`` (read back by ``FrameCursor``)."""
+    return base64.urlsafe_b64encode(
+        f"{key.captured_at.isoformat()}|{key.frame_id}".encode()
+    ).decode()
+
+
+def link_next(request: Request, response: Response, rows: Sequence[Any], limit: int) -> None:
+    """``Link: <…>; rel="next"`` on a full page of frames (rows with ``captured_at`` and the
+    frame id as ``id``), as RFC 8288: the same query, from after its last row."""
+    if len(rows) < limit:
+        return
+    last = rows[-1]
+    url = request.url.remove_query_params("offset").include_query_params(
+        cursor=cursor_of(FrameKey(last.captured_at, last.id))
+    )
+    response.headers["Link"] = f'<{url}>; rel="next"'
 
 
 TimeRangeQuery = Annotated[TimeRange, Depends(_time_range)]

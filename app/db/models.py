@@ -179,6 +179,8 @@ class Frame(Base):
     __tablename__ = "frames"
     __table_args__ = (
         Index("ix_frames_camera_id_captured_at", "camera_id", "captured_at"),
+        # every camera's frames newest first, paged by (captured_at, id): the public readings
+        Index("ix_frames_captured_at_id", "captured_at", "id"),
         # a camera retrying an upload: the same bytes taken at the same instant are one frame
         UniqueConstraint("camera_id", "sha256", "captured_at", name="uq_frames_camera_sha_time"),
         UniqueConstraint("camera_id", "idempotency_key", name="uq_frames_camera_idempotency"),

@@ -22,6 +22,7 @@ from app.deps import (
     ID_PATTERN,
     Admin,
     CameraId,
+    FrameCursor,
     IdFilter,
     Limit,
     Offset,
@@ -30,6 +31,7 @@ from app.deps import (
     SettingsDep,
     TimeRangeQuery,
     image_work,
+    link_next,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
@@ -56,6 +58,9 @@ from app.uploads import content_type, read_form, read_json
 router = APIRouter(prefix="/air", tags=["air quality"])
 
 Significance = Annotated[float, Query(ge=1e-6, le=0.05, description="ς (eq. 6.21).")]
+PUBLIC_MAX_OFFSET = 100_000
+"""The deepest ``offset`` of a public listing: each row skipped is read, and a deeper page of
+a city's readings is a cursor's job."""
 Shrinkage = Annotated[float, Query(ge=0, le=100, description="Variance added to each Σ̂ [level²].")]
 
 
@@ -313,6 +318,8 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
     responses={**NOT_FOUND, **UNPROCESSABLE},
 )
 def readings(
+    request: Request,
+    response: Response,
     session: SessionDep,
     span: TimeRangeQuery,
     camera_id: IdFilter = None,
@@ -325,18 +332,37 @@ def readings(
         ),
     ] = "UTC",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
-    offset: Offset = 0,
+    offset: Annotated[
+        int,
+        Query(
+            ge=0,
+            le=PUBLIC_MAX_OFFSET,
+            description="Rows to skip (at most 100,000: page further with `cursor`).",
+        ),
+    ] = 0,
+    cursor: FrameCursor = None,
 ) -> list[AirReading] | list[AirAggregate]:
     """Readings newest first, paginated; or their hourly or daily means, over every reading
-    in the range, in the time zone ``tz`` (its local hours and days; UTC by default)."""
+    in the range, in the time zone ``tz`` (its local hours and days; UTC by default).
+
+    A full page of readings names the next in its ``Link: <…>; rel="next"`` header (a
+    ``cursor``): each page then costs the same however deep, and readings arriving meanwhile
+    shift nothing (with ``offset`` they push rows onto the next page again)."""
     since, until = span.since, span.until
     zone = _zone(tz)
     if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
         air.sky_camera(session, camera_id)
     if aggregate == "none":
         rows = air.readings(
-            session, camera_id=camera_id, since=since, until=until, limit=limit, offset=offset
+            session,
+            camera_id=camera_id,
+            since=since,
+            until=until,
+            limit=limit,
+            offset=offset,
+            cursor=cursor,
         )
+        link_next(request, response, rows, limit)
         return [
             AirReading(
                 camera_id=r.camera_id,
@@ -349,6 +375,8 @@ def readings(
             )
             for r in rows
         ]
+    if cursor is not None:
+        raise Unprocessable("cursor pages readings, not aggregates: use offset")
     buckets = air.aggregate(
         session, camera_id=camera_id, since=since, until=until, bucket=aggregate, tz=zone
     )

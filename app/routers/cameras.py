@@ -18,6 +18,7 @@ from app.db.models import Camera, Frame
 from app.deps import (
     Admin,
     CameraId,
+    FrameCursor,
     Limit,
     Offset,
     PolicyDep,
@@ -26,6 +27,7 @@ from app.deps import (
     TimeRangeQuery,
     UploadTargetDep,
     UtcTime,
+    link_next,
 )
 from app.errors import NotFound, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
@@ -314,13 +316,24 @@ def list_frames(
     session: SessionDep,
     _: Admin,
     span: TimeRangeQuery,
+    request: Request,
+    response: Response,
     limit: Limit = 50,
     offset: Offset = 0,
+    cursor: FrameCursor = None,
 ) -> list[FrameOut]:
-    """A camera's frames with their verdicts, newest first; those taken in [since, until)."""
+    """A camera's frames with their verdicts, newest first; those taken in [since, until).
+    A full page names the next in its ``Link: <…>; rel="next"`` header (a ``cursor``)."""
     frames = registry.frames_of(
-        session, camera_id, since=span.since, until=span.until, limit=limit, offset=offset
+        session,
+        camera_id,
+        since=span.since,
+        until=span.until,
+        limit=limit,
+        offset=offset,
+        cursor=cursor,
     )
+    link_next(request, response, frames, limit)
     return [frame_out(f, f.verdict) for f in frames]
 
 

@@ -36,7 +36,7 @@ from app.services.camera_info import (
     uploads_in,
 )
 from app.services.policy import Policy
-from app.services.registry import taken_in
+from app.services.registry import NEWEST_FIRST, FrameKey, after, taken_in
 from app.services.verdicts import check_usable, stats_columns
 
 if TYPE_CHECKING:
@@ -440,7 +440,9 @@ def readings(
     until: datetime | None,
     limit: int,
     offset: int,
+    cursor: FrameKey | None = None,
 ) -> Sequence[Any]:
+    """Sky readings taken in [since, until), newest first (after ``cursor``)."""
     q = select(
         Frame.camera_id,
         Frame.id,
@@ -450,10 +452,8 @@ def readings(
         SkyVerdict.smoothed_level,
         SkyVerdict.reason,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-    q = q.where(*taken_in(camera_id, since, until))
-    return session.execute(
-        q.order_by(Frame.captured_at.desc(), Frame.id).limit(limit).offset(offset)
-    ).all()
+    q = q.where(*taken_in(camera_id, since, until), *after(cursor))
+    return session.execute(q.order_by(*NEWEST_FIRST).limit(limit).offset(offset)).all()
 
 
 SLOT_S = 900

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from datetime import datetime
 from typing import TypeVar
 
-from sqlalchemy import ColumnElement, ScalarSelect, event, or_, select
+from sqlalchemy import ColumnElement, ScalarSelect, event, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -265,6 +266,26 @@ def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
         session.flush()
 
 
+@dataclass(frozen=True, slots=True)
+class FrameKey:
+    """Where a page of frames, newest first, ended: the next page starts after it."""
+
+    captured_at: datetime
+    frame_id: str
+
+
+NEWEST_FIRST = (Frame.captured_at.desc(), Frame.id.desc())
+"""Frames newest first, ties by id: the order of ``ix_frames_captured_at_id`` read backwards."""
+
+
+def after(key: FrameKey | None) -> list[ColumnElement[bool]]:
+    """Frames after ``key`` in ``NEWEST_FIRST`` order (keyset paging: a page costs the same
+    however deep, and frames arriving meanwhile shift nothing)."""
+    if key is None:
+        return []
+    return [tuple_(Frame.captured_at, Frame.id) < tuple_(key.captured_at, key.frame_id)]
+
+
 def taken_in(
     camera_id: str | None, since: datetime | None, until: datetime | None
 ) -> list[ColumnElement[bool]]:
@@ -287,14 +308,16 @@ def frames_of(
     until: datetime | None,
     limit: int,
     offset: int,
+    cursor: FrameKey | None = None,
 ) -> Sequence[Frame]:
-    """A camera's frames taken in [since, until), newest first, with their verdicts."""
+    """A camera's frames taken in [since, until), newest first (after ``cursor``), with their
+    verdicts."""
     get_camera(session, camera_id)
     return session.scalars(
         select(Frame)
-        .where(*taken_in(camera_id, since, until))
+        .where(*taken_in(camera_id, since, until), *after(cursor))
         .options(selectinload(Frame.verdict))
-        .order_by(Frame.captured_at.desc(), Frame.id)
+        .order_by(*NEWEST_FIRST)
         .limit(limit)
         .offset(offset)
     ).all()

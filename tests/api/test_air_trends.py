@@ -12,18 +12,21 @@ from zoneinfo import ZoneInfo
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine, insert
+from sqlalchemy import Engine, insert, select
 
 from app.db.models import Camera, CameraKind, Frame, SkyVerdict, Verdict
 
 Reading = tuple[str, datetime, int | None]
 
 
-def store(engine: Engine, readings: list[Reading]) -> None:
-    """Sky readings written straight to the tables (the grading path has its own tests)."""
-    cameras = sorted({cam for cam, _, _ in readings})
+def store(engine: Engine, readings: list[Reading], *, start: int = 0) -> None:
+    """Sky readings written straight to the tables (the grading path has its own tests), as
+    frames ``f{start:07d}`` on; cameras not there yet are registered."""
+    with engine.connect() as conn:
+        known = set(conn.execute(select(Camera.id)).scalars())
+    cameras = sorted({cam for cam, _, _ in readings} - known)
     frames, verdicts, skies = [], [], []
-    for k, (cam, at, level) in enumerate(readings):
+    for k, (cam, at, level) in enumerate(readings, start):
         fid = f"f{k:07d}"
         frames.append(
             {
@@ -39,10 +42,11 @@ def store(engine: Engine, readings: list[Reading]) -> None:
         )  # fmt: skip
         skies.append({"frame_id": fid, "level": level})
     with engine.begin() as conn:
-        conn.execute(
-            insert(Camera),
-            [{"id": c, "kind": CameraKind.sky, "token_hash": f"h-{c}"} for c in cameras],
-        )
+        if cameras:
+            conn.execute(
+                insert(Camera),
+                [{"id": c, "kind": CameraKind.sky, "token_hash": f"h-{c}"} for c in cameras],
+            )
         for table, rows in ((Frame, frames), (Verdict, verdicts), (SkyVerdict, skies)):
             for start in range(0, len(rows), 20_000):
                 conn.execute(insert(table.__table__), rows[start : start + 20_000])
@@ -182,3 +186,67 @@ def test_offsets_are_fixed_in_the_answer() -> None:
     assert start.utcoffset() == timedelta(hours=1)
     assert start.tzinfo == timezone(timedelta(hours=1))
     assert end - start == timedelta(hours=1)
+
+
+def pages(
+    client: TestClient, path: str, params: dict[str, Any], headers: dict[str, str] | None = None
+) -> list[list[dict[str, Any]]]:
+    """Every page of a listing, following its ``Link: rel=next`` headers."""
+    out = []
+    r = client.get(path, params=params, headers=headers)
+    while True:
+        assert r.status_code == 200, r.text
+        out.append(r.json())
+        if "link" not in r.headers:
+            return out
+        url, rel = r.headers["link"].split(";")
+        assert rel.strip() == 'rel="next"'
+        r = client.get(url.strip().strip("<>"), headers=headers)
+
+
+def test_readings_page_by_cursor(client: TestClient, engine: Engine) -> None:
+    """Following ``Link: rel=next`` gives every reading once, newest first (ties at one instant
+    included), and readings arriving meanwhile push nothing onto the next page: paged by
+    ``offset``, the newest row of a page came back at the top of the next."""
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    at = [t0 + timedelta(minutes=m) for m in (0, 5, 5, 5, 10, 15, 20)]  # three at one instant
+    readings: list[Reading] = [(f"sky-{k % 2}", t, 1 + k) for k, t in enumerate(at)]
+    store(engine, readings)
+    expected = sorted(
+        (
+            (t.isoformat().replace("+00:00", "Z"), f"f{k:07d}")
+            for k, (_, t, _) in enumerate(readings)
+        ),
+        reverse=True,
+    )
+    got = pages(client, "/air/readings", {"limit": 3})
+    assert [len(p) for p in got] == [3, 3, 1]
+    assert [(r["captured_at"], r["frame_id"]) for p in got for r in p] == expected
+
+    # one camera, and a range: the cursor keeps both
+    one = pages(
+        client, "/air/readings", {"limit": 2, "camera_id": "sky-0", "since": "2026-05-01T00:05:00Z"}
+    )
+    assert [r["frame_id"] for p in one for r in p] == [
+        fid for t, fid in expected if int(fid[1:]) % 2 == 0 and t >= "2026-05-01T00:05"
+    ]
+
+    first = client.get("/air/readings", params={"limit": 3})
+    next_url = first.headers["link"].split(";")[0].strip("<>")
+    store(engine, [("sky-9", t0 + timedelta(hours=1), 5)], start=100)  # posted meanwhile
+    second = client.get(next_url).json()
+    assert [r["frame_id"] for r in second] == [fid for _, fid in expected[3:6]]
+    by_offset = client.get("/air/readings", params={"limit": 3, "offset": 3}).json()
+    assert by_offset[0]["frame_id"] == expected[2][1]  # page 1's last row, again
+
+
+def test_bad_paging_is_422(client: TestClient) -> None:
+    for params in (
+        {"cursor": "not-a-cursor"},
+        {"cursor": "MjAyNi0wNS0wMQ=="},  # a time without an offset, and no id
+        {"offset": 100_001},
+        {"cursor": "MjAyNi0wNS0wMVQwMDowMDowMCswMDowMHxmMQ==", "aggregate": "daily"},
+    ):
+        r = client.get("/air/readings", params=params)
+        assert r.status_code == 422, params
+        assert r.headers["content-type"] == "application/problem+json"

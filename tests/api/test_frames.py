@@ -731,3 +731,23 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
             release.set()
             deadline.cancel()
         assert [u.result().status_code for u in uploads] == [201] * 50
+
+
+def test_a_cameras_frames_page_by_cursor(
+    client: TestClient, camera: dict[str, Any], admin: dict[str, str]
+) -> None:
+    from tests.api.test_air_trends import pages
+
+    sent = []
+    for k, minute in enumerate((0, 10, 10, 20, 30)):
+        r = client.post(
+            "/cameras/cam-1/frames",
+            content=make_jpeg(seed=k, noise=2),
+            headers=cam_headers(camera),
+            params={"captured_at": f"{DAY}T08:{minute:02d}:00Z"},
+        )
+        assert r.status_code == 201, r.text
+        sent.append((r.json()["captured_at"], r.json()["frame_id"]))
+    got = pages(client, "/cameras/cam-1/frames", {"limit": 2}, headers=admin)
+    assert [len(p) for p in got] == [2, 2, 1]
+    assert [(f["captured_at"], f["frame_id"]) for p in got for f in p] == sorted(sent, reverse=True)

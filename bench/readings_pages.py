@@ -1,0 +1,120 @@
+"""Pages of a city's readings (``GET /air/readings``, public): newest first over every camera,
+with and without the index ``ix_frames_captured_at_id``, and deep pages by ``offset`` against
+by ``cursor``, in one run on one database.
+
+Readings are written straight to the tables of a scratch database: ``--cameras`` cameras, one
+reading every ``--every`` seconds each, for ``--days`` days (as ``bench/air_trends.py``).
+
+    python bench/readings_pages.py                       # SQLite, 200 cameras, 30 days, 5 min
+    python bench/readings_pages.py --backend postgresql  # a scratch database on 127.0.0.1:5432
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy import create_engine
+from sqlalchemy.orm import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.services import air  # noqa: E402
+from app.services.registry import FrameKey  # noqa: E402
+from bench.air_trends import PG_ADMIN, database  # noqa: E402
+from tests.api.test_air_trends import store  # noqa: E402
+from tests.conftest import migrate  # noqa: E402
+
+
+def timed(fn: Callable[[], Any], rounds: int) -> list[float]:
+    out = []
+    for _ in range(rounds):
+        t = time.perf_counter()
+        fn()
+        out.append((time.perf_counter() - t) * 1000)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
+    ap.add_argument("--cameras", type=int, default=200)
+    ap.add_argument("--days", type=int, default=30)
+    ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
+    ap.add_argument("--rounds", type=int, default=3)
+    args = ap.parse_args()
+
+    url = database(args.backend)
+    migrate(url)
+    engine = create_engine(url)
+    rng = np.random.default_rng(0)
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    n = args.cameras * (args.days * 86400 // args.every)
+    readings = [
+        (
+            f"sky-{k % args.cameras:04d}",
+            t0 + timedelta(seconds=args.every * (k // args.cameras)),
+            int(rng.integers(1, 11)),
+        )
+        for k in range(n)
+    ]
+    store(engine, readings)
+    end = readings[-1][1]
+
+    def analyze() -> None:
+        if args.backend == "postgresql":
+            with engine.connect() as conn:
+                conn.exec_driver_sql("ANALYZE")
+                conn.commit()
+
+    analyze()
+    print(f"{args.backend}: {n:,} readings of {args.cameras} cameras; ms per page of 100")
+    print("| page | with the index | without |")
+    print("|---|---|---|")
+    with Session(engine) as session:
+
+        def page(**kw: Any) -> Callable[[], Any]:
+            base = {"camera_id": None, "since": None, "until": None, "limit": 100, "offset": 0}
+            return lambda: air.readings(session, **{**base, **kw})
+
+        deep = air.readings(
+            session, camera_id=None, since=None, until=None, limit=1, offset=99_999
+        )[0]
+        cases = {
+            "newest, every camera (the default)": page(),
+            "newest of the last hour": page(since=end - timedelta(hours=1)),
+            "100,000 deep by offset": page(offset=100_000),
+            "100,000 deep by cursor": page(cursor=FrameKey(deep.captured_at, deep.id)),
+            "one camera, newest": page(camera_id="sky-0007"),
+        }
+        results: dict[str, list[list[float]]] = {name: [] for name in cases}
+        for with_index in (True, False):
+            if not with_index:
+                session.commit()
+                with engine.begin() as conn:
+                    conn.exec_driver_sql("DROP INDEX ix_frames_captured_at_id")
+                analyze()
+            for name, fn in cases.items():
+                results[name].append(timed(fn, args.rounds))
+        for name, (yes, no) in results.items():
+            print(
+                f"| {name} | {', '.join(f'{v:.0f}' for v in yes)} |"
+                f" {', '.join(f'{v:.0f}' for v in no)} |"
+            )
+    engine.dispose()
+    if args.backend == "postgresql":
+        import psycopg
+
+        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
+
+
+if __name__ == "__main__":
+    main()
