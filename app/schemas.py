@@ -130,12 +130,24 @@ class PanelCreate(Schema):
     lon: Lon | None = None
 
 
+class PanelUpdate(Schema):
+    """The fields to change: a field left out keeps its value, ``null`` clears it. A panel's id
+    never changes."""
+
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat | None = None
+    lon: Lon | None = None
+
+
 class PanelOut(Out):
     id: str
     name: str | None
     lat: float | None
     lon: float | None
     created_at: datetime
+    retired_at: datetime | None = Field(
+        None, description="When the panel was retired (DELETE); null while in service."
+    )
 
 
 class RobotCreate(Schema):
@@ -305,6 +317,9 @@ class PanelStatus(Out):
     open_task: TaskOut | None
     ineffective: bool = Field(description="The last cleaning did not make the panel clean.")
     dirty_streak: int
+    retired_at: datetime | None = Field(
+        None, description="When the panel was retired; its state is then history."
+    )
     baseline_id: str | None
     trend: TrendOut = Field(description="Of the panel's newest baseline's verdicts.")
     views: list[ViewOut] = Field(

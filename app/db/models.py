@@ -64,6 +64,9 @@ class Panel(TimestampMixin, Base):
     last_judged_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
     """When the latest frame whose verdict drove the state machine was captured: a frame taken
     before it (a camera's backlog uploaded late) is judged but does not drive it."""
+    retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the panel was taken out of service (removed from the farm): its open cleaning task
+    was cancelled, and no camera may be attached to it nor baseline trained for it."""
 
 
 class Baseline(Base):

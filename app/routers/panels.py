@@ -5,7 +5,7 @@ from __future__ import annotations
 from functools import partial
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
@@ -26,6 +26,8 @@ from app.routers.responses import (
     BODY_ERRORS,
     CONFLICT,
     NOT_FOUND,
+    PANEL_IN_USE,
+    PANEL_RETIRED,
     UNPROCESSABLE,
     multipart_body,
     verdict_out,
@@ -37,6 +39,7 @@ from app.schemas import (
     PanelCreate,
     PanelOut,
     PanelStatus,
+    PanelUpdate,
     PanelVerdictSummary,
     TaskOut,
     TrendOut,
@@ -83,9 +86,12 @@ def list_panels(
     _: Admin,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    retired: Annotated[
+        bool, Query(description="Include retired panels (by default only those in service).")
+    ] = False,
 ) -> list[PanelOut]:
     """List panels, ordered by id."""
-    rows = registry.list_panels(session, limit=limit, offset=offset)
+    rows = registry.list_panels(session, limit=limit, offset=offset, retired=retired)
     return [PanelOut.model_validate(p) for p in rows]
 
 
@@ -93,6 +99,34 @@ def list_panels(
 def get_panel(panel_id: PanelId, session: SessionDep, _: Admin) -> PanelOut:
     """One panel."""
     return PanelOut.model_validate(registry.get_panel(session, panel_id))
+
+
+@router.patch(
+    "/panels/{panel_id}",
+    response_model=PanelOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **UNPROCESSABLE},
+)
+def update_panel(panel_id: PanelId, body: PanelUpdate, session: SessionDep, _: Admin) -> PanelOut:
+    """Change a panel's name or location (JSON merge: fields left out keep their value,
+    ``null`` clears one)."""
+    return PanelOut.model_validate(registry.update_panel(session, panel_id, body))
+
+
+@router.delete(
+    "/panels/{panel_id}",
+    status_code=204,
+    response_class=Response,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_IN_USE},
+)
+def retire_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> Response:
+    """Retire a panel removed from the farm. Its open cleaning task is cancelled (outcome
+    ``panel_retired``: no robot is sent to it, and one holding the task can neither complete
+    nor fail it), no camera may be attached to it nor baseline trained for it (409
+    ``panel_retired``), and it leaves the panel list (``?retired=true`` shows it). Its
+    verdicts, baselines and tasks stay readable, and its id stays taken. Refused (409
+    ``panel_in_use``) while cameras in service watch it. Retiring it again changes nothing."""
+    registry.retire_panel(session, panel_id, policy)
+    return Response(status_code=204)
 
 
 def _train_from_files(
@@ -105,7 +139,7 @@ def _train_from_files(
     max_pixels: int,
     policy: Policy,
 ) -> BaselineOut:
-    registry.get_panel(session, panel_id)
+    registry.panel_in_service(session, panel_id)
     camera = training.panel_camera(session, panel_id, camera_id)
     modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
     row = training.train_baseline(
@@ -129,7 +163,7 @@ def _train_from_frames(
     shrinkage: float,
     policy: Policy,
 ) -> BaselineOut:
-    registry.get_panel(session, panel_id)
+    registry.panel_in_service(session, panel_id)
     modes, region = training.modes_of_frames(session, panel_id, frame_ids)
     row = training.train_baseline(
         session,
@@ -239,6 +273,7 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         open_task=TaskOut(**panels.task_view(status.task, now)) if status.task else None,
         ineffective=status.panel.ineffective,
         dirty_streak=status.panel.dirty_streak,
+        retired_at=status.panel.retired_at,
         baseline_id=status.panel.baseline_id,
         trend=trend_out(status.trend),
         views=[

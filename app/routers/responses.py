@@ -40,6 +40,8 @@ NOT_FOUND: Responses = {404: _problem("No such resource")}
 CONFLICT: Responses = {409: _problem("The id is taken")}
 CAMERA_RETIRED: Responses = {409: _problem("The camera is retired")}
 ROBOT_RETIRED: Responses = {409: _problem("The robot is retired")}
+PANEL_RETIRED: Responses = {409: _problem("The panel is retired")}
+PANEL_IN_USE: Responses = {409: _problem("Cameras in service watch the panel")}
 UNPROCESSABLE: Responses = {422: _problem("Invalid input")}
 BODY_ERRORS: Responses = {
     413: _problem("Body over the size limit"),

@@ -100,7 +100,8 @@ def facts(
     )
 
 
-def _close(task: CleaningTask, status: TaskStatus, outcome: str, now: datetime) -> None:
+def close_task(task: CleaningTask, status: TaskStatus, outcome: str, now: datetime) -> None:
+    """Close an open task (closed, cancelled) with its outcome; the panel may get a new one."""
     task.status = status
     task.outcome = outcome
     task.closed_at = now
@@ -138,11 +139,11 @@ def apply_verdict(
     elif task is not None and t.action is not TaskAction.none:
         if t.action is TaskAction.cancel:
             # a stale claim (expired lease) is cancelled too: the panel is clean
-            _close(task, TaskStatus.cancelled, "not_needed", now)
+            close_task(task, TaskStatus.cancelled, "not_needed", now)
         elif t.action is TaskAction.close_effective:
-            _close(task, TaskStatus.closed, "effective", now)
+            close_task(task, TaskStatus.closed, "effective", now)
         else:
-            _close(task, TaskStatus.closed, "ineffective", now)
+            close_task(task, TaskStatus.closed, "ineffective", now)
         task = None
     return task
 
@@ -215,6 +216,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         return verdict
     now = frame.received_at
     panel = lock_panel(session, camera.panel_id)
+    if panel.retired_at is not None:  # a process's cached camera, moved off it since
+        verdict.reason = f"panel {panel.id!r} is retired"
+        return verdict
     task = open_task(session, panel.id, lock=True)
     # the baseline of this camera's view (region); a view without one, like a panel without
     # any, is judged by the fleet model when there is one

@@ -11,11 +11,11 @@ from sqlalchemy import ColumnElement, ScalarSelect, event, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
-from app.db.models import Camera, CameraKind, Frame, Panel, Robot
+from app.db.models import Camera, CameraKind, Frame, Panel, Robot, TaskStatus
 from app.errors import Conflict, NotFound, Unprocessable
-from app.schemas import CameraCreate, CameraUpdate, PanelCreate, RobotCreate
+from app.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
 from app.security import hash_token, new_token
-from app.services import cleaning
+from app.services import cleaning, panels
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.ingest import scale_polygon, scale_roi
 from app.services.policy import Policy
@@ -44,8 +44,11 @@ def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> No
         return
     if kind != CameraKind.panel:
         raise Unprocessable(f"panel_id is only for panel cameras, not {kind.value}")
-    if session.get(Panel, panel_id) is None:
+    # locked: a panel being retired meanwhile either sees this camera or refuses it
+    panel = session.scalars(select(Panel).where(Panel.id == panel_id).with_for_update()).first()
+    if panel is None:
         raise Unprocessable(f"panel {panel_id!r} does not exist; create it first")
+    check_panel_in_service(panel)
 
 
 def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
@@ -62,6 +65,15 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     if camera is None:
         raise NotFound(f"no camera {camera_id!r}")
     return camera
+
+
+def check_panel_in_service(panel: Panel) -> None:
+    """Refuse (409) to attach a camera to, or train a baseline for, a retired panel."""
+    if panel.retired_at is not None:
+        raise Conflict(
+            f"panel {panel.id!r} was retired at {panel.retired_at.isoformat()}",
+            code="panel_retired",
+        )
 
 
 def check_in_service(row: Camera | Robot) -> None:
@@ -229,8 +241,60 @@ def get_panel(session: Session, panel_id: str) -> Panel:
     return panel
 
 
-def list_panels(session: Session, *, limit: int, offset: int) -> Sequence[Panel]:
-    return session.scalars(select(Panel).order_by(Panel.id).limit(limit).offset(offset)).all()
+def panel_in_service(session: Session, panel_id: str) -> Panel:
+    """The panel (404 when there is none), refused (409) when retired."""
+    panel = get_panel(session, panel_id)
+    check_panel_in_service(panel)
+    return panel
+
+
+def list_panels(
+    session: Session, *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Panel]:
+    """Panels in service, by id; with ``retired``, the retired ones too."""
+    q = select(Panel)
+    if not retired:
+        q = q.where(Panel.retired_at.is_(None))
+    return session.scalars(q.order_by(Panel.id).limit(limit).offset(offset)).all()
+
+
+def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
+    """Change the fields ``data`` carries (``null`` clears one)."""
+    panel = get_panel(session, panel_id)
+    check_panel_in_service(panel)
+    for field, value in data.model_dump(include=data.model_fields_set).items():
+        setattr(panel, field, value)
+    session.flush()
+    return panel
+
+
+def retire_panel(session: Session, panel_id: str, policy: Policy) -> None:
+    """Take a panel out of service (removed from the farm): its open cleaning task is cancelled
+    (a robot holding it can neither complete nor fail it), and it leaves the default panel
+    list. Its history stays and its id stays taken. Refused (409 ``panel_in_use``) while
+    cameras in service watch it: move them (PATCH ``panel_id``) or retire them first, or their
+    frames would go on judging a panel nobody cleans. Retiring it again changes nothing."""
+    panel = panels.lock_panel(session, panel_id)
+    if panel.retired_at is not None:
+        return
+    watching = session.scalars(
+        select(Camera.id)
+        .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+    ).all()
+    if watching:
+        raise Conflict(
+            f"cameras in service watch panel {panel_id!r}: {', '.join(watching[:20])}"
+            f"{' …' if len(watching) > 20 else ''}; move them to another panel (PATCH "
+            "/cameras/{id} with panel_id) or retire them first",
+            code="panel_in_use",
+        )
+    now = policy.now()
+    task = panels.open_task(session, panel_id, lock=True)
+    if task is not None:
+        panels.close_task(task, TaskStatus.cancelled, "panel_retired", now)
+    panel.retired_at = now
+    session.flush()
 
 
 def create_robot(session: Session, data: RobotCreate) -> tuple[Robot, str]:

@@ -12,6 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 from scipy import stats
 
+from tests.conftest import table_counts
+
 CLEAN_RGB = np.array([56.0, 60.0, 84.0])  # the dissertation's clean panel modes (Figure 5.3a)
 DUST = np.array([24.0, 22.0, 21.0])  # its dusty panel is ~ (79, 82, 105)
 
@@ -636,6 +638,103 @@ class TestRobotLoop:
             ).status_code
             == 404
         )
+
+
+class TestPanelChanges:
+    def test_a_retired_panel_sends_no_robot_and_takes_no_camera(
+        self, client: TestClient, admin: dict[str, str], farm: Any, engine: Any
+    ) -> None:
+        """A panel removed from the farm with a cleaning task open. Before, panels could not be
+        retired: its task stayed pending, and robots went on being sent to it."""
+        r1 = bearer(farm["robots"]["r1"])
+        dirty_with_a_task(client, admin, farm)
+        task_id = client.post("/cleaning/claim", headers=r1).json()["task_id"]
+
+        before = table_counts(engine)
+        r = client.delete("/panels/p1", headers=admin)  # camera c1 still watches it
+        assert r.status_code == 409, r.text
+        assert r.json()["code"] == "panel_in_use"
+        assert "c1" in r.json()["detail"]
+        assert table_counts(engine) == before
+        assert status(client, admin)["state"] == "cleaning"
+
+        assert client.post("/panels", json={"id": "p2"}, headers=admin).status_code == 201
+        moved = client.patch("/cameras/c1", json={"panel_id": "p2"}, headers=admin)
+        assert moved.status_code == 200, moved.text
+        assert client.delete("/panels/p1", headers=admin).status_code == 204
+
+        task = client.get(f"/cleaning/tasks/{task_id}", headers=admin).json()
+        assert (task["status"], task["outcome"]) == ("cancelled", "panel_retired")
+        assert client.post(f"/cleaning/tasks/{task_id}/complete", headers=r1).status_code == 409
+        assert client.post("/cleaning/claim", headers=r1).status_code == 204
+        trigger = client.get("/panels/p1/trigger", headers=r1).json()
+        assert trigger == {"panel_id": "p1", "clean_now": False, "task_id": None}
+        shown = status(client, admin)
+        assert shown["retired_at"] is not None
+        assert shown["open_task"] is None
+
+        assert [p["id"] for p in client.get("/panels", headers=admin).json()] == ["p2"]
+        every = client.get("/panels", params={"retired": True}, headers=admin).json()
+        assert [(p["id"], p["retired_at"] is None) for p in every] == [("p1", False), ("p2", True)]
+
+        before = table_counts(engine)
+        for r in (
+            client.post("/panels", json={"id": "p1"}, headers=admin),
+            client.post(
+                "/cameras", json={"id": "c9", "kind": "panel", "panel_id": "p1"}, headers=admin
+            ),
+            client.patch("/cameras/c1", json={"panel_id": "p1"}, headers=admin),
+            train(client, admin, clean_set(6)),
+            client.patch("/panels/p1", json={"name": "gone"}, headers=admin),
+        ):
+            assert r.status_code == 409, r.text
+            assert r.json()["code"] == "panel_retired"
+        assert table_counts(engine) == before
+        again = client.get("/panels", params={"retired": True}, headers=admin).json()[0]
+        assert client.delete("/panels/p1", headers=admin).status_code == 204
+        assert client.get("/panels", params={"retired": True}, headers=admin).json()[0] == again
+
+    def test_a_frame_judged_from_a_stale_camera_view_does_not_revive_it(
+        self, client: TestClient, admin: dict[str, str], farm: Any, engine: Any
+    ) -> None:
+        """Another process may take camera c1 to watch p1 for up to its cache's 10 s after c1
+        was moved: its frames then find p1 retired, and open no task for it."""
+        from sqlalchemy import text
+
+        dirty_with_a_task(client, admin, farm)  # c1 is in this process's cache now
+        assert client.post("/panels", json={"id": "p2"}, headers=admin).status_code == 201
+        with engine.begin() as conn:  # moved by another process: this one's cache is stale
+            conn.execute(text("UPDATE cameras SET panel_id = 'p2' WHERE id = 'c1'"))
+        assert client.delete("/panels/p1", headers=admin).status_code == 204
+        for _ in range(3):
+            v = post_frame(client, farm, CLEAN_RGB + DUST)
+            assert v["panel_id"] == "p1"
+            assert v["clean"] is None
+            assert "retired" in v["reason"]
+        tasks = client.get(
+            "/cleaning/tasks", params={"panel_id": "p1", "status": "open"}, headers=admin
+        ).json()
+        assert tasks == []
+
+    def test_a_panel_is_renamed_and_moved(self, client: TestClient, admin: dict[str, str]) -> None:
+        body = {"id": "p", "name": "row 3", "lat": 45.0, "lon": 9.0}
+        assert client.post("/panels", json=body, headers=admin).status_code == 201
+        r = client.patch("/panels/p", json={"name": "row 4", "lat": None}, headers=admin)
+        assert r.status_code == 200, r.text
+        assert {k: r.json()[k] for k in body} == {
+            "id": "p",
+            "name": "row 4",
+            "lat": None,
+            "lon": 9.0,
+        }
+        assert client.get("/panels/p", headers=admin).json()["name"] == "row 4"
+        for bad in ('{"lat": 91}', '{"lon": NaN}', '{"id": "q"}', '{"colour": "blue"}'):
+            r = client.patch(
+                "/panels/p", content=bad, headers={**admin, "Content-Type": "application/json"}
+            )
+            assert r.status_code == 422, bad
+        assert client.patch("/panels/nope", json={}, headers=admin).status_code == 404
+        assert client.delete("/panels/nope", headers=admin).status_code == 404
 
 
 class TestRobotChanges:
