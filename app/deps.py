@@ -252,18 +252,45 @@ Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 T = TypeVar("T")
 
 
+async def _limited(
+    request: Request, name: str, capacity: int, fn: Callable[..., T], *args: Any, **kwargs: Any
+) -> T:
+    """``fn`` in a worker thread, at most ``capacity`` at once in this process under the
+    limiter ``name``; the others wait their turn (holding no thread)."""
+    state = request.app.state
+    limiter: anyio.CapacityLimiter | None = getattr(state, name, None)
+    if limiter is None:  # made on first use, inside the event loop
+        limiter = anyio.CapacityLimiter(capacity)
+        setattr(state, name, limiter)
+    return await anyio.to_thread.run_sync(partial(fn, *args, **kwargs), limiter=limiter)
+
+
 async def image_work(request: Request, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
     """``fn`` in a worker thread, at most ``image_threads`` at once in this process; the others
     wait their turn. The work is CPU-bound, so more at once only shares the cores, and each
     holds its images' pixels (an outline of a 36 MP photo peaked at ~460 MB): without a bound,
     FastAPI's 40 threads could hold 40 of them."""
+    capacity = request.app.state.settings.effective_image_threads
+    return await _limited(request, "image_limiter", capacity, fn, *args, **kwargs)
+
+
+async def public_work(request: Request, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    """``fn(session, *args, **kwargs)`` in a worker thread with a read-only session of its
+    own, at most ``public_work_threads`` (1) at once in this process: the public maps and
+    aggregates, which anyone may ask for with any parameters (a cache does not help there),
+    each costing up to seconds of CPU and database. The session is not the request's: on
+    SQLite that one takes the write lock (see ``make_read_engine``). With 8 dashboards asking
+    for a week's daily means, uploads kept 0.79–0.84 of their rate one at a time, 0.47 with
+    40 at once (bench/public_load.py)."""
     state = request.app.state
-    limiter: anyio.CapacityLimiter | None = getattr(state, "image_limiter", None)
-    if limiter is None:  # made on first use, inside the event loop
-        limiter = state.image_limiter = anyio.CapacityLimiter(
-            state.settings.effective_image_threads
-        )
-    return await anyio.to_thread.run_sync(partial(fn, *args, **kwargs), limiter=limiter)
+    capacity = state.settings.public_work_threads
+    return await _limited(request, "public_limiter", capacity, _read, state, fn, args, kwargs)
+
+
+def _read(state: Any, fn: Callable[..., T], args: Any, kwargs: Any) -> T:
+    sessions: sessionmaker[Session] = state.read_sessionmaker
+    with sessions() as session:
+        return fn(session, *args, **kwargs)
 
 
 def _info(session: Session, camera: Camera) -> CameraInfo:

@@ -16,7 +16,7 @@ from fastapi import FastAPI
 from app import __version__
 from app.core import triangulation
 from app.cors import PublicReadCors
-from app.db.session import make_engine, make_sessionmaker
+from app.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.observability import RequestIdMiddleware, configure_logging
 from app.routers import (
@@ -108,6 +108,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.writer.stop()
         app.state.frame_store.close()
         engine.dispose()
+        if read_engine is not None:
+            read_engine.dispose()
 
     app = FastAPI(
         title="Vantage",
@@ -120,6 +122,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
+    read_engine = make_read_engine(settings.effective_database_url, settings.public_work_threads)
+    app.state.read_sessionmaker = make_sessionmaker(read_engine or engine)
     # frame uploads decode in the writer's own threads, apart from the shared pool: with the
     # disk store about as many as there are cores, because more decoding threads than cores
     # only contend for the cores and the GIL (bench/README.md)

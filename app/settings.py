@@ -97,6 +97,14 @@ class Settings(BaseSettings):
         "uploads) worked on at once per process; the others wait their turn. Each holds its "
         "images' pixels, so this bounds memory too. 0: the CPUs the process may use.",
     )
+    public_work_threads: int = Field(
+        default=1,
+        ge=1,
+        description="Public computations (isopleth maps, hourly and daily aggregates of the "
+        "readings) worked on at once per process; the others wait their turn. Anyone may ask "
+        "for them and each can take seconds of CPU and database: they may not crowd out the "
+        "cameras' uploads.",
+    )
     warm_up_triangulation: bool = Field(
         default=False,
         description="Compile the calibrated-rig triangulation loop (numba) at start, before "

@@ -51,5 +51,35 @@ def _engine(url: str) -> Engine:
     return create_engine(url, pool_size=10, max_overflow=20, pool_pre_ping=True)
 
 
+def make_read_engine(url: str, connections: int) -> Engine | None:
+    """On SQLite, an engine for long public reads (a month of readings summed, a city's map):
+    connections of their own that begin deferred transactions and may not write. The main
+    engine's one connection begins every transaction ``IMMEDIATE``, taking the write lock: a
+    read of seconds there held every upload's commit back for as long (in WAL mode a reader
+    blocks no writer). None elsewhere: PostgreSQL readers block no writer either."""
+    if not url.startswith("sqlite"):
+        return None
+    engine = create_engine(
+        url,
+        connect_args={"timeout": 30, "check_same_thread": False},
+        pool_size=connections,
+        max_overflow=0,
+        pool_timeout=60,
+    )
+
+    @event.listens_for(engine, "connect")
+    def _read_only(dbapi_conn: Any, _record: Any) -> None:
+        dbapi_conn.isolation_level = None
+        cur = dbapi_conn.cursor()
+        cur.execute("PRAGMA query_only=ON")
+        cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _begin_deferred(conn: Any) -> None:
+        conn.exec_driver_sql("BEGIN")  # a snapshot of the database; no lock on the writers
+
+    return engine
+
+
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
     return sessionmaker(engine, expire_on_commit=False)

@@ -32,6 +32,7 @@ from app.deps import (
     TimeRangeQuery,
     image_work,
     link_next,
+    public_work,
 )
 from app.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
@@ -317,7 +318,7 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
     response_model=list[AirReading] | list[AirAggregate],
     responses={**NOT_FOUND, **UNPROCESSABLE},
 )
-def readings(
+async def readings(
     request: Request,
     response: Response,
     session: SessionDep,
@@ -350,17 +351,22 @@ def readings(
     shift nothing (with ``offset`` they push rows onto the next page again)."""
     since, until = span.since, span.until
     zone = _zone(tz)
-    if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
-        air.sky_camera(session, camera_id)
+    if cursor is not None and aggregate != "none":
+        raise Unprocessable("cursor pages readings, not aggregates: use offset")
     if aggregate == "none":
-        rows = air.readings(
-            session,
-            camera_id=camera_id,
-            since=since,
-            until=until,
-            limit=limit,
-            offset=offset,
-            cursor=cursor,
+        if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
+            await run_in_threadpool(air.sky_camera, session, camera_id)
+        rows = await run_in_threadpool(
+            partial(
+                air.readings,
+                session,
+                camera_id=camera_id,
+                since=since,
+                until=until,
+                limit=limit,
+                offset=offset,
+                cursor=cursor,
+            )
         )
         link_next(request, response, rows, limit)
         return [
@@ -375,10 +381,16 @@ def readings(
             )
             for r in rows
         ]
-    if cursor is not None:
-        raise Unprocessable("cursor pages readings, not aggregates: use offset")
-    buckets = air.aggregate(
-        session, camera_id=camera_id, since=since, until=until, bucket=aggregate, tz=zone
+    if camera_id is not None:  # not in the request's session: on SQLite it would hold the
+        await public_work(request, air.sky_camera, camera_id)  # write lock meanwhile
+    buckets = await public_work(  # every reading of the range: seconds for a city's month
+        request,
+        air.aggregate,
+        camera_id=camera_id,
+        since=since,
+        until=until,
+        bucket=aggregate,
+        tz=zone,
     )
     return [AirAggregate(**b) for b in buckets[offset : offset + limit]]
 
@@ -504,13 +516,20 @@ def _field(
     return st, f, box, now
 
 
-def _cached_map(
-    request: Request, key: tuple[object, ...], compute: Callable[[], bytes], media_type: str
+async def _cached_map(
+    request: Request,
+    key: tuple[object, ...],
+    compute: Callable[[Session], bytes],
+    media_type: str,
 ) -> Response:
-    """The map for ``key``, computed at most once per ``VANTAGE_ISOPLETH_CACHE_SECONDS``;
-    304 when the client's ``If-None-Match`` names it."""
+    """The map for ``key``, computed at most once per ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (as
+    ``public_work``, one at a time; a kept map waits for none); 304 when the client's
+    ``If-None-Match`` names it."""
     cache: MapCache = request.app.state.isopleth_cache
-    body, etag = cache.get(key, compute)
+    hit = cache.kept(key)
+    if hit is None:
+        hit = await public_work(request, lambda session: cache.get(key, partial(compute, session)))
+    body, etag = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={int(cache.ttl)}"}
     if not_modified(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
@@ -528,20 +547,18 @@ MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
     response_class=Response,
     responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
 )
-def isopleths_geojson(
-    request: Request, session: SessionDep, policy: PolicyDep, q: MapQueryDep
-) -> Response:
+async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
     """City-wide category bands (RFC 7946 GeoJSON), one feature per category present.
 
     Kept for ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (30): ``computed_at`` says when it was made,
     and its ETag answers ``If-None-Match`` with 304."""
 
-    def compute() -> bytes:
+    def compute(session: Session) -> bytes:
         st, f, box, now = _field(session, policy, q)
         body = _geojson(st, f, box, now, q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
-    return _cached_map(request, ("geojson", q), compute, "application/geo+json")
+    return await _cached_map(request, ("geojson", q), compute, "application/geo+json")
 
 
 def _geojson(
@@ -604,14 +621,12 @@ def _geojson(
     response_class=Response,
     responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
 )
-def isopleths_png(
-    request: Request, session: SessionDep, policy: PolicyDep, q: MapQueryDep
-) -> Response:
+async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
     """The bands drawn, with the camera positions and a legend (kept as the GeoJSON is)."""
     from app.services.airmap import render
 
-    def compute() -> bytes:
+    def compute(session: Session) -> bytes:
         st, f, box, _ = _field(session, policy, q)
         return render(f, st, box)
 
-    return _cached_map(request, ("png", q), compute, "image/png")
+    return await _cached_map(request, ("png", q), compute, "image/png")

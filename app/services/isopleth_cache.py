@@ -40,14 +40,22 @@ class MapCache:
         self._bytes = 0
         self._lock = threading.Lock()
 
-    def get(self, key: Hashable, compute: Callable[[], bytes]) -> tuple[bytes, str]:
-        """The body for ``key`` and its ETag: kept, or computed now (and kept for ``ttl``)."""
+    def kept(self, key: Hashable) -> tuple[bytes, str] | None:
+        """The body for ``key`` and its ETag while kept; None when it must be computed."""
         now = self.clock()
         with self._lock:
             item = self._items.get(key)
             if item is not None and now - item[0] < self.ttl:
                 self._items.move_to_end(key)
                 return item[1], item[2]
+        return None
+
+    def get(self, key: Hashable, compute: Callable[[], bytes]) -> tuple[bytes, str]:
+        """The body for ``key`` and its ETag: kept, or computed now (and kept for ``ttl``)."""
+        hit = self.kept(key)
+        if hit is not None:
+            return hit
+        now = self.clock()
         body = compute()  # outside the lock: two first requests may both compute it
         etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
         if self.ttl > 0 and len(body) <= self.max_bytes:
