@@ -54,8 +54,9 @@ class Base(DeclarativeBase):
 
 
 class time_slot(FunctionElement[int]):  # noqa: N801  (a SQL function's name)
-    """The index of the ``seconds``-long slot of the Unix epoch a UTC time falls in:
-    floor(epoch / seconds), computed by the database (SQLite and PostgreSQL)."""
+    """The index of the ``seconds``-long slot a UTC time falls in, its clock shifted by
+    ``offset`` seconds (a time zone's UTC offset: its local hours and days):
+    floor((epoch + offset) / seconds), computed by the database (SQLite and PostgreSQL)."""
 
     type = BigInteger()
     inherit_cache = True
@@ -63,18 +64,18 @@ class time_slot(FunctionElement[int]):  # noqa: N801  (a SQL function's name)
 
 @compiles(time_slot, "sqlite")
 def _time_slot_sqlite(element: time_slot, compiler: Any, **kw: Any) -> str:
-    column, seconds = list(element.clauses)
+    column, seconds, offset = list(element.clauses)
     # stored as naive UTC text: strftime('%s') reads it as UTC; integer division floors (≥ 1970)
     return (
-        f"(CAST(strftime('%s', {compiler.process(column, **kw)}) AS INTEGER)"
-        f" / {compiler.process(seconds, **kw)})"
+        f"((CAST(strftime('%s', {compiler.process(column, **kw)}) AS INTEGER)"
+        f" + {compiler.process(offset, **kw)}) / {compiler.process(seconds, **kw)})"
     )
 
 
 @compiles(time_slot)
 def _time_slot_default(element: time_slot, compiler: Any, **kw: Any) -> str:
-    column, seconds = list(element.clauses)
+    column, seconds, offset = list(element.clauses)
     return (
-        f"CAST(floor(extract(epoch from {compiler.process(column, **kw)})"
-        f" / {compiler.process(seconds, **kw)}) AS BIGINT)"
+        f"CAST(floor((extract(epoch from {compiler.process(column, **kw)})"
+        f" + {compiler.process(offset, **kw)}) / {compiler.process(seconds, **kw)}) AS BIGINT)"
     )

@@ -181,11 +181,41 @@ def test_offsets_are_fixed_in_the_answer() -> None:
     """A bucket's start carries the offset it had then (checked on the helper's output)."""
     from app.services.air import _bucket
 
-    local = datetime(2026, 10, 25, 2, 30, tzinfo=ZoneInfo("Europe/Rome"), fold=1)
-    start, end = _bucket(local, "hourly", ZoneInfo("Europe/Rome"))
+    rome = ZoneInfo("Europe/Rome")
+    start, end = _bucket(datetime(2026, 10, 25, 2, 0), timedelta(hours=1), "hourly", rome)
     assert start.utcoffset() == timedelta(hours=1)
     assert start.tzinfo == timezone(timedelta(hours=1))
     assert end - start == timedelta(hours=1)
+    start, end = _bucket(datetime(2026, 10, 25), timedelta(hours=2), "daily", rome)
+    assert (start.utcoffset(), end.utcoffset()) == (timedelta(hours=2), timedelta(hours=1))
+    assert end - start == timedelta(hours=25)
+
+
+def test_the_range_is_cut_where_the_clocks_change() -> None:
+    """Rome puts its clocks back at 01:00 UTC on 25 October 2026 and forward at 01:00 UTC on
+    28 March 2027 (the EU's rule): the pieces change offset there, to the second."""
+    from app.services.air import _offset_spans
+
+    spans = _offset_spans(
+        ZoneInfo("Europe/Rome"),
+        datetime(2026, 10, 20, 7, 13, 5, 123456, tzinfo=UTC),
+        datetime(2027, 4, 2, tzinfo=UTC),
+    )
+    assert spans == [
+        (None, datetime(2026, 10, 25, 1, tzinfo=UTC), timedelta(hours=2)),
+        (
+            datetime(2026, 10, 25, 1, tzinfo=UTC),
+            datetime(2027, 3, 28, 1, tzinfo=UTC),
+            timedelta(hours=1),
+        ),
+        (datetime(2027, 3, 28, 1, tzinfo=UTC), None, timedelta(hours=2)),
+    ]
+    kolkata = _offset_spans(
+        ZoneInfo("Asia/Kolkata"),
+        datetime(2026, 1, 1, tzinfo=UTC),
+        datetime(2026, 12, 31, tzinfo=UTC),
+    )
+    assert kolkata == [(None, None, timedelta(hours=5, minutes=30))]
 
 
 def pages(
