@@ -45,6 +45,22 @@ def database(backend: str) -> str:
     return PG_BENCH
 
 
+def city_readings(cameras: int, days: int, every: int) -> list[tuple[str, datetime, int]]:
+    """A city's readings: ``cameras`` cameras ``sky-0000``…, one every ``every`` seconds each
+    for ``days`` days from 1 May 2026, levels drawn uniformly from 1–10 (seeded)."""
+    rng = np.random.default_rng(0)
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    n = cameras * (days * 86400 // every)
+    return [
+        (
+            f"sky-{k % cameras:04d}",
+            t0 + timedelta(seconds=every * (k // cameras)),
+            int(rng.integers(1, 11)),
+        )
+        for k in range(n)
+    ]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
@@ -57,18 +73,8 @@ def main() -> None:
     url = database(args.backend)
     migrate(url)
     engine = create_engine(url)
-    rng = np.random.default_rng(0)
-    t0 = datetime(2026, 5, 1, tzinfo=UTC)
-    per_camera = args.days * 86400 // args.every
-    n = args.cameras * per_camera
-    readings = [
-        (
-            f"sky-{k % args.cameras:04d}",
-            t0 + timedelta(seconds=args.every * (k // args.cameras)),
-            int(rng.integers(1, 11)),
-        )
-        for k in range(n)
-    ]
+    readings = city_readings(args.cameras, args.days, args.every)
+    n = len(readings)
     t = time.perf_counter()
     store(engine, readings)
     print(f"{args.backend}: {n} readings stored in {time.perf_counter() - t:.0f} s")

@@ -159,6 +159,15 @@ class Server:
         r = conn.getresponse()
         return r.status, r.read()
 
+    def rig_camera(self, camera_id: str) -> dict[str, str]:
+        """Register a rig camera (its verdict adds no classifier); its upload headers."""
+        admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
+        body = json.dumps({"id": camera_id, "kind": "rig"}).encode()
+        status, answer = self.request("POST", "/cameras", body, admin)
+        assert status == 201, answer
+        token = json.loads(answer)["token"]
+        return {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+
     def pids(self) -> list[int]:
         """The server process and, with several workers, its worker processes."""
         pid = self.proc.pid
@@ -238,13 +247,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
         server = Server(backend, port, Path(tmp), args.workers, env=pool_env(args))
         try:
-            admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
-            status, body = server.request(
-                "POST", "/cameras", json.dumps({"id": "bench", "kind": "rig"}).encode(), admin
-            )
-            assert status == 201, body
-            token = json.loads(body)["token"]
-            cam = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+            cam = server.rig_camera("bench")
             # warm-up
             drive(port, "/bare", cam, jpeg, 0, 200, args.clients)
             drive(port, "/cameras/bench/frames", cam, jpeg, 10**9, 200, args.clients)

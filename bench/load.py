@@ -24,7 +24,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.ingest import (  # noqa: E402
-    ADMIN,
     ROOT,
     Server,
     add_pool_arguments,
@@ -117,16 +116,8 @@ def main() -> None:
             env=pool_env(args),
         )
         try:
-            admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
-            paths, headers = [], []
-            for k in range(args.cameras):
-                status, body = server.request(
-                    "POST", "/cameras", json.dumps({"id": f"cam{k}", "kind": "rig"}).encode(), admin
-                )
-                assert status == 201, body
-                token = json.loads(body)["token"]
-                paths.append(f"/cameras/cam{k}/frames")
-                headers.append({"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"})
+            paths = [f"/cameras/cam{k}/frames" for k in range(args.cameras)]
+            headers = [server.rig_camera(f"cam{k}") for k in range(args.cameras)]
             bare = phase(args.port, ["/bare"] * args.cameras, headers, jpeg, args.seconds)
             ingest = phase(args.port, paths, headers, jpeg, args.seconds)
             out = {

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import http.client
-import json
 import statistics
 import sys
 import tempfile
@@ -25,13 +24,13 @@ import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-import numpy as np
 from sqlalchemy import create_engine
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.ingest import ADMIN, PG_BENCH_URL, Server, drive, jpeg_640x480, pct  # noqa: E402
+from bench.air_trends import city_readings  # noqa: E402
+from bench.ingest import PG_BENCH_URL, Server, drive, jpeg_640x480, pct  # noqa: E402
 from tests.api.test_air_trends import store  # noqa: E402
 
 
@@ -82,13 +81,7 @@ def run(threads: int, args: argparse.Namespace, port: int, t0: datetime, reading
                     conn.exec_driver_sql("ANALYZE")
                     conn.commit()
             engine.dispose()
-            admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
-            status, body = server.request(
-                "POST", "/cameras", json.dumps({"id": "bench", "kind": "rig"}).encode(), admin
-            )
-            assert status == 201, body
-            token = json.loads(body)["token"]
-            cam = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+            cam = server.rig_camera("bench")
             path = "/cameras/bench/frames"
             drive(port, path, cam, jpeg, 10**9, 200, 16)  # warm-up
             out: dict[str, list[float]] = {}
@@ -133,15 +126,8 @@ def main() -> None:
     )
     ap.add_argument("--data-root", type=Path, default=ROOT / "data")
     args = ap.parse_args()
-    rng = np.random.default_rng(0)
     t0 = datetime(2026, 5, 1, tzinfo=UTC)
-    per_camera = args.days * 288
-    readings = [
-        (f"sky-{k % args.cameras:04d}", t0 + timedelta(minutes=5 * (k // args.cameras)), 5)
-        for k in range(args.cameras * per_camera)
-    ]
-    for k in range(len(readings)):
-        readings[k] = (*readings[k][:2], int(rng.integers(1, 11)))
+    readings = city_readings(args.cameras, args.days, 300)
     print(f"{len(readings):,} readings of {args.cameras} cameras; {args.dashboards} dashboards")
     print(
         "| public work threads | round | uploads alone [frames/s] | uploads beside the"

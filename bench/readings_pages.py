@@ -15,11 +15,10 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from datetime import UTC, datetime, timedelta
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from sqlalchemy import create_engine
 from sqlalchemy.orm import Session
 
@@ -28,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.services import air  # noqa: E402
 from app.services.registry import FrameKey  # noqa: E402
-from bench.air_trends import PG_ADMIN, database  # noqa: E402
+from bench.air_trends import PG_ADMIN, city_readings, database  # noqa: E402
 from tests.api.test_air_trends import store  # noqa: E402
 from tests.conftest import migrate  # noqa: E402
 
@@ -54,17 +53,8 @@ def main() -> None:
     url = database(args.backend)
     migrate(url)
     engine = create_engine(url)
-    rng = np.random.default_rng(0)
-    t0 = datetime(2026, 5, 1, tzinfo=UTC)
-    n = args.cameras * (args.days * 86400 // args.every)
-    readings = [
-        (
-            f"sky-{k % args.cameras:04d}",
-            t0 + timedelta(seconds=args.every * (k // args.cameras)),
-            int(rng.integers(1, 11)),
-        )
-        for k in range(n)
-    ]
+    readings = city_readings(args.cameras, args.days, args.every)
+    n = len(readings)
     store(engine, readings)
     end = readings[-1][1]
 
@@ -84,14 +74,15 @@ def main() -> None:
             base = {"camera_id": None, "since": None, "until": None, "limit": 100, "offset": 0}
             return lambda: air.readings(session, **{**base, **kw})
 
+        depth = min(100_000, n // 2)
         deep = air.readings(
-            session, camera_id=None, since=None, until=None, limit=1, offset=99_999
+            session, camera_id=None, since=None, until=None, limit=1, offset=depth - 1
         )[0]
         cases = {
             "newest, every camera (the default)": page(),
             "newest of the last hour": page(since=end - timedelta(hours=1)),
-            "100,000 deep by offset": page(offset=100_000),
-            "100,000 deep by cursor": page(cursor=FrameKey(deep.captured_at, deep.id)),
+            f"{depth:,} deep by offset": page(offset=depth),
+            f"{depth:,} deep by cursor": page(cursor=FrameKey(deep.captured_at, deep.id)),
             "one camera, newest": page(camera_id="sky-0007"),
         }
         results: dict[str, list[list[float]]] = {name: [] for name in cases}

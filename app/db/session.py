@@ -35,7 +35,7 @@ def _engine(url: str) -> Engine:
             # let SQLAlchemy, not the driver, open transactions (see _begin_immediate)
             dbapi_conn.isolation_level = None
             cur = dbapi_conn.cursor()
-            cur.execute("PRAGMA journal_mode=WAL")
+            _wal(cur)
             cur.execute("PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.close()
@@ -71,6 +71,7 @@ def make_read_engine(url: str, connections: int) -> Engine | None:
     def _read_only(dbapi_conn: Any, _record: Any) -> None:
         dbapi_conn.isolation_level = None
         cur = dbapi_conn.cursor()
+        _wal(cur)  # when this is the first connection to the file: WAL lets readers be
         cur.execute("PRAGMA query_only=ON")
         cur.close()
 
@@ -79,6 +80,14 @@ def make_read_engine(url: str, connections: int) -> Engine | None:
         conn.exec_driver_sql("BEGIN")  # a snapshot of the database; no lock on the writers
 
     return engine
+
+
+def _wal(cur: Any) -> None:
+    """WAL mode, kept by the database file once set. Set only when not yet: setting it again
+    waits for every other connection's open transaction to end (a public read of seconds on
+    the read engine, see ``make_read_engine``)."""
+    if cur.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
+        cur.execute("PRAGMA journal_mode=WAL")
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:

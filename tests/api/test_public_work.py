@@ -1,11 +1,13 @@
 """The public maps and aggregates are worked on one at a time per process
 (``VANTAGE_PUBLIC_WORK_THREADS``): anyone may ask for them, with any parameters, and each may
-take seconds of CPU and database. Cheap public reads do not wait behind them."""
+take seconds of CPU and database. Cheap public reads, and uploads, do not wait behind them.
+
+The heavy calls are held on an event, not slept: what must not wait for them is shown to end
+while they are still held (a timeout only guards against a hang)."""
 
 from __future__ import annotations
 
 import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from typing import Any
@@ -18,12 +20,17 @@ from app.services import air
 from tests.api.test_air_trends import store
 from tests.conftest import make_jpeg
 
+PATIENCE = 30.0
+"""Seconds before a wait counts as a hang."""
 
-class Gauge:
-    """Counts the calls running at once, each held for ``seconds``."""
 
-    def __init__(self, seconds: float) -> None:
-        self.seconds = seconds
+class Gate:
+    """Holds every call of the wrapped function until ``release``; counts how many are held
+    at once and tells when the first has begun."""
+
+    def __init__(self) -> None:
+        self.released = threading.Event()
+        self.entered = threading.Event()
         self.running = 0
         self.most = 0
         self.lock = threading.Lock()
@@ -34,8 +41,10 @@ class Gauge:
                 self.running += 1
                 self.most = max(self.most, self.running)
             try:
-                time.sleep(self.seconds)
-                return fn(*args, **kwargs)
+                out = fn(*args, **kwargs)  # its database transaction, if any, is open now
+                self.entered.set()
+                assert self.released.wait(PATIENCE)
+                return out
             finally:
                 with self.lock:
                     self.running -= 1
@@ -44,11 +53,10 @@ class Gauge:
 
 
 @pytest.mark.parametrize(
-    ("target", "path", "params"),
+    ("path", "params"),
     [
-        (air, "aggregate", [{"aggregate": "daily", "tz": z} for z in ("UTC", "Asia/Kolkata")] * 2),
+        ("aggregate", [{"aggregate": "daily", "tz": z} for z in ("UTC", "Asia/Kolkata")] * 2),
         (  # every map begins with the cameras' readings in its window
-            air,
             "stations",
             [{"resolution": r} for r in (16, 24)] + [{"method": "rbf"}, {"window": 7200}],
         ),
@@ -57,59 +65,48 @@ class Gauge:
 )
 def test_one_at_a_time_and_cheap_reads_do_not_wait(
     client: TestClient,
-    admin: dict[str, str],
     monkeypatch: pytest.MonkeyPatch,
-    target: Any,
     path: str,
     params: list[dict[str, Any]],
 ) -> None:
-    gauge = Gauge(0.3)
-    monkeypatch.setattr(target, path, gauge.wrap(getattr(target, path)))
-    url = "/air/readings" if path == "aggregate" else "/air/isopleths"
     assert client.get("/air/isopleths").headers["cache-control"] == "public, max-age=0"
-    with ThreadPoolExecutor(len(params)) as pool:
+    gate = Gate()
+    monkeypatch.setattr(air, path, gate.wrap(getattr(air, path)))
+    url = "/air/readings" if path == "aggregate" else "/air/isopleths"
+    with ThreadPoolExecutor(len(params) + 1) as pool:
         heavy = [pool.submit(client.get, url, params=p) for p in params]
-        time.sleep(0.1)  # the first holds the work slot now
-        t = time.perf_counter()
-        cheap = client.get("/air/readings", params={"limit": 10})
-        waited = time.perf_counter() - t
-        answers = [f.result() for f in heavy]
+        assert gate.entered.wait(PATIENCE)
+        cheap = pool.submit(client.get, "/air/readings", params={"limit": 10})
+        assert cheap.result(timeout=PATIENCE).status_code == 200  # while the others are held
+        assert gate.most == 1
+        gate.released.set()
+        answers = [f.result(timeout=PATIENCE) for f in heavy]
     assert [r.status_code for r in answers] == [200] * len(params), [r.text for r in answers]
-    assert cheap.status_code == 200
-    assert waited < gauge.seconds  # not behind even one of them
-    assert gauge.most == 1
+    assert gate.most == 1
 
 
 def test_a_long_public_read_holds_back_no_upload(
     client: TestClient, admin: dict[str, str], engine: Engine, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A city's daily means read for a second: a frame posted meanwhile is stored at once.
-    Before, on SQLite, the read ran in the request's session, whose transaction takes the
-    write lock: every upload's commit waited for the read to end."""
+    """A city's daily means are being read: a frame posted meanwhile is stored before the read
+    ends. Before, on SQLite, the read ran in the request's session, whose transaction takes
+    the write lock: every upload's commit waited for the read to end."""
     cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
-    aggregate = air.aggregate
-
-    def slow(session: Any, **kwargs: Any) -> Any:
-        out = aggregate(session, **kwargs)  # its transaction is open now
-        time.sleep(1.0)
-        return out
-
-    monkeypatch.setattr(air, "aggregate", slow)
-
-    store(
-        client.app.state.sessionmaker.kw["bind"], [("sky-1", datetime(2026, 5, 1, tzinfo=UTC), 5)]
-    )
-    with ThreadPoolExecutor(1) as pool:
+    store(engine, [("sky-1", datetime(2026, 5, 1, tzinfo=UTC), 5)])
+    gate = Gate()
+    monkeypatch.setattr(air, "aggregate", gate.wrap(air.aggregate))
+    with ThreadPoolExecutor(2) as pool:
         reading = pool.submit(client.get, "/air/readings", params={"aggregate": "daily"})
-        time.sleep(0.3)  # the read is under way
-        t = time.perf_counter()
-        r = client.post(
+        assert gate.entered.wait(PATIENCE)
+        upload = pool.submit(
+            client.post,
             "/cameras/c/frames",
             content=make_jpeg(seed=1, noise=2),
             headers={"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"},
         )
-        took = time.perf_counter() - t
-        assert reading.result().status_code == 200
-        assert reading.result().json()[0]["n"] == 1
-    assert r.status_code == 201, r.text
-    assert took < 0.5
+        try:
+            stored = upload.result(timeout=PATIENCE)  # while the read is held
+        finally:
+            gate.released.set()
+        assert stored.status_code == 201, stored.text
+        assert reading.result(timeout=PATIENCE).json()[0]["n"] == 1
