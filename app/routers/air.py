@@ -286,30 +286,21 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
         )
     frame, v = found
     age = policy.now() - frame.captured_at
-    if age >= airquality.FRESH:  # a camera gone quiet: its last reading is not today's air
-        hours = age / timedelta(hours=1)
-        return AirLatest(
-            camera_id=camera_id,
-            level=v.level,
-            category=v.category,
-            message=None,
-            captured_at=frame.captured_at,
-            smoothed_level=None,
-            smoothed_category=None,
-            reason=f"no reading in the last 3 hours: the latest was taken {hours:.0f} h ago",
-            current=False,
-        )
-    smoothed = v.smoothed_level
+    current = age < airquality.FRESH  # else a camera gone quiet: not today's air
+    smoothed = v.smoothed_level if current else None
     return AirLatest(
         camera_id=camera_id,
         level=v.level,
         category=v.category,
-        message=airquality.message(v.category) if v.category else None,
+        message=airquality.message(v.category) if current and v.category else None,
         captured_at=frame.captured_at,
         smoothed_level=smoothed,
         smoothed_category=airquality.category(smoothed) if smoothed is not None else None,
-        reason=v.reason,
-        current=True,
+        reason=v.reason
+        if current
+        else f"no reading in the last 3 hours: the latest was taken "
+        f"{age / timedelta(hours=1):.0f} h ago",
+        current=current,
     )
 
 
