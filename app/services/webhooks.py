@@ -43,13 +43,19 @@ DEFAULT_RETRY_FOR = timedelta(hours=24)
 Delivery = Literal["delivered", "pending", "gave_up", "no_webhook"]
 
 
+def retried_since(now: datetime, retry_for: timedelta) -> datetime:
+    """The one rule of how long an alert is tried: those created at or after this time still
+    are (the sweep's query and the listing's ``delivery`` both read it here)."""
+    return now - retry_for
+
+
 def delivery(alert: AirAlert, now: datetime, *, retry_for: timedelta | None) -> Delivery:
     """Where an alert's delivery stands; ``retry_for`` None: no webhook is configured."""
     if alert.delivered:
         return "delivered"
     if retry_for is None:
         return "no_webhook"
-    return "pending" if alert.created_at >= now - retry_for else "gave_up"
+    return "pending" if alert.created_at >= retried_since(now, retry_for) else "gave_up"
 
 
 def backoff(attempts: int) -> timedelta:
@@ -115,7 +121,7 @@ def sweep(
                 select(AirAlert)
                 .where(
                     AirAlert.delivered.is_(False),
-                    AirAlert.created_at >= now - retry_for,
+                    AirAlert.created_at >= retried_since(now, retry_for),
                     or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
                 )
                 .order_by(AirAlert.created_at)
