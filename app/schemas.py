@@ -276,7 +276,9 @@ class TaskOut(Out):
     lease_expires_at: datetime | None
     completed_at: datetime | None
     closed_at: datetime | None
-    outcome: str | None = Field(description="effective, ineffective, not_needed or failed.")
+    outcome: str | None = Field(
+        description="effective, ineffective, not_needed, failed or panel_retired."
+    )
     attempts: int
     fail_reason: str | None
 

@@ -122,7 +122,7 @@ class CleaningTask(Base):
     completed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
     closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
     outcome: Mapped[str | None] = mapped_column(String(16))
-    """effective, ineffective, not_needed or failed."""
+    """effective, ineffective, not_needed, failed or panel_retired."""
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     fail_reason: Mapped[str | None] = mapped_column(String(500))
 

@@ -22,13 +22,7 @@ def _engine(url: str) -> Engine:
         # One connection per process: requests queue for it in Python (fair, no polling) rather
         # than in SQLite's busy handler, whose sleeps grow to 100 ms under contention. Every use
         # of a session is short and never nested, so the queue only ever waits on real work.
-        engine = create_engine(
-            url,
-            connect_args={"timeout": 30, "check_same_thread": False},
-            pool_size=1,
-            max_overflow=0,
-            pool_timeout=60,
-        )
+        engine = _sqlite(url, connections=1)
 
         @event.listens_for(engine, "connect")
         def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
@@ -59,13 +53,7 @@ def make_read_engine(url: str, connections: int) -> Engine | None:
     blocks no writer). None elsewhere: PostgreSQL readers block no writer either."""
     if not url.startswith("sqlite"):
         return None
-    engine = create_engine(
-        url,
-        connect_args={"timeout": 30, "check_same_thread": False},
-        pool_size=connections,
-        max_overflow=0,
-        pool_timeout=60,
-    )
+    engine = _sqlite(url, connections)
 
     @event.listens_for(engine, "connect")
     def _read_only(dbapi_conn: Any, _record: Any) -> None:
@@ -80,6 +68,18 @@ def make_read_engine(url: str, connections: int) -> Engine | None:
         conn.exec_driver_sql("BEGIN")  # a snapshot of the database; no lock on the writers
 
     return engine
+
+
+def _sqlite(url: str, connections: int) -> Engine:
+    """A SQLite engine of ``connections`` connections, shared across threads; a request
+    waits for one in Python (up to 60 s) rather than in SQLite's busy handler."""
+    return create_engine(
+        url,
+        connect_args={"timeout": 30, "check_same_thread": False},
+        pool_size=connections,
+        max_overflow=0,
+        pool_timeout=60,
+    )
 
 
 def _wal(cur: Any) -> None:

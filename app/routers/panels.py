@@ -275,21 +275,15 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         dirty_streak=status.panel.dirty_streak,
         retired_at=status.panel.retired_at,
         baseline_id=status.panel.baseline_id,
-        trend=trend_out(status.trend),
+        trend=TrendOut.model_validate(status.trend),
         views=[
-            ViewOut(camera_id=v.camera_id, baseline_id=v.baseline_id, trend=trend_out(v.trend))
+            ViewOut(
+                camera_id=v.camera_id,
+                baseline_id=v.baseline_id,
+                trend=TrendOut.model_validate(v.trend),
+            )
             for v in status.views
         ],
-    )
-
-
-def trend_out(trend: panels.Trend) -> TrendOut:
-    return TrendOut(
-        points=trend.points,
-        slope_per_day=trend.slope_per_day,
-        f_now=trend.f_now,
-        threshold=trend.threshold,
-        crossing_at=trend.crossing_at,
     )
 
 

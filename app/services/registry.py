@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import TypeVar
+from typing import Any, TypeVar
 
-from sqlalchemy import ColumnElement, ScalarSelect, event, or_, select, tuple_
+from sqlalchemy import ColumnElement, ScalarSelect, Select, event, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.db.models import Camera, CameraKind, Frame, Panel, Robot, TaskStatus
 from app.errors import Conflict, NotFound, Unprocessable
@@ -44,10 +44,10 @@ def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> No
         return
     if kind != CameraKind.panel:
         raise Unprocessable(f"panel_id is only for panel cameras, not {kind.value}")
-    # locked: a panel being retired meanwhile either sees this camera or refuses it
-    panel = session.scalars(select(Panel).where(Panel.id == panel_id).with_for_update()).first()
-    if panel is None:
-        raise Unprocessable(f"panel {panel_id!r} does not exist; create it first")
+    try:  # locked: a panel being retired meanwhile either sees this camera or refuses it
+        panel = panels.lock_panel(session, panel_id)
+    except NotFound:
+        raise Unprocessable(f"panel {panel_id!r} does not exist; create it first") from None
     check_panel_in_service(panel)
 
 
@@ -106,12 +106,7 @@ def _check_region_fits(session: Session, camera: Camera) -> None:
     """Refuse a region that would not fit the camera's latest frame: its next frames, if of
     that size, would all be refused. (A camera about to send larger frames gets its new region
     after its first one.)"""
-    latest = session.execute(
-        select(Frame.width, Frame.height)
-        .where(Frame.camera_id == camera.id)
-        .order_by(Frame.captured_at.desc())
-        .limit(1)
-    ).first()
+    latest = session.execute(_newest(camera.id, Frame.width, Frame.height)).first()
     if latest is None:
         return
     width, height = latest
@@ -185,17 +180,19 @@ def listed(
     return session.scalars(q.order_by(model.id).limit(limit).offset(offset)).all()
 
 
-def _last_captured() -> ScalarSelect[datetime]:
-    """The capture time of a camera's newest frame kept (a correlated lookup on the
-    (camera_id, captured_at) index, one per camera)."""
+def _newest(camera_id: str | QueryableAttribute[str], *columns: Any) -> Select[Any]:
+    """``columns`` of the camera's newest frame kept (the (camera_id, captured_at) index)."""
     return (
-        select(Frame.captured_at)
-        .where(Frame.camera_id == Camera.id)
+        select(*columns)
+        .where(Frame.camera_id == camera_id)
         .order_by(Frame.captured_at.desc())
         .limit(1)
-        .correlate(Camera)
-        .scalar_subquery()
     )
+
+
+def _last_captured() -> ScalarSelect[datetime]:
+    """The capture time of a camera's newest frame kept, correlated: one lookup per camera."""
+    return _newest(Camera.id, Frame.captured_at).correlate(Camera).scalar_subquery()
 
 
 def cameras_seen(
@@ -220,12 +217,8 @@ def cameras_seen(
 
 def last_captured_at(session: Session, camera_id: str) -> datetime | None:
     """The capture time of the camera's newest frame kept."""
-    return session.scalars(
-        select(Frame.captured_at)
-        .where(Frame.camera_id == camera_id)
-        .order_by(Frame.captured_at.desc())
-        .limit(1)
-    ).first()
+    found: datetime | None = session.scalars(_newest(camera_id, Frame.captured_at)).first()
+    return found
 
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:
