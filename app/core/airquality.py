@@ -9,6 +9,7 @@ to 6.22 and is not used). The statistics are ``app.core.soiling``'s: the same Th
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
@@ -44,18 +45,35 @@ def category(level: float) -> str:
 ALERT_CATEGORIES = ("Poor", "Very Poor")
 
 
-def alert_category(smoothed: float, previous: float | None) -> str | None:
-    """The category to raise an alert for when a camera's smoothed level goes from
-    ``previous`` to ``smoothed``: entering Poor or Very Poor from a better category (Poor from
-    Fair, Very Poor from Poor or better); None otherwise. Judged by ``category`` alone, so an
-    alert never names a category it is not about (a level of exactly 4.5 is Fair)."""
+ALERT_REARM = 0.5
+"""Hysteresis of alerts [level]: once a camera's smoothed level has entered an alert category,
+entering it again alerts only after the level has climbed this far above the category's upper
+edge (to 5.0 for Poor, 3.0 for Very Poor). Air hovering on an edge — readings alternating 4 and
+5 smooth to 4.3–4.5, and 4.5 is Fair — otherwise crosses it every hour or so, and each crossing
+was a new alert and webhook for the same episode."""
+
+
+def alert_category(smoothed: float, earlier: Iterable[float]) -> str | None:
+    """The category to raise an alert for when a camera's smoothed level becomes ``smoothed``
+    after ``earlier`` (its earlier smoothed levels, newest first): entering Poor or Very Poor
+    from a better category (Poor from Fair, Very Poor from Poor or better); None otherwise.
+
+    Judged by ``category`` alone, so an alert never names a category it is not about (a level
+    of exactly 4.5 is Fair). "From a better category" is the newest earlier level outside the
+    dead band [edge, edge + ``ALERT_REARM``) above the category: at or above it, the camera
+    came from clearer air; below the edge, it was already in the category (or worse) and this
+    is the same episode. No earlier level outside the band (a camera's first): an alert."""
     now = category(smoothed)
     if now not in ALERT_CATEGORIES:
         return None
-    if previous is None:
-        return now
-    rank = [name for _, name in CATEGORIES]
-    return now if rank.index(now) > rank.index(category(previous)) else None
+    lowest = next(lowest for lowest, name in CATEGORIES if name == now)
+    edge = next(lo for lo, _ in reversed(CATEGORIES) if lo > lowest) - 0.5  # 4.5 for Poor
+    for level in earlier:
+        if level >= edge + ALERT_REARM:
+            return now
+        if level < edge:
+            return None
+    return now
 
 
 def message(name: str) -> str:

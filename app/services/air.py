@@ -350,10 +350,10 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     if verdict.level is not None:
         times.append(frame.captured_at)
         levels.append(float(verdict.level))
-    previous = next((r[2] for r in history if r[2] is not None), None)
     smoothed = airquality.nowcast(times, levels, frame.captured_at)
     verdict.smoothed_level = smoothed
-    alert = None if smoothed is None else airquality.alert_category(smoothed, previous)
+    earlier = (float(r[2]) for r in history if r[2] is not None)  # newest first
+    alert = None if smoothed is None else airquality.alert_category(smoothed, earlier)
     if (
         alert is not None
         # the air of hours ago, seen after newer readings: history, not an alert

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime, timedelta
+from itertools import pairwise
 from typing import Any
 
 import cv2
@@ -227,6 +228,29 @@ def test_air_getting_worse_again_is_a_second_alert(
     assert [a["category"] for a in alerts] == ["Very Poor", "Poor"]
     assert min(smoothed) < 2.5  # it did reach Very Poor, and came back to Poor without an alert
     assert 2.5 <= smoothed[-1] < 4.5
+
+
+def test_air_hovering_on_the_poor_edge_is_one_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Clean air, then frames every 20 minutes graded 3 or 5: the smoothed level settles near
+    4.5 and crosses the Fair/Poor edge five times. One episode of Poor air is one alert (and
+    one webhook), not one per crossing."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    graded = [3] * 6 + [5, 5, 3, 5, 5, 5, 3, 5, 5, 3, 5, 5, 3, 5, 5, 5, 5, 3]
+    for k, level in enumerate(graded):
+        city["clock"].advance(minutes=20)
+        assert post(client, city, "sky1", level, seed=200 + k)["level"] == level
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings)]
+    entered = sum(1 for a, b in pairwise(smoothed) if a >= 4.5 > b)
+    assert entered == 5
+    assert max(smoothed[10:]) < 5.0  # never clearly Fair again after the first entry
+    alerts = client.get("/air/alerts").json()
+    assert [a["category"] for a in alerts] == ["Poor"]
 
 
 def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(

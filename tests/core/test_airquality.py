@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -306,20 +307,54 @@ class TestIsopleths:
 
 
 @pytest.mark.parametrize(
-    ("previous", "smoothed", "alert"),
+    ("earlier", "smoothed", "alert"),
     [
-        (None, 4.0, "Poor"),  # a camera's first smoothed level
-        (None, 5.0, None),
-        (5.0, 4.0, "Poor"),  # Fair → Poor
-        (7.0, 2.0, "Very Poor"),  # Good → Very Poor at once
-        (4.0, 2.0, "Very Poor"),  # Poor → Very Poor: worse again (was no alert)
-        (3.0, 2.4, "Very Poor"),
-        (2.0, 3.0, None),  # Very Poor → Poor: better
-        (3.0, 4.0, None),  # within Poor
-        (1.0, 1.0, None),
-        (5.0, 4.5, None),  # 4.5 is Fair (category rounds half up); Python's round made it 4
-        (4.6, 4.49, "Poor"),
+        ([], 4.0, "Poor"),  # a camera's first smoothed level
+        ([], 5.0, None),
+        ([5.0], 4.0, "Poor"),  # Fair → Poor
+        ([7.0], 2.0, "Very Poor"),  # Good → Very Poor at once
+        ([4.0], 2.0, "Very Poor"),  # Poor → Very Poor: worse again (was no alert)
+        ([3.0], 2.4, "Very Poor"),
+        ([2.0], 3.0, None),  # Very Poor → Poor: better
+        ([3.0], 4.0, None),  # within Poor
+        ([1.0], 1.0, None),
+        ([5.0], 4.5, None),  # 4.5 is Fair (category rounds half up); Python's round made it 4
+        ([4.6], 4.49, "Poor"),  # from Fair, with nothing earlier to say it was Poor before
+        # hysteresis (ALERT_REARM = 0.5): back into Poor after only reaching 4.5–5.0 is the
+        # same episode; after reaching 5.0, a new one
+        ([4.52, 4.3, 6.0], 4.4, None),
+        ([4.52, 4.99, 4.3], 4.4, None),
+        ([4.52, 5.0, 4.3], 4.4, "Poor"),
+        ([4.6, 4.7, 6.0], 4.4, "Poor"),  # first entry, through the band
+        ([2.6, 2.9, 2.3], 2.4, None),  # the same for Very Poor, edge 2.5
+        ([2.6, 3.0, 2.3], 2.4, "Very Poor"),
+        ([2.6, 2.2, 4.0], 4.4, None),  # Poor again from Very Poor: better, not an alert
     ],
 )
-def test_alert_category(previous: float | None, smoothed: float, alert: str | None) -> None:
-    assert airquality.alert_category(smoothed, previous) == alert
+def test_alert_category(earlier: list[float], smoothed: float, alert: str | None) -> None:
+    assert airquality.alert_category(smoothed, earlier) == alert
+
+
+def test_air_hovering_on_the_poor_edge_is_one_alert() -> None:
+    """Six hours of frames every 5 minutes graded 4 or 5 at random (seeded): the smoothed level
+    wanders between 4.0 and 4.75 and crosses the Fair/Poor edge (4.5) again and again. Judged
+    from the previous level alone that was 5 alerts (06:00, 07:00, 07:30, 08:00, 08:30); it is
+    one episode of Poor air, so one alert."""
+    rng = np.random.default_rng(1)
+    t0 = datetime(2026, 11, 24, 6, tzinfo=UTC)
+    times: list[datetime] = []
+    levels: list[float] = []
+    smoothed: list[float] = []
+    alerts = []
+    for k in range(72):
+        times.append(t0 + timedelta(minutes=5 * k))
+        levels.append(float(rng.choice([4, 5])))
+        s = airquality.nowcast(times, levels, times[-1])
+        assert s is not None
+        a = airquality.alert_category(s, reversed(smoothed))
+        if a is not None:
+            alerts.append((times[-1], a))
+        smoothed.append(s)
+    crossings = sum(1 for a, b in pairwise(smoothed) if a >= 4.5 > b)
+    assert crossings >= 3  # the edge was crossed downwards repeatedly
+    assert alerts == [(t0, "Poor")]
