@@ -128,7 +128,13 @@ def calibrate(
     clusters = []
     for g in groups:
         members = np.isin(lv, g)
-        baseline = soiling.fit_baseline(x[members], significance=significance, shrinkage=shrinkage)
+        try:
+            baseline = soiling.fit_baseline(
+                x[members], significance=significance, shrinkage=shrinkage
+            )
+        except soiling.BaselineError as exc:  # say which of up to ten clusters it is
+            named = f"level {g[0]}" if len(g) == 1 else f"levels {g} (pooled)"
+            raise soiling.BaselineError(f"{named}: {exc}") from exc
         clusters.append(Cluster(tuple(g), int(np.median(lv[members])), baseline))
     return Calibration(tuple(clusters), tuple(warnings))
 

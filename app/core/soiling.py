@@ -123,7 +123,8 @@ def fit_baseline(
         names = ", ".join("RGB"[c] for c in constant)
         raise BaselineError(
             f"the {names} mode is the same in all {n} images, so the covariance is singular; "
-            "use more varied clean images or ask for shrinkage"
+            "use more varied images, or ask for shrinkage (0.0833, the variance of rounding "
+            "modes to whole grey levels)"
         )
     eig = np.linalg.eigvalsh(cov)
     condition = float(eig[-1] / eig[0]) if eig[0] > 0 else float("inf")

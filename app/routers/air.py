@@ -62,7 +62,15 @@ Significance = Annotated[float, Query(ge=1e-6, le=0.05, description="ς (eq. 6.2
 PUBLIC_MAX_OFFSET = 100_000
 """The deepest ``offset`` of a public listing: each row skipped is read, and a deeper page of
 a city's readings is a cursor's job."""
-Shrinkage = Annotated[float, Query(ge=0, le=100, description="Variance added to each Σ̂ [level²].")]
+Shrinkage = Annotated[
+    float,
+    Query(
+        ge=0,
+        le=100,
+        description="Variance added to the diagonal of each level's Σ̂ of modes [grey level²]; "
+        "0.0833 when a channel's mode is the same in all of a level's images.",
+    ),
+]
 
 
 def _calibration_out(row: Any) -> AirCalibrationOut:

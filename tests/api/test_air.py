@@ -345,6 +345,28 @@ class TestBadInput:
                 assert r.status_code == 404, (path, params, r.text)
                 assert r.json()["detail"] == f"no sky camera {camera!r}"
 
+    def test_a_level_whose_images_are_all_alike_is_named(
+        self, client: TestClient, admin: dict[str, str], city: dict[str, Any]
+    ) -> None:
+        files, levels = [], []
+        for level in (2, 5, 8):
+            for k in range(5):
+                seed = 7 if level == 5 else 10 * level + k  # level 5: one image five times
+                files.append(("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed), "image/jpeg")))
+                levels.append(str(level))
+        r = client.post(
+            "/air/calibration",
+            files=files,
+            data={"levels": levels},
+            params={"camera_id": "sky0"},
+            headers=admin,
+        )
+        assert r.status_code == 422
+        assert r.json()["detail"].startswith(
+            "cannot calibrate: level 5: the R, G, B mode is the same in all 5 images"
+        )
+        assert client.get("/air/calibrations").json() == []
+
     def test_calibration_needs_admin(self, client: TestClient) -> None:
         assert (
             client.post("/air/calibration", json={"frame_ids": ["x"], "levels": [1]}).status_code

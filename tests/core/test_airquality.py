@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, shape
 
-from app.core import airquality
+from app.core import airquality, soiling
 from app.core.isopleths import (
     IsoplethError,
     band_at,
@@ -81,6 +81,19 @@ class TestCalibration:
         cal = airquality.calibrate(modes, labels)
         assert [c.levels for c in cal.clusters] == [(2, 3), (8,)]
         assert "pooled" in cal.warnings[0]
+
+    def test_a_singular_cluster_is_named(self) -> None:
+        """Ten levels' clusters: the error says which one cannot be fitted, and the remedy
+        (shrinkage by the rounding variance) fits it."""
+        modes = np.vstack([np.round(sky_modes(v, 6, seed=v)) for v in (2, 5, 8)])
+        modes[6:12, 2] = 175.0  # level 5's blue mode is the same in all six images
+        labels = np.repeat([2, 5, 8], 6)
+        with pytest.raises(soiling.BaselineError) as err:
+            airquality.calibrate(modes, labels)
+        assert str(err.value).startswith("level 5: the B mode is the same in all 6 images")
+        assert "clean" not in str(err.value)  # a panel baseline's word, not this one's
+        cal = airquality.calibrate(modes, labels, shrinkage=soiling.QUANTISATION_VARIANCE)
+        assert [c.level for c in cal.clusters] == [2, 5, 8]
 
     def test_outside_calibration_is_said_not_guessed(self) -> None:
         cal = airquality.calibrate(sky_modes(10, 10, 1), [10] * 10)
