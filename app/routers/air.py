@@ -30,6 +30,7 @@ from app.deps import (
     SessionDep,
     SettingsDep,
     TimeRangeQuery,
+    UtcTime,
     image_work,
     link_next,
     public_work,
@@ -472,6 +473,17 @@ class MapQuery:
     method: Literal["idw", "kriging", "rbf"]
     resolution: int
     max_distance: float
+    at: datetime | None
+    """The time the map is of; None: now."""
+
+
+At = Annotated[
+    UtcTime | None,
+    Query(
+        description="The map as it was at this time (RFC 3339): each camera's latest reading "
+        "in the window before it. Default: now."
+    ),
+]
 
 
 def _map_query(
@@ -480,8 +492,9 @@ def _map_query(
     method: Method = "idw",
     resolution: Resolution = 128,
     max_distance: MaxDistance = 5000.0,
+    at: At = None,
 ) -> MapQuery:
-    return MapQuery(_bbox(bbox), window, method, resolution, max_distance)
+    return MapQuery(_bbox(bbox), window, method, resolution, max_distance, at)
 
 
 MapQueryDep = Annotated[MapQuery, Depends(_map_query)]
@@ -493,10 +506,13 @@ def _field(
     list[air.Station], isopleths.Field | None, tuple[float, float, float, float] | None, datetime
 ]:
     now = policy.now()
+    if q.at is not None and q.at > now:
+        raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
+    at = q.at or now
     box = q.bbox
-    st = air.stations(session, since=now - timedelta(seconds=q.window))
+    st = air.stations(session, since=at - timedelta(seconds=q.window), until=at)
     if not st:
-        return st, None, box, now
+        return st, None, box, at
     lon = np.array([s.lon for s in st])
     lat = np.array([s.lat for s in st])
     box = box or isopleths.default_bbox(lon, lat)
@@ -512,7 +528,7 @@ def _field(
         )
     except isopleths.IsoplethError as exc:
         raise Unprocessable(str(exc), code="bad_field") from None
-    return st, f, box, now
+    return st, f, box, at
 
 
 async def _cached_map(
@@ -547,14 +563,15 @@ MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
     responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
 )
 async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
-    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present.
+    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present: now,
+    or as they were at ``at`` (``at`` in the answer says which).
 
     Kept for ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (30): ``computed_at`` says when it was made,
     and its ETag answers ``If-None-Match`` with 304."""
 
     def compute(session: Session) -> bytes:
-        st, f, box, now = _field(session, policy, q)
-        body = _geojson(st, f, box, now, q)
+        st, f, box, at = _field(session, policy, q)
+        body = _geojson(st, f, box, at, policy.now(), q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
     return await _cached_map(request, ("geojson", q), compute, "application/geo+json")
@@ -564,6 +581,7 @@ def _geojson(
     st: list[air.Station],
     f: isopleths.Field | None,
     box: tuple[float, float, float, float] | None,
+    at: datetime,
     now: datetime,
     q: MapQuery,
 ) -> dict[str, Any]:
@@ -589,6 +607,7 @@ def _geojson(
         "bbox": list(box) if box else None,
         "method": q.method,
         "computed_at": now.isoformat(),
+        "at": at.isoformat(),
         "window_s": q.window,
         "max_distance_m": q.max_distance,
         "cameras": [
@@ -625,7 +644,7 @@ async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> 
     from app.services.airmap import render
 
     def compute(session: Session) -> bytes:
-        st, f, box, _ = _field(session, policy, q)
-        return render(f, st, box)
+        st, f, box, at = _field(session, policy, q)
+        return render(f, st, box, at)
 
     return await _cached_map(request, ("png", q), compute, "image/png")

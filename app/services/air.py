@@ -603,13 +603,17 @@ class Station:
     captured_at: datetime
 
 
-def stations(session: Session, *, since: datetime) -> list[Station]:
-    """Each located sky camera in service: its latest smoothed (else graded) level since
-    ``since``."""
+def stations(session: Session, *, since: datetime, until: datetime) -> list[Station]:
+    """Each located sky camera in service at ``until``: its latest smoothed (else graded) level
+    taken in [``since``, ``until``] (as smoothed when it was taken)."""
     newest = (
         select(Frame.camera_id, func.max(Frame.captured_at).label("t"))
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.captured_at >= since, SkyVerdict.level.is_not(None))
+        .where(
+            Frame.captured_at >= since,
+            Frame.captured_at <= until,
+            SkyVerdict.level.is_not(None),
+        )
         .group_by(Frame.camera_id)
         .subquery()
     )
@@ -628,7 +632,8 @@ def stations(session: Session, *, since: datetime) -> list[Station]:
         .where(
             Camera.lat.is_not(None),
             Camera.lon.is_not(None),
-            Camera.retired_at.is_(None),  # a camera taken down no longer paints the map
+            # a camera taken down no longer paints the map, but did before it was
+            or_(Camera.retired_at.is_(None), Camera.retired_at > until),
             SkyVerdict.level.is_not(None),
         )
     ).all()

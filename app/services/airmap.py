@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import cv2
 import numpy as np
 
@@ -23,7 +25,9 @@ def render(
     field: isopleths.Field | None,
     stations: list[Station],
     bbox: tuple[float, float, float, float] | None,
+    at: datetime,
 ) -> bytes:
+    """The bands over the bbox (north up), the cameras, a legend and the time the map is of."""
     canvas = np.full((SIZE, SIZE + LEGEND, 3), 255, np.uint8)
     if field is not None and bbox is not None:
         x0, y0, x1, y1 = bbox
@@ -66,6 +70,10 @@ def render(
     cv2.putText(
         canvas, "o camera", (SIZE + 12, 30 + 36 * 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1
     )
+    utc = at.astimezone(UTC)
+    for i, text in enumerate((utc.strftime("%Y-%m-%d"), utc.strftime("%H:%M UTC"))):
+        y = SIZE - 36 + 18 * i
+        cv2.putText(canvas, text, (SIZE + 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", canvas)
     assert ok
     return bytes(buf.tobytes())

@@ -390,6 +390,50 @@ def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
     assert len(client.get("/air/readings", params={"camera_id": "sky2"}).json()) == 1
 
 
+def test_the_map_as_it_was_at_an_earlier_time(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A dashboard replays the morning: ``at`` maps each camera's latest reading in the window
+    before that time, as smoothed then, with the cameras that were in service then (sky2,
+    retired since, included); now's map shows the air since. A time ahead is refused."""
+    calibrate(client, admin)
+    clock = city["clock"]
+    morning = clock.now + timedelta(minutes=30)
+    for cam in ("sky1", "sky2", "sky3"):
+        clock.advance(minutes=10)
+        post(client, city, cam, 10, seed=1)
+    clock.advance(hours=13)  # beyond the morning's NowCast hours
+    for cam in ("sky1", "sky3"):
+        clock.advance(minutes=10)
+        post(client, city, cam, 1, seed=2)
+    assert client.delete("/cameras/sky2", headers=admin).status_code == 204
+
+    now = client.get("/air/isopleths").json()
+    assert now["at"] == now["computed_at"] == clock.now.isoformat()
+    assert {c["camera_id"]: c["level"] for c in now["cameras"]} == {"sky1": 1.0, "sky3": 1.0}
+    then = client.get("/air/isopleths", params={"at": morning.isoformat()}).json()
+    assert then["at"] == morning.isoformat()
+    assert then["computed_at"] == clock.now.isoformat()
+    assert {c["camera_id"]: c["level"] for c in then["cameras"]} == {
+        "sky1": 10.0,
+        "sky2": 10.0,
+        "sky3": 10.0,
+    }
+    assert {f["properties"]["category"] for f in then["features"]} == {"Very Good"}
+    earlier = client.get(
+        "/air/isopleths", params={"at": (morning - timedelta(hours=2)).isoformat()}
+    )
+    assert earlier.json()["features"] == earlier.json()["cameras"] == []  # no readings yet
+    png = client.get("/air/isopleths.png", params={"at": morning.isoformat()})
+    assert png.status_code == 200
+    assert png.content != client.get("/air/isopleths.png").content
+    ahead = client.get(
+        "/air/isopleths", params={"at": (clock.now + timedelta(minutes=5)).isoformat()}
+    )
+    assert ahead.status_code == 422
+    assert ahead.json()["code"] == "bad_time"
+
+
 def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
     client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
 ) -> None:
