@@ -79,8 +79,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     app.state.policy,
                     settings.alert_poll_seconds,
                     timedelta(hours=settings.alert_retry_hours),
+                    key=None
+                    if settings.alert_webhook_secret is None
+                    else webhooks.signing_key(settings.alert_webhook_secret.get_secret_value()),
                 )
             )
+            if settings.alert_webhook_secret is None:
+                log.warning(
+                    "alerts are POSTed unsigned: set VANTAGE_ALERT_WEBHOOK_SECRET so that the"
+                    " receiver can tell them from forged ones"
+                )
         sweeper = asyncio.create_task(
             retention.run(
                 app.state.sessionmaker,

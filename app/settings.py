@@ -136,6 +136,11 @@ class Settings(BaseSettings):
     alert_webhook_url: str | None = Field(
         default=None, description="POST each air-quality alert here (JSON), with retries."
     )
+    alert_webhook_secret: SecretStr | None = Field(
+        default=None,
+        description="Sign each alert's POST with this Standard Webhooks secret ('whsec_' and the"
+        " base64 of 24–64 random bytes): the receiver checks the webhook-signature header.",
+    )
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
     alert_retry_hours: float = Field(
         default=24.0, gt=0, description="Retry an undelivered alert this long after it was raised."
@@ -175,6 +180,13 @@ class Settings(BaseSettings):
                     "VANTAGE_ALERT_WEBHOOK_URL must be an http:// or https:// URL with a host;"
                     f" got {self.alert_webhook_url!r}"
                 )
+        if self.alert_webhook_secret is not None:
+            from app.services.webhooks import signing_key
+
+            try:
+                signing_key(self.alert_webhook_secret.get_secret_value())
+            except ValueError as exc:
+                raise ValueError(f"VANTAGE_ALERT_WEBHOOK_SECRET: {exc}") from None
         if self.frame_store == "s3" and not self.s3_bucket:
             raise ValueError("VANTAGE_FRAME_STORE=s3 needs VANTAGE_S3_BUCKET")
         if self.frame_store == "s3" and self.admin_token is None:

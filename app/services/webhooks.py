@@ -6,6 +6,13 @@ twice at once), POSTs each as JSON, and records the outcome; a failure is retrie
 default: a receiver down for a deploy or a night still gets every alert). Alerts live in the
 database, so a restart loses none.
 
+Each POST carries the Standard Webhooks headers (https://www.standardwebhooks.com):
+``webhook-id`` (the alert's id, the same on every attempt: a receiver drops a repeat by it),
+``webhook-timestamp`` (the attempt's Unix time) and, with a signing secret,
+``webhook-signature`` (``v1,`` and the base64 HMAC-SHA256 of ``id.timestamp.body``), so a
+receiver can tell the service's alerts from anyone's who learnt its address, with any Standard
+Webhooks library.
+
 Only a 2xx answer to the POST itself is a delivery. A redirect is not followed: urllib would
 follow a 301 or 302 with a GET without the alert, and a page answering that GET 200 would pass
 for the receiver. Whatever else goes wrong with one alert (no answer, an answer that is not
@@ -16,6 +23,10 @@ alerts already tried are kept.
 from __future__ import annotations
 
 import asyncio
+import base64
+import binascii
+import hashlib
+import hmac
 import http.client
 import json
 import logging
@@ -29,7 +40,7 @@ from typing import Literal
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import AirAlert
+from app.db.models import AirAlert, Camera, Frame
 from app.services.background import in_thread
 from app.services.policy import Policy
 
@@ -63,6 +74,27 @@ def backoff(attempts: int) -> timedelta:
     return min(timedelta(seconds=2 ** min(attempts, 20)), RETRY_CAP)
 
 
+SECRET_PREFIX = "whsec_"
+
+
+def signing_key(secret: str) -> bytes:
+    """The key of a Standard Webhooks secret: ``whsec_`` and the base64 of 24–64 random bytes
+    (the README shows a command that makes one). Raises ValueError for anything else."""
+    try:
+        key = base64.b64decode(secret.removeprefix(SECRET_PREFIX), validate=True)
+    except (binascii.Error, ValueError):
+        raise ValueError("a webhook secret is 'whsec_' and base64") from None
+    if not 24 <= len(key) <= 64:
+        raise ValueError(f"a webhook secret holds 24–64 bytes; this one {len(key)}")
+    return key
+
+
+def signature(key: bytes, msg_id: str, timestamp: int, body: bytes) -> str:
+    """Standard Webhooks' ``v1`` signature: HMAC-SHA256 of ``{id}.{timestamp}.{body}``."""
+    mac = hmac.new(key, f"{msg_id}.{timestamp}.".encode() + body, hashlib.sha256).digest()
+    return "v1," + base64.b64encode(mac).decode()
+
+
 class _NoRedirect(urllib.request.HTTPRedirectHandler):
     def redirect_request(self, *args: object, **kwargs: object) -> None:
         return None  # the 3xx then raises HTTPError
@@ -75,11 +107,11 @@ class DeliveryFailed(Exception):
     """The receiver did not take the alert."""
 
 
-def _post(url: str, body: dict[str, object]) -> None:
+def _post(url: str, body: bytes, headers: dict[str, str]) -> None:
     request = urllib.request.Request(
         url,
-        data=json.dumps(body).encode(),
-        headers={"Content-Type": "application/json", "User-Agent": "vantage-alerts"},
+        data=body,
+        headers={"Content-Type": "application/json", "User-Agent": "vantage-alerts", **headers},
         method="POST",
     )
     try:
@@ -105,12 +137,13 @@ def sweep(
     retry_for: timedelta = DEFAULT_RETRY_FOR,
     batch: int = 20,
     stopping: threading.Event | None = None,
+    key: bytes | None = None,
 ) -> int:
     """Try every due alert once (at most ``batch``); returns how many were delivered. Each
     alert is taken, posted and recorded in its own transaction: a process that dies during a
     sweep sends again at most the alert it was posting, not every one delivered before it in
     the sweep. Once ``stopping`` is set (a shutdown waiting for this sweep), the alerts not yet
-    tried are left for the next one."""
+    tried are left for the next one. ``key`` (``signing_key``) signs each POST."""
     now = policy.now()
     delivered = 0
     for _ in range(batch):
@@ -130,18 +163,30 @@ def sweep(
             ).first()
             if alert is None:
                 break
-            body = {
-                "alert_id": alert.id,
-                "camera_id": alert.camera_id,
-                "frame_id": alert.frame_id,
-                "created_at": alert.created_at.isoformat(),
-                "smoothed_level": alert.smoothed_level,
-                "category": alert.category,
-                "message": f"Today's Air Quality is {alert.category}",
-            }
+            camera = session.get(Camera, alert.camera_id)
+            frame = session.get(Frame, alert.frame_id)
+            body = json.dumps(
+                {
+                    "alert_id": alert.id,
+                    "camera_id": alert.camera_id,
+                    "camera_name": camera.name if camera else None,
+                    "lat": camera.lat if camera else None,
+                    "lon": camera.lon if camera else None,
+                    "frame_id": alert.frame_id,
+                    "captured_at": frame.captured_at.isoformat() if frame else None,
+                    "created_at": alert.created_at.isoformat(),
+                    "smoothed_level": alert.smoothed_level,
+                    "category": alert.category,
+                    "message": f"Today's Air Quality is {alert.category}",
+                }
+            ).encode()
+            sent = int(now.timestamp())
+            headers = {"webhook-id": alert.id, "webhook-timestamp": str(sent)}
+            if key is not None:
+                headers["webhook-signature"] = signature(key, alert.id, sent, body)
             alert.attempts += 1
             try:
-                _post(url, body)
+                _post(url, body, headers)
             except DeliveryFailed as exc:
                 alert.last_error = str(exc)[:500]
                 alert.next_attempt_at = now + backoff(alert.attempts)
@@ -162,13 +207,16 @@ async def run(
     policy: Policy,
     every: float,
     retry_for: timedelta = DEFAULT_RETRY_FOR,
+    key: bytes | None = None,
 ) -> None:
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
     stopping = threading.Event()  # a shutdown waits for the post under way, not for all
     while True:
         try:
             await in_thread(
-                partial(sweep, sessions, url, policy, retry_for=retry_for, stopping=stopping),
+                partial(
+                    sweep, sessions, url, policy, retry_for=retry_for, stopping=stopping, key=key
+                ),
                 on_cancel=stopping.set,
             )
         except Exception:

@@ -558,21 +558,26 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
 
 
 def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> None:
-    """The first POST fails (HTTP 500); the retry after the backoff is delivered."""
-    import json
+    """The first POST fails (HTTP 500); the retry after the backoff is delivered, signed with
+    the configured secret (checked with the Standard Webhooks reference library)."""
     import threading
     import time
     from http.server import BaseHTTPRequestHandler, HTTPServer
 
+    import standardwebhooks
+    from pydantic import SecretStr
+
     from app.main import create_app
     from tests.conftest import _empty_tables
 
+    secret = "whsec_" + "c2lnbmluZyBrZXkgb2YgdGhlIGNpdHkncyBhbGVydHM="  # 32 bytes
+    verify = standardwebhooks.Webhook(secret).verify
     received: list[dict[str, Any]] = []
 
     class Hook(BaseHTTPRequestHandler):
         def do_POST(self) -> None:  # noqa: N802
-            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            received.append(body)
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            received.append(verify(body, dict(self.headers.items())))
             self.send_response(500 if len(received) == 1 else 204)
             self.end_headers()
 
@@ -587,6 +592,7 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
             update={
                 "alert_webhook_url": f"http://127.0.0.1:{server.server_port}/hook",
                 "alert_poll_seconds": 0.05,
+                "alert_webhook_secret": SecretStr(secret),
             }
         )
     )

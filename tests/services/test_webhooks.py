@@ -3,6 +3,7 @@ delivery, a bad answer is one alert's failed attempt, and retries go on for the 
 
 from __future__ import annotations
 
+import base64
 import json
 import socket
 import threading
@@ -12,6 +13,7 @@ from http.server import BaseHTTPRequestHandler, HTTPServer
 from typing import Any
 
 import pytest
+import standardwebhooks
 from pydantic import ValidationError
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -224,8 +226,8 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
     and it was sent again."""
     posted: list[str] = []
 
-    def post(url: str, body: dict[str, object]) -> None:
-        posted.append(str(body["alert_id"]))
+    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
+        posted.append(json.loads(body)["alert_id"])
         if len(posted) == 2:
             raise SystemExit
 
@@ -238,3 +240,112 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
         "a1": (False, 0),
         "a2": (False, 0),
     }
+
+
+def test_the_signature_of_the_standard_webhooks_example() -> None:
+    """The example of the Standard Webhooks specification (secret, id, timestamp, body and the
+    signature its reference library, standardwebhooks 1.1.0, computes for them)."""
+    key = webhooks.signing_key("whsec_MfKQ9r8GKYqrTwjUPD8ILPZIo2LaLaSw")
+    got = webhooks.signature(
+        key, "msg_p5jXN8AQM9LWM0D4loKWxJek", 1614265330, b'{"test": 2432232314}'
+    )
+    assert got == "v1,g0hM9SsE+OTPJTGt/tmIKtSyZlE3uFJELVlNIOLJ1OE="
+
+
+@pytest.mark.parametrize(
+    ("secret", "why"),
+    [
+        ("whsec_not base64!", "base64"),
+        ("whsec_" + "QUJD", "3"),  # 3 bytes
+        ("whsec_" + "A" * 100, "75"),  # 75 bytes
+    ],
+)
+def test_a_secret_that_is_not_a_standard_webhooks_one_is_refused_at_start(
+    secret: str, why: str
+) -> None:
+    with pytest.raises(ValidationError, match=f"VANTAGE_ALERT_WEBHOOK_SECRET: .*{why}"):
+        Settings(alert_webhook_url="http://hook.example/", alert_webhook_secret=secret)
+
+
+def test_alerts_are_signed_and_say_where_and_when(
+    engine: Engine, sessions: sessionmaker[Session]
+) -> None:
+    """A receiver checks each POST with a Standard Webhooks library (the reference one, not
+    this service's code): signed with the secret, and one tampered with is refused. The id is
+    the alert's on every attempt, so a receiver drops a repeat; the body names the camera's
+    place and when the frame was taken."""
+    secret = "whsec_" + base64.b64encode(bytes(range(32))).decode()
+    got: list[tuple[bytes, dict[str, str]]] = []
+
+    class Receiver(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            got.append((body, {k.lower(): v for k, v in self.headers.items()}))
+            self.send_response(500 if len(got) == 1 else 204)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    seed_alerts(engine, 1)
+    with Session(engine) as s:
+        camera = s.get(Camera, "sky")
+        assert camera is not None
+        camera.name, camera.lat, camera.lon = "Piazza Duomo", 45.464, 9.19
+        s.commit()
+    now = datetime.now(UTC)  # receivers refuse a timestamp more than 5 minutes off
+    old = now - T0 + timedelta(days=1)  # the alerts were raised at T0: retried till now
+    key = webhooks.signing_key(secret)
+    server, base = serve(Receiver)
+    try:
+        for t, delivered in ((now, 0), (now + timedelta(seconds=3), 1)):  # 500, then 204
+            sent = webhooks.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
+            assert sent == delivered
+    finally:
+        server.shutdown()
+        server.server_close()
+    receiver = standardwebhooks.Webhook(secret)
+    for body, headers in got:
+        alert = receiver.verify(body, headers)
+        assert headers["webhook-id"] == alert["alert_id"] == "a0"
+        assert {k: alert[k] for k in ("camera_name", "lat", "lon", "captured_at")} == {
+            "camera_name": "Piazza Duomo",
+            "lat": 45.464,
+            "lon": 9.19,
+            "captured_at": T0.isoformat(),
+        }
+    assert [int(h["webhook-timestamp"]) for _, h in got] == [
+        int(now.timestamp()),
+        int(now.timestamp()) + 3,
+    ]
+    body, headers = got[0]
+    with pytest.raises(standardwebhooks.webhooks.WebhookVerificationError):
+        receiver.verify(body.replace(b'"Poor"', b'"Good"'), headers)
+    with pytest.raises(standardwebhooks.webhooks.WebhookVerificationError):
+        standardwebhooks.Webhook("whsec_" + base64.b64encode(bytes(32)).decode()).verify(
+            body, headers
+        )
+
+
+def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Session]) -> None:
+    got: list[dict[str, str]] = []
+
+    class Receiver(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            self.rfile.read(int(self.headers["Content-Length"]))
+            got.append({k.lower(): v for k, v in self.headers.items()})
+            self.send_response(204)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    seed_alerts(engine, 1)
+    server, base = serve(Receiver)
+    try:
+        assert webhooks.sweep(sessions, f"{base}/hook", at(T0)) == 1
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert got[0]["webhook-id"] == "a0"
+    assert "webhook-signature" not in got[0]
