@@ -404,20 +404,28 @@ def _zone(name: str) -> ZoneInfo:
         ) from None
 
 
-@router.get("/alerts", response_model=list[AirAlertOut], responses=NOT_FOUND)
+@router.get("/alerts", response_model=list[AirAlertOut], responses={**NOT_FOUND, **UNPROCESSABLE})
 def alerts(
     session: SessionDep,
     settings: SettingsDep,
     policy: PolicyDep,
+    span: TimeRangeQuery,
     camera_id: IdFilter = None,
     limit: Limit = 100,
     offset: Offset = 0,
 ) -> list[AirAlertOut]:
-    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, with where
-    each one's webhook delivery stands."""
+    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, raised in
+    [``since``, ``until``), with where each one's webhook delivery stands."""
     if camera_id is not None:
         air.sky_camera(session, camera_id)
-    rows = air.alerts(session, camera_id=camera_id, limit=limit, offset=offset)
+    rows = air.alerts(
+        session,
+        camera_id=camera_id,
+        limit=limit,
+        offset=offset,
+        since=span.since,
+        until=span.until,
+    )
     now = policy.now()
     retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None
     return [

@@ -584,11 +584,22 @@ def _fixed(t: datetime) -> datetime:
 
 
 def alerts(
-    session: Session, *, camera_id: str | None, limit: int, offset: int
+    session: Session,
+    *,
+    camera_id: str | None,
+    limit: int,
+    offset: int,
+    since: datetime | None = None,
+    until: datetime | None = None,
 ) -> Sequence[AirAlert]:
+    """Alerts newest first, raised in [``since``, ``until``)."""
     q = select(AirAlert)
     if camera_id is not None:
         q = q.where(AirAlert.camera_id == camera_id)
+    if since is not None:
+        q = q.where(AirAlert.created_at >= since)
+    if until is not None:
+        q = q.where(AirAlert.created_at < until)
     return session.scalars(
         q.order_by(AirAlert.created_at.desc(), AirAlert.id).limit(limit).offset(offset)
     ).all()

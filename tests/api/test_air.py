@@ -209,6 +209,28 @@ def test_alert_when_the_smoothed_level_turns_poor(
     assert alerts[0]["delivery"] == "no_webhook"  # recorded; nothing is configured to send it
 
 
+def test_alerts_of_a_period(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A dashboard shows the day's alerts: ``since`` and ``until`` bound when they were raised."""
+    assert calibrate(client, admin).status_code == 201
+    raised = []
+    for cam in ("sky1", "sky2", "sky3"):
+        city["clock"].advance(hours=5)
+        post(client, city, cam, 1, seed=1)
+        raised.append(city["clock"].now)
+    assert [a["camera_id"] for a in client.get("/air/alerts").json()] == ["sky3", "sky2", "sky1"]
+    span = {"since": raised[1].isoformat(), "until": raised[2].isoformat()}
+    assert [a["camera_id"] for a in client.get("/air/alerts", params=span).json()] == ["sky2"]
+    since = {"since": raised[1].isoformat()}
+    assert [a["camera_id"] for a in client.get("/air/alerts", params=since).json()] == [
+        "sky3",
+        "sky2",
+    ]
+    backwards = client.get("/air/alerts", params={"since": span["until"], "until": span["since"]})
+    assert backwards.status_code == 422
+
+
 def test_air_getting_worse_again_is_a_second_alert(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
