@@ -135,6 +135,17 @@ def get_principal(request: Request) -> Principal:
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
+def optional_principal(request: Request) -> Principal | None:
+    """The caller of a public endpoint: None without an Authorization header; a token that is
+    given must be valid (401), so an operator's misspelt token is not silently public."""
+    if not request.headers.get("authorization"):
+        return None
+    return get_principal(request)
+
+
+OptionalPrincipal = Annotated[Principal | None, Depends(optional_principal)]
+
+
 def require_admin(principal: PrincipalDep) -> Principal:
     if principal.role != "admin":
         raise Forbidden(f"this needs the admin token; a {principal.role} token was given")

@@ -466,7 +466,9 @@ class AirAlertOut(Out):
         description="delivered; pending (to be tried, or retried after a failure); gave_up"
         " (undelivered when its retry period ran out); no_webhook (none is configured)."
     )
-    last_error: str | None = Field(description="Why the last attempt failed.")
+    last_error: str | None = Field(
+        description="Why the last attempt failed (with the admin token only; else null)."
+    )
     next_attempt_at: datetime | None = Field(description="When a failed delivery is retried.")
 
 

@@ -26,6 +26,7 @@ from app.deps import (
     IdFilter,
     Limit,
     Offset,
+    OptionalPrincipal,
     PolicyDep,
     SessionDep,
     SettingsDep,
@@ -410,12 +411,16 @@ def alerts(
     settings: SettingsDep,
     policy: PolicyDep,
     span: TimeRangeQuery,
+    caller: OptionalPrincipal,
     camera_id: IdFilter = None,
     limit: Limit = 100,
     offset: Offset = 0,
 ) -> list[AirAlertOut]:
     """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, raised in
-    [``since``, ``until``), with where each one's webhook delivery stands."""
+    [``since``, ``until``), with where each one's webhook delivery stands. Why the last
+    delivery failed (``last_error``: the receiver's answer, a redirect's address) is the
+    operator's to read: null without the admin token."""
+    operator = caller is not None and caller.role == "admin"
     if camera_id is not None:
         air.sky_camera(session, camera_id)
     rows = air.alerts(
@@ -439,7 +444,7 @@ def alerts(
             delivered=a.delivered,
             attempts=a.attempts,
             delivery=webhooks.delivery(a, now, retry_for=retry_for),
-            last_error=a.last_error,
+            last_error=a.last_error if operator else None,
             next_attempt_at=a.next_attempt_at,
         )
         for a in rows

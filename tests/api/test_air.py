@@ -231,6 +231,29 @@ def test_alerts_of_a_period(
     assert backwards.status_code == 422
 
 
+def test_why_a_delivery_failed_is_for_the_operator(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
+) -> None:
+    """``GET /air/alerts`` is public, and a failed delivery's error can hold the receiver's
+    addresses (a redirect's Location, with its token): only the admin token reads it."""
+    from app.db.models import AirAlert
+
+    assert calibrate(client, admin).status_code == 201
+    post(client, city, "sky1", 1, seed=1)
+    error = "HTTP 301 redirect to 'https://hooks.example/T0/B0/s3cr3t', not followed"
+    with app.state.sessionmaker() as s:
+        s.get(AirAlert, client.get("/air/alerts").json()[0]["id"]).last_error = error
+        s.commit()
+    public = client.get("/air/alerts").json()[0]
+    assert public["last_error"] is None
+    assert public["category"] in ("Poor", "Very Poor")
+    assert client.get("/air/alerts", headers=admin).json()[0]["last_error"] == error
+    camera = {"Authorization": f"Bearer {city['tokens']['sky1'][0]}"}
+    assert client.get("/air/alerts", headers=camera).json()[0]["last_error"] is None
+    wrong = client.get("/air/alerts", headers={"Authorization": "Bearer nope"})
+    assert wrong.status_code == 401
+
+
 def test_air_getting_worse_again_is_a_second_alert(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
