@@ -405,7 +405,11 @@ def _zone(name: str) -> ZoneInfo:
         ) from None
 
 
-@router.get("/alerts", response_model=list[AirAlertOut], responses={**NOT_FOUND, **UNPROCESSABLE})
+@router.get(
+    "/alerts",
+    response_model=list[AirAlertOut],
+    responses={**NOT_FOUND, **UNPROCESSABLE, 401: AUTH_ERRORS[401]},
+)
 def alerts(
     session: SessionDep,
     settings: SettingsDep,
