@@ -19,6 +19,8 @@ COLOURS = {  # BGR, from Very Poor to Very Good
 }
 SIZE = 640
 LEGEND = 150
+MIN_HEIGHT = 280
+"""The legend's height [px]: a map wider than tall leaves white below it."""
 
 
 def render(
@@ -27,8 +29,16 @@ def render(
     bbox: tuple[float, float, float, float] | None,
     at: datetime,
 ) -> bytes:
-    """The bands over the bbox (north up), the cameras, a legend and the time the map is of."""
-    canvas = np.full((SIZE, SIZE + LEGEND, 3), 255, np.uint8)
+    """The bands over the bbox (north up, its longer side ``SIZE`` pixels, east–west and
+    north–south at one scale in metres, so that a circle around a camera is drawn round), the
+    cameras, a legend and the time the map is of."""
+    width = height = SIZE
+    if field is not None and bbox is not None:
+        dx, dy = isopleths.cell_size_m(field)
+        w_m, h_m = dx * len(field.lon), dy * len(field.lat)
+        width = max(1, round(SIZE * w_m / max(w_m, h_m)))
+        height = max(1, round(SIZE * h_m / max(w_m, h_m)))
+    canvas = np.full((max(height, MIN_HEIGHT), SIZE + LEGEND, 3), 255, np.uint8)
     if field is not None and bbox is not None:
         x0, y0, x1, y1 = bbox
         z = field.value
@@ -38,11 +48,11 @@ def render(
         image = np.full((*z.shape, 3), 240, np.uint8)
         for i, (name, _, _) in enumerate(isopleths.BANDS):
             image[band == i] = COLOURS[name]
-        image = cv2.resize(image[::-1], (SIZE, SIZE), interpolation=cv2.INTER_NEAREST)  # north up
-        canvas[:, :SIZE] = image
+        image = cv2.resize(image[::-1], (width, height), interpolation=cv2.INTER_NEAREST)
+        canvas[:height, :width] = image
         for s in stations:
-            px = int((s.lon - x0) / (x1 - x0) * (SIZE - 1))
-            py = int((y1 - s.lat) / (y1 - y0) * (SIZE - 1))
+            px = int((s.lon - x0) / (x1 - x0) * (width - 1))
+            py = int((y1 - s.lat) / (y1 - y0) * (height - 1))
             cv2.circle(canvas, (px, py), 5, (0, 0, 0), -1)
             cv2.circle(canvas, (px, py), 3, (255, 255, 255), -1)
     else:
@@ -72,7 +82,7 @@ def render(
     )
     utc = at.astimezone(UTC)
     for i, text in enumerate((utc.strftime("%Y-%m-%d"), utc.strftime("%H:%M UTC"))):
-        y = SIZE - 36 + 18 * i
+        y = canvas.shape[0] - 36 + 18 * i
         cv2.putText(canvas, text, (SIZE + 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", canvas)
     assert ok

@@ -479,6 +479,32 @@ def test_the_map_as_it_was_at_an_earlier_time(
     assert ahead.json()["code"] == "bad_time"
 
 
+def test_the_png_map_is_drawn_at_one_scale_in_metres(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A bbox 0.4° wide and 0.2° tall at 45.45° N is 31.2 × 22.2 km: drawn 640 × 456 pixels
+    (it was stretched into a 640-pixel square, so a circle around a camera came out as an
+    ellipse 1.4 times taller than wide), with each camera at its place."""
+    calibrate(client, admin)
+    for cam, level in (("sky1", 3), ("sky2", 7), ("sky3", 10)):
+        post(client, city, cam, level, seed=1)
+    x0, y0, x1, y1 = 9.0, 45.35, 9.4, 45.55
+    r = client.get("/air/isopleths.png", params={"bbox": f"{x0},{y0},{x1},{y1}"})
+    assert r.status_code == 200
+    png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    height = 640 * (y1 - y0) / ((x1 - x0) * np.cos(np.radians((y0 + y1) / 2)))
+    assert height == pytest.approx(456, abs=0.5)
+    painted = np.flatnonzero((png[:, :640] != 255).any(axis=2).any(axis=1))
+    assert painted.max() + 1 == pytest.approx(height, abs=1.5)
+    assert (png[int(height) + 2 :, :640] == 255).all()  # below the map: white
+    fc = client.get("/air/isopleths", params={"bbox": f"{x0},{y0},{x1},{y1}"}).json()
+    for cam in fc["cameras"]:
+        px = int((cam["lon"] - x0) / (x1 - x0) * 639)
+        py = int((y1 - cam["lat"]) / (y1 - y0) * (round(height) - 1))
+        assert (png[py, px] == 255).all(), cam  # the marker's white centre
+        assert (png[py + 4, px] == 0).all(), cam  # inside its black ring
+
+
 def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
     client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
 ) -> None:
