@@ -51,11 +51,24 @@ def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> No
     check_panel_in_service(panel)
 
 
+def _check_located(row: Camera | Panel) -> None:
+    """A place is a latitude and a longitude: one alone (a camera that would silently stay
+    off the air map) is refused, as a request or as the result of a change."""
+    if (row.lat is None) != (row.lon is None):
+        given = "lat" if row.lat is not None else "lon"
+        raise Unprocessable(
+            f"{given} without {'lon' if given == 'lat' else 'lat'}: a place needs both "
+            "(or neither)",
+            code="half_a_place",
+        )
+
+
 def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
     """Register a camera; returns it with its token (the only time the token is seen)."""
     _check_panel(session, data.kind, data.panel_id)
     token = new_token("vc")
     camera = Camera(**data.model_dump(), token_hash=hash_token(token))
+    _check_located(camera)
     _insert(session, camera, "camera")
     return camera, token
 
@@ -140,6 +153,7 @@ def update_camera(
         _check_panel(session, camera.kind, changes["panel_id"])
     for field, value in changes.items():
         setattr(camera, field, value)
+    _check_located(camera)
     if changes.get("roi") is not None:  # on error the request's transaction is rolled back
         _check_region_fits(session, camera)
     session.flush()
@@ -223,6 +237,7 @@ def last_captured_at(session: Session, camera_id: str) -> datetime | None:
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:
     panel = Panel(**data.model_dump())
+    _check_located(panel)
     _insert(session, panel, "panel")
     return panel
 
@@ -257,6 +272,7 @@ def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
     check_panel_in_service(panel)
     for field, value in data.model_dump(include=data.model_fields_set).items():
         setattr(panel, field, value)
+    _check_located(panel)
     session.flush()
     return panel
 

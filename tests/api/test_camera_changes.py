@@ -109,6 +109,7 @@ class TestUpdate:
             {"lat": 91},
             {"lon": "east"},
             {"panel_id": "p1"},  # a rig camera watches no panel
+            {"lat": 45.0},  # half a place: the camera would silently stay off the air map
             {"name": "x" * 201},
         ],
     )

@@ -47,6 +47,8 @@ class TestCreateCamera:
             {"id": "c", "kind": "sky", "extra": 1},
             {"id": "c", "kind": "sky", "panel_id": "p"},
             {"id": "c", "kind": "panel", "panel_id": "missing"},
+            {"id": "c", "kind": "sky", "lat": 45.46},  # half a place: off the map, silently
+            {"id": "c", "kind": "sky", "lon": 9.19, "lat": None},
         ],
     )
     def test_invalid_bodies_are_422(

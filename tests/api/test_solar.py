@@ -719,14 +719,23 @@ class TestPanelChanges:
     def test_a_panel_is_renamed_and_moved(self, client: TestClient, admin: dict[str, str]) -> None:
         body = {"id": "p", "name": "row 3", "lat": 45.0, "lon": 9.0}
         assert client.post("/panels", json=body, headers=admin).status_code == 201
-        r = client.patch("/panels/p", json={"name": "row 4", "lat": None}, headers=admin)
+        half = client.patch("/panels/p", json={"name": "row 4", "lat": None}, headers=admin)
+        assert half.status_code == 422  # a longitude alone is no place
+        assert half.json()["code"] == "half_a_place"
+        assert client.get("/panels/p", headers=admin).json()["name"] == "row 3"
+        r = client.patch("/panels/p", json={"name": "row 4", "lat": 45.5}, headers=admin)
         assert r.status_code == 200, r.text
         assert {k: r.json()[k] for k in body} == {
             "id": "p",
             "name": "row 4",
-            "lat": None,
+            "lat": 45.5,
             "lon": 9.0,
         }
+        unplaced = client.patch("/panels/p", json={"lat": None, "lon": None}, headers=admin)
+        assert (unplaced.json()["lat"], unplaced.json()["lon"]) == (None, None)
+        lone = client.post("/panels", json={"id": "q", "lon": 9.0}, headers=admin)
+        assert lone.status_code == 422
+        assert lone.json()["detail"] == "lon without lat: a place needs both (or neither)"
         assert client.get("/panels/p", headers=admin).json()["name"] == "row 4"
         for bad in ('{"lat": 91}', '{"lon": NaN}', '{"id": "q"}', '{"colour": "blue"}'):
             r = client.patch(
