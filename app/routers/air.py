@@ -589,6 +589,18 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     def compute(session: Session) -> bytes:
         st, f, box, at = _field(session, policy, q)
         body = _geojson(st, f, box, at, policy.now(), q)
+        off_map = air.unplaced(session, since=at - timedelta(seconds=q.window), until=at)
+        if off_map:
+            named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
+            some = (
+                "1 sky camera with readings has"
+                if len(off_map) == 1
+                else (f"{len(off_map)} sky cameras with readings have")
+            )
+            body["warnings"].append(
+                f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
+                " with both)"
+            )
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
     return await _cached_map(request, ("geojson", q), compute, "application/geo+json")

@@ -614,6 +614,33 @@ class Station:
     captured_at: datetime
 
 
+def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]:
+    """Sky cameras in service at ``until`` with a level taken in [``since``, ``until``] but no
+    place (no ``lat``/``lon``): graded, yet not on the map."""
+    graded = (
+        select(Frame.camera_id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(
+            Frame.camera_id == Camera.id,
+            Frame.captured_at >= since,
+            Frame.captured_at <= until,
+            SkyVerdict.level.is_not(None),
+        )
+    )
+    return list(
+        session.scalars(
+            select(Camera.id)
+            .where(
+                Camera.kind == CameraKind.sky,
+                or_(Camera.lat.is_(None), Camera.lon.is_(None)),
+                or_(Camera.retired_at.is_(None), Camera.retired_at > until),
+                graded.exists(),
+            )
+            .order_by(Camera.id)
+        )
+    )
+
+
 def stations(session: Session, *, since: datetime, until: datetime) -> list[Station]:
     """Each located sky camera in service at ``until``: its latest smoothed (else graded) level
     taken in [``since``, ``until``] (as smoothed when it was taken)."""

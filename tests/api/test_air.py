@@ -479,6 +479,28 @@ def test_the_map_as_it_was_at_an_earlier_time(
     assert ahead.json()["code"] == "bad_time"
 
 
+def test_the_map_names_graded_cameras_it_cannot_place(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A camera registered without a place is graded but cannot be mapped: the map says so
+    instead of leaving it out silently."""
+    calibrate(client, admin)
+    r = client.post(
+        "/cameras", json={"id": "roof", "kind": "sky", "roi": [0, 0, 160, 55]}, headers=admin
+    )
+    city["tokens"]["roof"] = (r.json()["token"], None)
+    post(client, city, "sky1", 7, seed=1)
+    fc = client.get("/air/isopleths").json()
+    assert fc["warnings"] == []
+    post(client, city, "roof", 7, seed=2)
+    fc = client.get("/air/isopleths", params={"method": "kriging"}).json()  # not the cached map
+    assert [c["camera_id"] for c in fc["cameras"]] == ["sky1"]
+    assert fc["warnings"] == [
+        "1 sky camera with readings has no lat/lon and so no place on the map: roof"
+        " (PATCH /cameras/{id} with both)"
+    ]
+
+
 def test_the_png_map_is_drawn_at_one_scale_in_metres(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
