@@ -14,4 +14,5 @@ COPY migrations ./migrations
 VOLUME /data
 EXPOSE 8000
 # migrations first, then the service (several processes may share /data and one PostgreSQL)
-CMD ["sh", "-c", "alembic upgrade head && exec uvicorn app.main:create_app --factory --host 0.0.0.0 --port 8000 --workers ${VANTAGE_WORKERS:-2}"]
+# (app.serve: uvicorn, with the workers' Prometheus counters summed by every /metrics scrape)
+CMD ["sh", "-c", "alembic upgrade head && exec python -m app.serve --host 0.0.0.0 --port 8000 --workers ${VANTAGE_WORKERS:-2}"]

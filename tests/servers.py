@@ -33,15 +33,16 @@ def server_env(database_url: str, data_dir: Path, **extra: str) -> dict[str, str
     }
 
 
-def start_server(env: dict[str, str], port: int) -> subprocess.Popen[bytes]:
-    """uvicorn on ``port``, returned once /health answers."""
+def start_server(env: dict[str, str], port: int, *, workers: int = 0) -> subprocess.Popen[bytes]:
+    """uvicorn on ``port``, returned once /health answers; with ``workers``, as the Docker
+    image starts it (``python -m app.serve --workers N``)."""
+    launch = ["app.serve", "--workers", str(workers)] if workers else ["uvicorn"]
     proc = subprocess.Popen(
         [
             sys.executable,
             "-m",
-            "uvicorn",
-            "app.main:create_app",
-            "--factory",
+            *launch,
+            *(["app.main:create_app", "--factory"] if not workers else []),
             "--port",
             str(port),
             "--log-level",
