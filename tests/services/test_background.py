@@ -4,6 +4,7 @@ still holds a connection when the engine is disposed."""
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
 import time
 from datetime import timedelta
@@ -119,8 +120,8 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
     stopping = threading.Event()
     posted: list[str] = []
 
-    def post(url: str, body: dict[str, object]) -> None:
-        posted.append(str(body["alert_id"]))
+    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
+        posted.append(json.loads(body)["alert_id"])
         stopping.set()  # the shutdown comes while the first alert is being posted
 
     monkeypatch.setattr(webhooks, "_post", post)
