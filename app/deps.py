@@ -135,6 +135,23 @@ def get_principal(request: Request) -> Principal:
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
+def require_metrics_reader(request: Request) -> None:
+    """``/metrics``: the metrics token (``VANTAGE_METRICS_TOKEN``, a scraper's, good for
+    nothing else) or the admin token. It names every camera, so it is not public."""
+    settings: Settings = request.app.state.settings
+    header = request.headers.get("authorization")
+    if header and settings.metrics_token is not None:
+        token, _ = _credentials(header)
+        if hmac.compare_digest(
+            hash_token(token), hash_token(settings.metrics_token.get_secret_value())
+        ):
+            return
+    require_admin(get_principal(request))
+
+
+MetricsReader = Annotated[None, Depends(require_metrics_reader)]
+
+
 def optional_principal(request: Request) -> Principal | None:
     """The caller of a public endpoint: None without an Authorization header; a token that is
     given must be valid (401), so an operator's misspelt token is not silently public."""

@@ -35,6 +35,11 @@ class Settings(BaseSettings):
     admin_token: SecretStr | None = Field(
         default=None, description="Operator token; generated and saved in data_dir when unset."
     )
+    metrics_token: SecretStr | None = Field(
+        default=None,
+        description="A token that may read /metrics only (a Prometheus scraper's); the admin "
+        "token may too.",
+    )
     max_body_bytes: int = Field(default=10 * 1024 * 1024, gt=0, description="Request body cap [B].")
     max_pixels: int = Field(default=40_000_000, gt=0, description="Frame size cap [px].")
     frame_retention_days: float = Field(
@@ -165,6 +170,11 @@ class Settings(BaseSettings):
         if self.env == "production" and self.admin_token is not None:
             if len(self.admin_token.get_secret_value()) < 24:
                 raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
+        if self.env == "production" and self.metrics_token is not None:
+            if len(self.metrics_token.get_secret_value()) < 24:
+                raise ValueError(
+                    "VANTAGE_METRICS_TOKEN must be at least 24 characters in production"
+                )
         if (
             self.history_retention_days is not None
             and self.history_retention_days < self.frame_retention_days

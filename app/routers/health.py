@@ -12,7 +12,7 @@ from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from app import __version__
-from app.deps import Admin, get_sessionmaker
+from app.deps import Admin, MetricsReader, get_sessionmaker
 from app.schemas import Health
 from app.services import retention
 from app.services.storage import StoreUnavailable
@@ -48,9 +48,10 @@ def health(request: Request) -> JSONResponse:
 
 
 @router.get("/metrics", include_in_schema=False)
-def metrics() -> Response:
-    """Prometheus metrics: of this process, or summed over the workers that share its port
-    (``PROMETHEUS_MULTIPROC_DIR``, set by ``python -m app.serve --workers N``)."""
+def metrics(_: MetricsReader) -> Response:
+    """Prometheus metrics (the metrics or the admin token): of this process, or summed over
+    the workers that share its port (``PROMETHEUS_MULTIPROC_DIR``, set by ``python -m
+    app.serve --workers N``)."""
     if "PROMETHEUS_MULTIPROC_DIR" not in os.environ:
         return Response(generate_latest(), media_type=CONTENT_TYPE_LATEST)
     registry = CollectorRegistry()

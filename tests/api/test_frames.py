@@ -518,9 +518,11 @@ class TestBadInput:
         assert r.status_code == 422
         assert snapshot() == before
 
-    def test_rejections_are_counted(self, client: TestClient, camera: dict[str, Any]) -> None:
+    def test_rejections_are_counted(
+        self, client: TestClient, camera: dict[str, Any], admin: dict[str, str]
+    ) -> None:
         client.post("/cameras/cam-1/frames", content=png_bytes(), headers=cam_headers(camera))
-        metrics = client.get("/metrics").text
+        metrics = client.get("/metrics", headers=admin).text
         assert 'vantage_frames_rejected_total{camera_id="cam-1",reason="not_jpeg"}' in metrics
 
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import gc
 import json
 import shutil
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from pydantic import SecretStr
 
 from app import __version__
 from app.main import create_app
@@ -59,10 +61,34 @@ def test_request_id_is_echoed_and_logged(
     assert {"request_id": "abc-123", "path": "/health", "status": 200}.items() <= access[0].items()
 
 
-def test_metrics_exposes_ingest_counters(client: TestClient) -> None:
-    text = client.get("/metrics").text
+def test_metrics_exposes_ingest_counters(client: TestClient, admin: dict[str, str]) -> None:
+    text = client.get("/metrics", headers=admin).text
     assert "vantage_frames_received_total" in text
     assert "vantage_ingest_seconds_bucket" in text
+
+
+def test_metrics_need_the_metrics_or_the_admin_token(
+    settings: Settings, engine: Any, admin: dict[str, str]
+) -> None:
+    """They name every camera, and the contract lists /metrics among no public endpoints: a
+    scraper gets a token of its own, which opens nothing else."""
+    from tests.conftest import _empty_tables
+
+    _empty_tables(engine)
+    scraper = "m" * 32
+    app = create_app(settings.model_copy(update={"metrics_token": SecretStr(scraper)}))
+    with TestClient(app) as client:
+        camera = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+        assert client.get("/metrics").status_code == 401
+        assert client.get("/metrics", headers={"Authorization": "Bearer nope"}).status_code == 401
+        as_camera = {"Authorization": f"Bearer {camera['token']}"}
+        assert client.get("/metrics", headers=as_camera).status_code == 403
+        for token in (scraper, admin["Authorization"].removeprefix("Bearer ")):
+            r = client.get("/metrics", headers={"Authorization": f"Bearer {token}"})
+            assert r.status_code == 200
+            assert "vantage_ingest_seconds_bucket" in r.text
+        as_scraper = {"Authorization": f"Bearer {scraper}"}
+        assert client.get("/cameras", headers=as_scraper).status_code == 401
 
 
 def test_unknown_route_is_problem_json(client: TestClient) -> None:
