@@ -16,6 +16,7 @@ Bands are filled contours between the category boundaries (contourpy), checked w
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -320,24 +321,22 @@ def band_at(f: Field, lon: NDArray[np.float64], lat: NDArray[np.float64]) -> lis
     return out
 
 
-def bands(f: Field) -> list[dict[str, Any]]:
-    """GeoJSON features, one per category present: filled contours between the category
-    boundaries, valid (shapely), exteriors counter-clockwise (RFC 7946 right-hand rule)."""
+def _filled(f: Field, z: NDArray[np.float64], edges: Sequence[float]) -> list[tuple[int, Any]]:
+    """Filled contours of ``z`` between consecutive ``edges``: (index of the band, its shapely
+    Polygon or MultiPolygon) for each band present, valid, exteriors counter-clockwise (RFC
+    7946 right-hand rule)."""
     import contourpy
     from shapely import MultiPolygon, Polygon, make_valid, unary_union
-    from shapely.geometry import mapping
     from shapely.geometry.polygon import orient
 
-    if np.isnan(f.value).all():
+    if np.isnan(z).all():
         return []
-    z = np.ma.masked_invalid(f.value)
     gen = contourpy.contour_generator(
-        f.lon, f.lat, z, fill_type=contourpy.FillType.OuterOffset, name="serial"
-    )
-    features = []
-    for (name, lo, hi), (a, b) in zip(
-        BANDS, zip(BAND_EDGES[:-1], BAND_EDGES[1:], strict=True), strict=True
-    ):
+        f.lon, f.lat, np.ma.masked_invalid(z), fill_type=contourpy.FillType.OuterOffset,
+        name="serial",
+    )  # fmt: skip
+    out = []
+    for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         filled: Any = gen.filled(a, b)
         points, offsets = filled[0], filled[1]
         polygons = []
@@ -354,16 +353,78 @@ def bands(f: Field) -> list[dict[str, Any]]:
         ]
         if not parts:
             continue
-        shape = (
-            MultiPolygon([orient(p, 1.0) for p in parts])
-            if len(parts) > 1
-            else orient(parts[0], 1.0)
+        out.append(
+            (
+                i,
+                MultiPolygon([orient(p, 1.0) for p in parts])
+                if len(parts) > 1
+                else orient(parts[0], 1.0),
+            )
         )
+    return out
+
+
+def bands(f: Field) -> list[dict[str, Any]]:
+    """GeoJSON features, one per category present: filled contours between the category
+    boundaries, valid (shapely), exteriors counter-clockwise (RFC 7946 right-hand rule)."""
+    from shapely.geometry import mapping
+
+    features = []
+    for i, shape in _filled(f, f.value, BAND_EDGES):
+        name, lo, hi = BANDS[i]
         features.append(
             {
                 "type": "Feature",
                 "geometry": mapping(shape),
                 "properties": {"category": name, "level_min": lo, "level_max": hi},
+            }
+        )
+    return features
+
+
+UNCERTAINTY_EDGES: dict[str, tuple[float, ...]] = {
+    "kriging_sd": (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0),
+    "nearest_camera_m": (0.0, 250.0, 500.0, 1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0),
+}
+"""Where the uncertainty layer's bands change: kriging's standard deviation [level], or the
+distance to the nearest camera [m]; the last band is open above."""
+UNCERTAINTY_UNITS = {"kriging_sd": "level", "nearest_camera_m": "m"}
+
+
+def uncertainty_edges(f: Field) -> tuple[float, ...]:
+    """The edges of ``f``'s uncertainty bands, the last one closing over its largest value."""
+    edges = UNCERTAINTY_EDGES[f.uncertainty_kind]
+    u = uncertainty_of(f)
+    top = edges[-1] if np.isnan(u).all() else max(float(np.nanmax(u)), edges[-1])
+    return (*edges, top * 1.001 + 1.0)
+
+
+def uncertainty_of(f: Field) -> NDArray[np.float64]:
+    """The uncertainty where the map is painted (NaN where it is not: no evidence there, so
+    no claim of how uncertain it is)."""
+    return np.where(np.isnan(f.value), np.nan, f.uncertainty)
+
+
+def uncertainty_bands(f: Field) -> list[dict[str, Any]]:
+    """The uncertainty layer as GeoJSON features: filled contours of kriging's standard
+    deviation, or of the distance to the nearest camera, between ``UNCERTAINTY_EDGES``, over
+    the painted cells; valid and counter-clockwise as ``bands``. Properties: ``kind``,
+    ``unit``, ``uncertainty_min`` and ``uncertainty_max`` (null for the open last band)."""
+    from shapely.geometry import mapping
+
+    edges = uncertainty_edges(f)
+    features = []
+    for i, shape in _filled(f, uncertainty_of(f), edges):
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": mapping(shape),
+                "properties": {
+                    "kind": f.uncertainty_kind,
+                    "unit": UNCERTAINTY_UNITS[f.uncertainty_kind],
+                    "uncertainty_min": edges[i],
+                    "uncertainty_max": edges[i + 1] if i + 2 < len(edges) else None,
+                },
             }
         )
     return features

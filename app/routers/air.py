@@ -492,6 +492,7 @@ class MapQuery:
     max_distance: float
     at: datetime | None
     """The time the map is of; None: now."""
+    layer: Literal["levels", "uncertainty"] = "levels"
 
 
 At = Annotated[
@@ -503,6 +504,16 @@ At = Annotated[
 ]
 
 
+Layer = Annotated[
+    Literal["levels", "uncertainty"],
+    Query(
+        description="levels: the category bands; uncertainty: how far to trust them, as bands "
+        "of kriging's standard deviation [level] (method=kriging) or of the distance to the "
+        "nearest camera [m] (idw, rbf)."
+    ),
+]
+
+
 def _map_query(
     bbox: Bbox = None,
     window: Window = 3600,
@@ -510,8 +521,9 @@ def _map_query(
     resolution: Resolution = 128,
     max_distance: MaxDistance = 5000.0,
     at: At = None,
+    layer: Layer = "levels",
 ) -> MapQuery:
-    return MapQuery(_bbox(bbox), window, method, resolution, max_distance, at)
+    return MapQuery(_bbox(bbox), window, method, resolution, max_distance, at, layer)
 
 
 MapQueryDep = Annotated[MapQuery, Depends(_map_query)]
@@ -614,7 +626,9 @@ def _geojson(
     now: datetime,
     q: MapQuery,
 ) -> dict[str, Any]:
-    features = isopleths.bands(f) if f is not None else []
+    features = []
+    if f is not None:
+        features = isopleths.bands(f) if q.layer == "levels" else isopleths.uncertainty_bands(f)
     own = [airquality.category(s.level) for s in st]
     drawn: list[str | None] = [None] * len(st)
     warnings = []
@@ -635,6 +649,7 @@ def _geojson(
         "features": features,
         "bbox": list(box) if box else None,
         "method": q.method,
+        "layer": q.layer,
         "computed_at": now.isoformat(),
         "at": at.isoformat(),
         "window_s": q.window,
@@ -674,6 +689,6 @@ async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> 
 
     def compute(session: Session) -> bytes:
         st, f, box, at = _field(session, policy, q)
-        return render(f, st, box, at)
+        return render(f, st, box, at, q.layer)
 
     return await _cached_map(request, ("png", q), compute, "image/png")

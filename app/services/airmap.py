@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Literal
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from app.core import isopleths
 from app.services.air import Station
@@ -19,8 +21,40 @@ COLOURS = {  # BGR, from Very Poor to Very Good
 }
 SIZE = 640
 LEGEND = 150
-MIN_HEIGHT = 280
+MIN_HEIGHT = 330
 """The legend's height [px]: a map wider than tall leaves white below it."""
+EMPTY = 240
+"""Grey of the cells left unpainted (no camera near enough)."""
+
+
+def _legend_levels() -> tuple[list[tuple[str, tuple[int, int, int]]], list[tuple[int, int, int]]]:
+    """Legend entries (best first) and the colour of each band index (worst first)."""
+    entries = [(f"{name} {lo}-{hi}", COLOURS[name]) for name, lo, hi in reversed(isopleths.BANDS)]
+    return entries, [COLOURS[name] for name, _, _ in isopleths.BANDS]
+
+
+def _legend_uncertainty(
+    edges: tuple[float, ...], unit: str
+) -> tuple[list[tuple[str, tuple[int, int, int]]], list[tuple[int, int, int]]]:
+    """Legend entries (least uncertain first) and a colour per band: light to dark."""
+    n = len(edges) - 1
+    ramp = cv2.applyColorMap(
+        np.linspace(40, 230, n).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_VIRIDIS
+    )[::-1]
+    colours = [tuple(int(c) for c in ramp[i, 0]) for i in range(n)]
+
+    def label(v: float) -> str:
+        return f"{v / 1000:g} km" if unit == "m" and v >= 1000 else f"{v:g}"
+
+    entries = [
+        (
+            f"{label(edges[i])}-{label(edges[i + 1])}" if i + 2 < len(edges) else
+            f">= {label(edges[i])}",
+            colours[i],
+        )
+        for i in range(n)
+    ]  # fmt: skip
+    return entries, colours  # type: ignore[return-value]
 
 
 def render(
@@ -28,26 +62,38 @@ def render(
     stations: list[Station],
     bbox: tuple[float, float, float, float] | None,
     at: datetime,
+    layer: Literal["levels", "uncertainty"] = "levels",
 ) -> bytes:
     """The bands over the bbox (north up, its longer side ``SIZE`` pixels, east–west and
     north–south at one scale in metres, so that a circle around a camera is drawn round), the
-    cameras, a legend and the time the map is of."""
+    cameras, a legend and the time the map is of. ``layer``: the category bands, or how
+    uncertain they are (kriging's standard deviation, or the distance to the nearest camera)."""
     width = height = SIZE
     if field is not None and bbox is not None:
         dx, dy = isopleths.cell_size_m(field)
         w_m, h_m = dx * len(field.lon), dy * len(field.lat)
         width = max(1, round(SIZE * w_m / max(w_m, h_m)))
         height = max(1, round(SIZE * h_m / max(w_m, h_m)))
+    title = "level"
+    if layer == "levels" or field is None:
+        entries, colours = _legend_levels()
+        edges: tuple[float, ...] = isopleths.BAND_EDGES
+        z: NDArray[np.float64] | None = None if field is None else field.value
+    else:
+        edges = isopleths.uncertainty_edges(field)
+        unit = isopleths.UNCERTAINTY_UNITS[field.uncertainty_kind]
+        entries, colours = _legend_uncertainty(edges, unit)
+        z = isopleths.uncertainty_of(field)
+        title = "kriging sd [level]" if unit == "level" else "nearest camera"
     canvas = np.full((max(height, MIN_HEIGHT), SIZE + LEGEND, 3), 255, np.uint8)
-    if field is not None and bbox is not None:
+    if field is not None and bbox is not None and z is not None:
         x0, y0, x1, y1 = bbox
-        z = field.value
         band = np.full(z.shape, -1, np.int32)
-        for i, e in enumerate(isopleths.BAND_EDGES[:-1]):
-            band[(z >= e) & (z < isopleths.BAND_EDGES[i + 1])] = i
-        image = np.full((*z.shape, 3), 240, np.uint8)
-        for i, (name, _, _) in enumerate(isopleths.BANDS):
-            image[band == i] = COLOURS[name]
+        for i, e in enumerate(edges[:-1]):
+            band[(z >= e) & (z < edges[i + 1])] = i
+        image = np.full((*z.shape, 3), EMPTY, np.uint8)
+        for i, colour in enumerate(colours):
+            image[band == i] = colour
         image = cv2.resize(image[::-1], (width, height), interpolation=cv2.INTER_NEAREST)
         canvas[:height, :width] = image
         for s in stations:
@@ -65,25 +111,17 @@ def render(
             (0, 0, 0),
             2,
         )
-    for i, (name, lo, hi) in enumerate(reversed(isopleths.BANDS)):
-        y = 30 + 36 * i
-        cv2.rectangle(canvas, (SIZE + 12, y - 16), (SIZE + 36, y + 6), COLOURS[name], -1)
-        cv2.putText(
-            canvas,
-            f"{name} {lo}-{hi}",
-            (SIZE + 42, y),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.42,
-            (0, 0, 0),
-            1,
-        )
-    cv2.putText(
-        canvas, "o camera", (SIZE + 12, 30 + 36 * 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1
-    )
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(canvas, title, (SIZE + 12, 20), font, 0.42, (0, 0, 0), 1)
+    for i, (text, colour) in enumerate(entries):
+        y = 44 + 30 * i
+        cv2.rectangle(canvas, (SIZE + 12, y - 14), (SIZE + 36, y + 4), colour, -1)
+        cv2.putText(canvas, text, (SIZE + 42, y), font, 0.42, (0, 0, 0), 1)
+    cv2.putText(canvas, "o camera", (SIZE + 12, 44 + 30 * len(entries)), font, 0.45, (0, 0, 0), 1)
     utc = at.astimezone(UTC)
     for i, text in enumerate((utc.strftime("%Y-%m-%d"), utc.strftime("%H:%M UTC"))):
         y = canvas.shape[0] - 36 + 18 * i
-        cv2.putText(canvas, text, (SIZE + 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+        cv2.putText(canvas, text, (SIZE + 12, y), font, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", canvas)
     assert ok
     return bytes(buf.tobytes())

@@ -501,6 +501,37 @@ def test_the_map_names_graded_cameras_it_cannot_place(
     ]
 
 
+def test_the_uncertainty_layer(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """``layer=uncertainty``: where to trust the map, as bands of the distance to the nearest
+    camera (idw) or of kriging's standard deviation, in GeoJSON and drawn."""
+    calibrate(client, admin)
+    for cam, level in (("sky1", 3), ("sky2", 7), ("sky3", 10), ("sky4", 5)):
+        post(client, city, cam, level, seed=1)
+    levels = client.get("/air/isopleths").json()
+    assert levels["layer"] == "levels"
+    for method, kind, unit in (
+        ("idw", "nearest_camera_m", "m"),
+        ("kriging", "kriging_sd", "level"),
+    ):
+        r = client.get("/air/isopleths", params={"layer": "uncertainty", "method": method})
+        assert r.status_code == 200, r.text
+        fc = r.json()
+        assert fc["layer"] == "uncertainty"
+        assert fc["uncertainty"]["kind"] == kind
+        assert fc["features"]
+        assert {f["properties"]["kind"] for f in fc["features"]} == {kind}
+        assert {f["properties"]["unit"] for f in fc["features"]} == {unit}
+        assert all(shape(f["geometry"]).is_valid for f in fc["features"])
+        assert [c["camera_id"] for c in fc["cameras"]] == ["sky1", "sky2", "sky3", "sky4"]
+    png = client.get("/air/isopleths.png", params={"layer": "uncertainty"})
+    assert png.status_code == 200
+    assert png.headers["content-type"] == "image/png"
+    assert png.content != client.get("/air/isopleths.png").content
+    assert client.get("/air/isopleths", params={"layer": "variance"}).status_code == 422
+
+
 def test_the_png_map_is_drawn_at_one_scale_in_metres(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

@@ -12,12 +12,14 @@ from shapely.geometry import Point, shape
 
 from app.core import airquality, soiling
 from app.core.isopleths import (
+    EARTH_RADIUS,
     IsoplethError,
     band_at,
     bands,
     cell_size_m,
     default_bbox,
     interpolate,
+    uncertainty_bands,
 )
 
 # very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
@@ -317,6 +319,72 @@ class TestIsopleths:
         lon, lat, level = smooth_field()
         f = interpolate(lon, lat, level, bbox=(0, 0, 1, 1), method="idw", resolution=16)
         assert bands(f) == []
+        assert uncertainty_bands(f) == []
+
+
+class TestUncertaintyLayer:
+    """Bands of how far to trust the map: the distance to the nearest camera (idw, rbf) or
+    kriging's standard deviation."""
+
+    def test_distance_bands_hold_the_points_at_that_distance(self) -> None:
+        """Two cameras 8 km apart on the equator-parallel at 45° N; points due north of the
+        first at known distances lie in the band of that distance, and nothing is drawn past
+        ``max_distance``."""
+        lat0 = 45.0
+        east = 8_000 / (EARTH_RADIUS * np.cos(np.radians(lat0))) * 180 / np.pi
+        lon = np.array([9.0, 9.0 + east])
+        f = interpolate(
+            lon, np.array([lat0, lat0]), np.array([3.0, 8.0]),
+            bbox=(8.95, 44.95, 9.15, 45.05), method="idw", resolution=400, max_distance=3_000,
+        )  # fmt: skip
+        features = uncertainty_bands(f)
+        assert {ft["properties"]["kind"] for ft in features} == {"nearest_camera_m"}
+        assert {ft["properties"]["unit"] for ft in features} == {"m"}
+        spans = [
+            (ft["properties"]["uncertainty_min"], ft["properties"]["uncertainty_max"])
+            for ft in features
+        ]
+        assert spans == [(0, 250), (250, 500), (500, 1000), (1000, 2000), (2000, 5000)]
+        shapes = [shape(ft["geometry"]) for ft in features]
+        assert all(s.is_valid for s in shapes)
+        for a in range(len(shapes)):
+            for b in range(a + 1, len(shapes)):
+                assert shapes[a].intersection(shapes[b]).area < 1e-12  # no overlaps
+        for metres, band in ((120, 0), (400, 1), (800, 2), (1500, 3), (2600, 4)):
+            north = lat0 + metres / EARTH_RADIUS * 180 / np.pi
+            inside = [i for i, s in enumerate(shapes) if s.contains(Point(9.0, north))]
+            assert inside == [band], metres
+        beyond = lat0 + 3_300 / EARTH_RADIUS * 180 / np.pi  # unpainted: no evidence there
+        assert not any(s.contains(Point(9.0, beyond)) for s in shapes)
+
+    def test_kriging_bands_grow_away_from_the_cameras(self) -> None:
+        lon, lat, level = smooth_field()
+        f = interpolate(
+            lon, lat, level, bbox=default_bbox(lon, lat), method="kriging", resolution=96,
+            max_distance=20_000,
+        )  # fmt: skip
+        features = uncertainty_bands(f)
+        assert {ft["properties"]["kind"] for ft in features} == {"kriging_sd"}
+        assert all(shape(ft["geometry"]).is_valid for ft in features)
+        lows = [ft["properties"]["uncertainty_min"] for ft in features]
+        assert lows == sorted(lows)
+        shapes = [shape(ft["geometry"]) for ft in features]
+
+        def band(x: float, y: float) -> int:  # the band holding (or, on an edge, touching) it
+            return int(np.argmin([s.distance(Point(x, y)) for s in shapes]))
+
+        # at the cameras the deviation is small (the nugget's); the painted cell farthest from
+        # every camera (distances in metres on the local plane) lies in a band above theirs
+        at_cameras = [band(x, y) for x, y in zip(lon, lat, strict=True)]
+        assert max(features[i]["properties"]["uncertainty_max"] for i in at_cameras) <= 1.0
+        glon, glat = np.meshgrid(f.lon, f.lat)
+        k = np.cos(np.radians(45.475))
+        d = np.hypot(
+            (glon.ravel()[:, None] - lon[None, :]) * k, glat.ravel()[:, None] - lat[None, :]
+        ).min(axis=1)
+        d[np.isnan(f.value.ravel())] = -1
+        far = int(np.argmax(d))
+        assert band(glon.ravel()[far], glat.ravel()[far]) > max(at_cameras)
 
 
 @pytest.mark.parametrize(
