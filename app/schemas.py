@@ -458,6 +458,10 @@ class AirAlertOut(Out):
     camera_id: str
     frame_id: str
     created_at: datetime
+    kind: Literal["raised", "cleared"] = Field(
+        description="raised: the smoothed level entered ``category`` (Poor or Very Poor); "
+        "cleared: after an alert, it is back in ``category``, clear of Poor (5.0 or better)."
+    )
     smoothed_level: float
     category: str
     delivered: bool

@@ -53,6 +53,11 @@ edge (to 5.0 for Poor, 3.0 for Very Poor). Air hovering on an edge — readings 
 was a new alert and webhook for the same episode."""
 
 
+CLEAR_LEVEL = 4.5 + ALERT_REARM
+"""A camera's raised alert is cleared when its smoothed level reaches this (Fair, clear of
+Poor by ``ALERT_REARM``): the level at which entering Poor alerts again."""
+
+
 def alert_category(smoothed: float, earlier: Iterable[float]) -> str | None:
     """The category to raise an alert for when a camera's smoothed level becomes ``smoothed``
     after ``earlier`` (its earlier smoothed levels, newest first): entering Poor or Very Poor

@@ -332,7 +332,8 @@ class AirCalibrationCamera(Base):
 
 
 class AirAlert(Base):
-    """A camera's smoothed level entered Poor or Very Poor."""
+    """A camera's smoothed level entered Poor or Very Poor (``raised``), or, after that, came
+    back clearly out of Poor (``cleared``)."""
 
     __tablename__ = "air_alerts"
 
@@ -340,8 +341,11 @@ class AirAlert(Base):
     camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"), index=True)
     frame_id: Mapped[str] = mapped_column(ForeignKey("frames.id"))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    kind: Mapped[str] = mapped_column(String(8), default="raised", server_default="raised")
+    """``raised`` or ``cleared``."""
     smoothed_level: Mapped[float] = mapped_column(Float)
     category: Mapped[str] = mapped_column(String(16))
+    """The category entered (raised), or the category the air is back in (cleared)."""
     delivered: Mapped[bool] = mapped_column(Boolean, default=False)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     last_error: Mapped[str | None] = mapped_column(String(500))

@@ -417,13 +417,17 @@ def alerts(
     span: TimeRangeQuery,
     caller: OptionalPrincipal,
     camera_id: IdFilter = None,
+    kind: Annotated[
+        Literal["raised", "cleared"] | None, Query(description="Only alerts of this kind.")
+    ] = None,
     limit: Limit = 100,
     offset: Offset = 0,
 ) -> list[AirAlertOut]:
-    """Alerts (a camera's smoothed level entered Poor or Very Poor), newest first, raised in
-    [``since``, ``until``), with where each one's webhook delivery stands. Why the last
-    delivery failed (``last_error``: the receiver's answer, a redirect's address) is the
-    operator's to read: null without the admin token."""
+    """Alerts, newest first, made in [``since``, ``until``): ``raised`` when a camera's smoothed
+    level entered Poor or Very Poor, ``cleared`` when, after that, it came back to 5.0 or
+    better; with where each one's webhook delivery stands. Why the last delivery failed
+    (``last_error``: the receiver's answer, a redirect's address) is the operator's to read:
+    null without the admin token."""
     operator = caller is not None and caller.role == "admin"
     if camera_id is not None:
         air.sky_camera(session, camera_id)
@@ -434,6 +438,7 @@ def alerts(
         offset=offset,
         since=span.since,
         until=span.until,
+        kind=kind,
     )
     now = policy.now()
     retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None
@@ -443,6 +448,7 @@ def alerts(
             camera_id=a.camera_id,
             frame_id=a.frame_id,
             created_at=a.created_at,
+            kind=a.kind,
             smoothed_level=a.smoothed_level,
             category=a.category,
             delivered=a.delivered,

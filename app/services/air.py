@@ -298,7 +298,8 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
 
 
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
-    """Grade a sky frame, smooth the camera's level, and raise an alert when it turns Poor."""
+    """Grade a sky frame, smooth the camera's level, and raise an alert when it turns Poor
+    (or clear the camera's last one when it is back to ``CLEAR_LEVEL``)."""
     camera, frame, decoded = prepared.camera, prepared.frame, prepared.decoded
     verdict = SkyVerdict(
         frame_id=frame.id,
@@ -353,7 +354,18 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     smoothed = airquality.nowcast(times, levels, frame.captured_at)
     verdict.smoothed_level = smoothed
     earlier = (float(r[2]) for r in history if r[2] is not None)  # newest first
-    alert = None if smoothed is None else airquality.alert_category(smoothed, earlier)
+    if smoothed is None:
+        return verdict
+    kind, alert = "raised", airquality.alert_category(smoothed, earlier)
+    if alert is None and smoothed >= airquality.CLEAR_LEVEL:
+        last = session.scalar(
+            select(AirAlert.kind)
+            .where(AirAlert.camera_id == camera.id)
+            .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
+            .limit(1)
+        )
+        if last == "raised":  # the episode the camera's last alert opened is over
+            kind, alert = "cleared", airquality.category(smoothed)
     if (
         alert is not None
         # the air of hours ago, seen after newer readings: history, not an alert
@@ -366,6 +378,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
                 camera_id=camera.id,
                 frame_id=frame.id,
                 created_at=frame.received_at,
+                kind=kind,
                 smoothed_level=smoothed,
                 category=alert,
                 delivered=False,
@@ -591,9 +604,12 @@ def alerts(
     offset: int,
     since: datetime | None = None,
     until: datetime | None = None,
+    kind: str | None = None,
 ) -> Sequence[AirAlert]:
-    """Alerts newest first, raised in [``since``, ``until``)."""
+    """Alerts newest first, made in [``since``, ``until``); only ``kind`` ones when given."""
     q = select(AirAlert)
+    if kind is not None:
+        q = q.where(AirAlert.kind == kind)
     if camera_id is not None:
         q = q.where(AirAlert.camera_id == camera_id)
     if since is not None:

@@ -175,6 +175,7 @@ def sweep(
                     "frame_id": alert.frame_id,
                     "captured_at": frame.captured_at.isoformat() if frame else None,
                     "created_at": alert.created_at.isoformat(),
+                    "kind": alert.kind,
                     "smoothed_level": alert.smoothed_level,
                     "category": alert.category,
                     "message": f"Today's Air Quality is {alert.category}",

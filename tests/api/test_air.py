@@ -275,6 +275,37 @@ def test_air_getting_worse_again_is_a_second_alert(
     assert 2.5 <= smoothed[-1] < 4.5
 
 
+def test_an_episode_of_poor_air_is_raised_then_cleared(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A receiver showing "Poor air at sky1" learns when it is over: once the smoothed level is
+    back to 5.0 (clear of Poor by the hysteresis), one ``cleared`` alert; the next episode
+    raises again. Hovering just above the edge (4.5–5.0) clears nothing."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    graded = [3] * 6 + [5] * 12 + [10] * 18 + [3] * 8
+    for k, level in enumerate(graded):
+        city["clock"].advance(minutes=20)
+        assert post(client, city, "sky1", level, seed=300 + k)["level"] == level
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings)][3:]
+    alerts = list(reversed(client.get("/air/alerts").json()))
+    assert [(a["kind"], a["category"]) for a in alerts] == [
+        ("raised", "Poor"),
+        ("cleared", "Fair"),
+        ("raised", "Poor"),
+    ]
+    frames = [r["frame_id"] for r in reversed(readings)][3:]
+    raised, cleared = frames.index(alerts[0]["frame_id"]), frames.index(alerts[1]["frame_id"])
+    assert smoothed[raised] < 4.5 <= smoothed[raised - 1]
+    assert cleared == next(i for i in range(raised, len(smoothed)) if smoothed[i] >= 5.0)
+    assert any(4.5 <= v < 5.0 for v in smoothed[raised:cleared])  # the dead band cleared nothing
+    only = client.get("/air/alerts", params={"kind": "cleared"}).json()
+    assert [a["id"] for a in only] == [alerts[1]["id"]]
+
+
 def test_air_hovering_on_the_poor_edge_is_one_alert(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

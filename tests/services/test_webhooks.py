@@ -308,6 +308,7 @@ def test_alerts_are_signed_and_say_where_and_when(
     for body, headers in got:
         alert = receiver.verify(body, headers)
         assert headers["webhook-id"] == alert["alert_id"] == "a0"
+        assert alert["kind"] == "raised"
         assert {k: alert[k] for k in ("camera_name", "lat", "lon", "captured_at")} == {
             "camera_name": "Piazza Duomo",
             "lat": 45.464,
