@@ -18,6 +18,7 @@ from pydantic import StringConstraints
 from sqlalchemy.orm import Session
 
 from app.core import airquality, isopleths
+from app.db.models import Frame, SkyVerdict
 from app.deps import (
     ID_PATTERN,
     Admin,
@@ -282,6 +283,24 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
     """A sky camera's latest reading: level, category, message, and the smoothed level; the
     message and the smoothed level only while the reading is current (taken in the last 3 h)."""
     found = air.latest(session, camera_id)
+    return _latest_out(camera_id, found, policy.now())
+
+
+@router.get("/latest", response_model=list[AirLatest])
+async def latest_of_every_camera(
+    request: Request, policy: PolicyDep, limit: Limit = 1000, offset: Offset = 0
+) -> list[AirLatest]:
+    """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
+    gives it (a dashboard's list of the city's cameras in one request, not one per camera)."""
+    rows = await public_work(request, partial(air.latest_of_every, limit=limit, offset=offset))
+    now = policy.now()
+    return [
+        _latest_out(cid, (frame, v) if frame is not None and v is not None else None, now)
+        for cid, frame, v in rows
+    ]
+
+
+def _latest_out(camera_id: str, found: tuple[Frame, SkyVerdict] | None, now: datetime) -> AirLatest:
     if found is None:
         return AirLatest(
             camera_id=camera_id,
@@ -295,7 +314,7 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
             current=False,
         )
     frame, v = found
-    age = policy.now() - frame.captured_at
+    age = now - frame.captured_at
     current = age < airquality.FRESH  # else a camera gone quiet: not today's air
     smoothed = v.smoothed_level if current else None
     return AirLatest(

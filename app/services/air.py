@@ -445,6 +445,38 @@ def latest(session: Session, camera_id: str) -> tuple[Frame, SkyVerdict] | None:
     return (row[0], row[1]) if row else None
 
 
+def latest_of_every(
+    session: Session, *, limit: int, offset: int
+) -> list[tuple[str, Frame | None, SkyVerdict | None]]:
+    """Each sky camera in service (by id, a page of them) with its latest reading, if any: one
+    statement, an index lookup per camera for its newest graded frame."""
+    newest = (
+        select(Frame.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.camera_id == Camera.id)
+        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
+        .limit(1)
+        .correlate(Camera)
+        .scalar_subquery()
+    )
+    page = session.execute(
+        select(Camera.id, newest)
+        .where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+        .limit(limit)
+        .offset(offset)
+    ).all()
+    found = {
+        f.id: (f, v)
+        for f, v in session.execute(
+            select(Frame, SkyVerdict)
+            .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+            .where(Frame.id.in_([fid for _, fid in page if fid is not None]))
+        ).all()
+    }
+    return [(cid, *found.get(fid, (None, None))) for cid, fid in page]
+
+
 def readings(
     session: Session,
     *,

@@ -450,6 +450,32 @@ class TestBadInput:
         )
 
 
+def test_the_latest_reading_of_every_camera_in_one_request(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """``GET /air/latest``: each sky camera in service as ``/cameras/{id}/latest`` answers for
+    it (current, gone quiet, no frames yet), by id and paged; a retired one is left out."""
+    calibrate(client, admin)
+    post(client, city, "sky1", 3, seed=1)
+    city["clock"].advance(hours=4)
+    post(client, city, "sky2", 10, seed=2)
+    post(client, city, "sky3", 7, seed=3)
+    assert client.delete("/cameras/sky3", headers=admin).status_code == 204
+    every = client.get("/air/latest")
+    assert every.status_code == 200, every.text
+    rows = every.json()
+    ids = [f"sky{i}" for i in range(12) if i != 3]
+    assert [r["camera_id"] for r in rows] == sorted(ids)
+    for row in rows:
+        assert row == client.get(f"/air/cameras/{row['camera_id']}/latest").json()
+    by_id = {r["camera_id"]: r for r in rows}
+    assert (by_id["sky2"]["level"], by_id["sky2"]["current"]) == (10, True)
+    assert (by_id["sky1"]["level"], by_id["sky1"]["current"]) == (3, False)  # 4 h old
+    assert by_id["sky0"]["reason"] == "no frames yet"
+    page = client.get("/air/latest", params={"limit": 2, "offset": 1}).json()
+    assert [r["camera_id"] for r in page] == sorted(ids)[1:3]
+
+
 def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
