@@ -186,22 +186,34 @@ class FrameUpload:
 
 
 async def read_jpeg(request: Request, limit: int) -> FrameUpload:
-    """The JPEG of a frame upload: a raw ``image/jpeg`` body or multipart field ``file``."""
+    """The JPEG of a frame upload: a raw ``image/jpeg`` body (or ``application/octet-stream``,
+    as many cameras and scripts label any bytes: the JPEG is checked either way) or multipart
+    field ``file``."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if content_type in ("image/jpeg", "image/jpg"):
+    if content_type in ("image/jpeg", "image/jpg", "application/octet-stream"):
         return FrameUpload(await read_capped(request, limit))
     if content_type == "multipart/form-data":
         # lenient: a camera's form may carry fields of its own
         form = await read_form(request, limit, max_files=1, parts=None)
         files = form.files_of("file")
         if not files:
-            raise Unprocessable("multipart body has no file in field 'file'", code="no_file")
+            elsewhere = [f for f, _, _ in form.files]
+            raise Unprocessable(
+                "multipart body has no file in field 'file'"
+                + (
+                    f" (its file is in {elsewhere[0]!r}: name that field 'file')"
+                    if elsewhere
+                    else ""
+                ),
+                code="no_file",
+            )
         when = form.fields.get("captured_at", [])
         if len(when) > 1:
             raise Unprocessable("captured_at is given more than once", code="bad_time")
         return FrameUpload(files[0][1], when[0] if when else None)
     raise UnsupportedMediaType(
-        f"expected Content-Type image/jpeg or multipart/form-data; got {content_type or 'none'!r}",
+        "expected Content-Type image/jpeg (or application/octet-stream) or multipart/form-data;"
+        f" got {content_type or 'none'!r}",
         code="not_jpeg",
     )
 

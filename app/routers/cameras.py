@@ -61,6 +61,8 @@ _JPEG_BODY = {
         "required": True,
         "content": {
             "image/jpeg": {"schema": {"type": "string", "format": "binary"}},
+            # what many cameras and scripts label any bytes: taken when they are a JPEG
+            "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
             "multipart/form-data": {
                 "schema": {
                     "type": "object",

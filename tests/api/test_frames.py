@@ -516,6 +516,24 @@ class TestBadInput:
             headers={"Authorization": f"Bearer {camera['token']}"},
         )
         assert r.status_code == 422
+        assert r.json()["detail"] == (
+            "multipart body has no file in field 'file' (its file is in 'other': name that"
+            " field 'file')"
+        )
+        assert snapshot() == before
+
+    def test_a_jpeg_labelled_octet_stream_is_taken(
+        self, client: TestClient, camera: dict[str, Any], snapshot: Any
+    ) -> None:
+        """Cameras and scripts label a raw upload application/octet-stream: the bytes are a
+        JPEG or are refused as any other upload (415 for a PNG, nothing stored)."""
+        auth = {"Authorization": f"Bearer {camera['token']}"}
+        octets = {**auth, "Content-Type": "application/octet-stream"}
+        r = client.post("/cameras/cam-1/frames", content=make_jpeg(), headers=octets)
+        assert r.status_code == 201, r.text
+        before = snapshot()
+        png = client.post("/cameras/cam-1/frames", content=png_bytes(), headers=octets)
+        assert png.status_code == 415
         assert snapshot() == before
 
     def test_rejections_are_counted(
