@@ -68,6 +68,26 @@ def sessions(database_url: str) -> Iterator[sessionmaker[Session]]:
         engine.dispose()
 
 
+def recorder(
+    *answers: int,
+) -> tuple[type[BaseHTTPRequestHandler], list[tuple[bytes, dict[str, str]]]]:
+    """A receiver keeping each POST's body and headers (names lower-cased), answering them
+    ``answers`` in turn (then 204), and the list it keeps them in."""
+    got: list[tuple[bytes, dict[str, str]]] = []
+
+    class Receiver(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            got.append((body, {k.lower(): v for k, v in self.headers.items()}))
+            self.send_response(answers[len(got) - 1] if len(got) <= len(answers) else 204)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    return Receiver, got
+
+
 def serve(handler: type[BaseHTTPRequestHandler]) -> tuple[HTTPServer, str]:
     server = HTTPServer(("127.0.0.1", 0), handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
@@ -275,18 +295,7 @@ def test_alerts_are_signed_and_say_where_and_when(
     the alert's on every attempt, so a receiver drops a repeat; the body names the camera's
     place and when the frame was taken."""
     secret = "whsec_" + base64.b64encode(bytes(range(32))).decode()
-    got: list[tuple[bytes, dict[str, str]]] = []
-
-    class Receiver(BaseHTTPRequestHandler):
-        def do_POST(self) -> None:  # noqa: N802
-            body = self.rfile.read(int(self.headers["Content-Length"]))
-            got.append((body, {k.lower(): v for k, v in self.headers.items()}))
-            self.send_response(500 if len(got) == 1 else 204)
-            self.end_headers()
-
-        def log_message(self, *args: Any) -> None:
-            pass
-
+    receiver_class, got = recorder(500)
     seed_alerts(engine, 1)
     with Session(engine) as s:
         camera = s.get(Camera, "sky")
@@ -296,7 +305,7 @@ def test_alerts_are_signed_and_say_where_and_when(
     now = datetime.now(UTC)  # receivers refuse a timestamp more than 5 minutes off
     old = now - T0 + timedelta(days=1)  # the alerts were raised at T0: retried till now
     key = webhooks.signing_key(secret)
-    server, base = serve(Receiver)
+    server, base = serve(receiver_class)
     try:
         for t, delivered in ((now, 0), (now + timedelta(seconds=3), 1)):  # 500, then 204
             sent = webhooks.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
@@ -329,24 +338,14 @@ def test_alerts_are_signed_and_say_where_and_when(
 
 
 def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Session]) -> None:
-    got: list[dict[str, str]] = []
-
-    class Receiver(BaseHTTPRequestHandler):
-        def do_POST(self) -> None:  # noqa: N802
-            self.rfile.read(int(self.headers["Content-Length"]))
-            got.append({k.lower(): v for k, v in self.headers.items()})
-            self.send_response(204)
-            self.end_headers()
-
-        def log_message(self, *args: Any) -> None:
-            pass
-
+    receiver_class, got = recorder()
     seed_alerts(engine, 1)
-    server, base = serve(Receiver)
+    server, base = serve(receiver_class)
     try:
         assert webhooks.sweep(sessions, f"{base}/hook", at(T0)) == 1
     finally:
         server.shutdown()
         server.server_close()
-    assert got[0]["webhook-id"] == "a0"
-    assert "webhook-signature" not in got[0]
+    headers = got[0][1]
+    assert headers["webhook-id"] == "a0"
+    assert "webhook-signature" not in headers
