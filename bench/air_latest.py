@@ -1,0 +1,77 @@
+"""A dashboard's list of a city's cameras: each camera's latest reading asked for one camera at a
+time (``GET /air/cameras/{id}/latest`` per camera, as before ``GET /air/latest``) against one
+request for every camera (``GET /air/latest``), timed side by side on one database, at the
+service layer (the HTTP of 1,000 requests against one comes on top).
+
+Readings are written straight to the tables of a scratch database: ``--cameras`` cameras, one
+reading every ``--every`` seconds each, for ``--days`` days (as ``bench/air_trends.py``).
+
+    python bench/air_latest.py                       # SQLite, 1,000 cameras, 2 days, 5 min
+    python bench/air_latest.py --backend postgresql  # a scratch database on 127.0.0.1:5432
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sqlalchemy import create_engine
+from sqlalchemy.orm import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.services import air  # noqa: E402
+from bench.air_trends import PG_ADMIN, city_readings, database  # noqa: E402
+from bench.readings_pages import timed  # noqa: E402
+from tests.api.test_air_trends import store  # noqa: E402
+from tests.conftest import migrate  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
+    ap.add_argument("--cameras", type=int, default=1000)
+    ap.add_argument("--days", type=int, default=2)
+    ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
+    ap.add_argument("--rounds", type=int, default=3)
+    args = ap.parse_args()
+
+    url = database(args.backend)
+    migrate(url)
+    engine = create_engine(url)
+    readings = city_readings(args.cameras, args.days, args.every)
+    store(engine, readings)
+    if args.backend == "postgresql":
+        with engine.connect() as conn:
+            conn.exec_driver_sql("ANALYZE")
+            conn.commit()
+    ids = sorted({cam for cam, _, _ in readings})
+    with Session(engine) as session:
+        one_by_one: list[float] = []
+        every: list[float] = []
+        for _ in range(args.rounds):  # alternating, so that both see the machine alike
+            one_by_one += timed(lambda: [air.latest(session, cid) for cid in ids], 1)
+            every += timed(lambda: air.latest_of_every(session, limit=len(ids), offset=0), 1)
+        singles = [air.latest(session, cid) for cid in ids]  # the same answers
+        bulk = air.latest_of_every(session, limit=len(ids), offset=0)
+        assert [s[0].id if s else None for s in singles] == [
+            f.id if f else None for _, f, _ in bulk
+        ]
+    print(
+        f"{args.backend}: {len(readings):,} readings of {len(ids)} cameras; ms for every camera"
+        f" (the two cases alternate, round by round)\n"
+        f"| one request per camera | {', '.join(f'{v:.0f}' for v in one_by_one)} |\n"
+        f"| one request for all | {', '.join(f'{v:.0f}' for v in every)} |"
+    )
+    engine.dispose()
+    if args.backend == "postgresql":
+        import psycopg
+
+        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
+
+
+if __name__ == "__main__":
+    main()
