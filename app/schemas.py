@@ -418,6 +418,9 @@ class AirCalibrationOut(Out):
 
 class AirLatest(Out):
     camera_id: str
+    name: str | None = None
+    lat: float | None = None
+    lon: float | None = None
     level: int | None
     category: str | None
     message: str | None

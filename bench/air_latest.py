@@ -56,9 +56,7 @@ def main() -> None:
             every += timed(lambda: air.latest_of_every(session, limit=len(ids), offset=0), 1)
         singles = [air.latest(session, cid) for cid in ids]  # the same answers
         bulk = air.latest_of_every(session, limit=len(ids), offset=0)
-        assert [s[0].id if s else None for s in singles] == [
-            f.id if f else None for _, f, _ in bulk
-        ]
+        assert [found for _, found in singles] == [found for _, found in bulk]
     print(
         f"{args.backend}: {len(readings):,} readings of {len(ids)} cameras; ms for every camera"
         f" (the two cases alternate, round by round)\n"

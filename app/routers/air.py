@@ -282,8 +282,8 @@ def list_calibrations(
 def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLatest:
     """A sky camera's latest reading: level, category, message, and the smoothed level; the
     message and the smoothed level only while the reading is current (taken in the last 3 h)."""
-    found = air.latest(session, camera_id)
-    return _latest_out(camera_id, found, policy.now())
+    place, found = air.latest(session, camera_id)
+    return _latest_out(place, found, policy.now())
 
 
 @router.get("/latest", response_model=list[AirLatest])
@@ -294,16 +294,18 @@ async def latest_of_every_camera(
     gives it (a dashboard's list of the city's cameras in one request, not one per camera)."""
     rows = await public_work(request, partial(air.latest_of_every, limit=limit, offset=offset))
     now = policy.now()
-    return [
-        _latest_out(cid, (frame, v) if frame is not None and v is not None else None, now)
-        for cid, frame, v in rows
-    ]
+    return [_latest_out(place, found, now) for place, found in rows]
 
 
-def _latest_out(camera_id: str, found: tuple[Frame, SkyVerdict] | None, now: datetime) -> AirLatest:
+def _latest_out(
+    place: air.Place, found: tuple[Frame, SkyVerdict] | None, now: datetime
+) -> AirLatest:
     if found is None:
         return AirLatest(
-            camera_id=camera_id,
+            camera_id=place.camera_id,
+            name=place.name,
+            lat=place.lat,
+            lon=place.lon,
             level=None,
             category=None,
             message=None,
@@ -318,7 +320,10 @@ def _latest_out(camera_id: str, found: tuple[Frame, SkyVerdict] | None, now: dat
     current = age < airquality.FRESH  # else a camera gone quiet: not today's air
     smoothed = v.smoothed_level if current else None
     return AirLatest(
-        camera_id=camera_id,
+        camera_id=place.camera_id,
+        name=place.name,
+        lat=place.lat,
+        lon=place.lon,
         level=v.level,
         category=v.category,
         message=airquality.message(v.category) if current and v.category else None,

@@ -433,8 +433,20 @@ def sky_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
-def latest(session: Session, camera_id: str) -> tuple[Frame, SkyVerdict] | None:
-    sky_camera(session, camera_id)
+@dataclass(frozen=True, slots=True)
+class Place:
+    """A sky camera as the public sees it: its id, name and position."""
+
+    camera_id: str
+    name: str | None
+    lat: float | None
+    lon: float | None
+
+
+def latest(session: Session, camera_id: str) -> tuple[Place, tuple[Frame, SkyVerdict] | None]:
+    """The sky camera (404 when there is none) and its latest reading, if any."""
+    camera = sky_camera(session, camera_id)
+    place = Place(camera.id, camera.name, camera.lat, camera.lon)
     row = session.execute(
         select(Frame, SkyVerdict)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
@@ -442,12 +454,12 @@ def latest(session: Session, camera_id: str) -> tuple[Frame, SkyVerdict] | None:
         .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
         .limit(1)
     ).first()
-    return (row[0], row[1]) if row else None
+    return place, ((row[0], row[1]) if row else None)
 
 
 def latest_of_every(
     session: Session, *, limit: int, offset: int
-) -> list[tuple[str, Frame | None, SkyVerdict | None]]:
+) -> list[tuple[Place, tuple[Frame, SkyVerdict] | None]]:
     """Each sky camera in service (by id, a page of them) with its latest reading, if any: one
     statement, an index lookup per camera for its newest graded frame."""
     newest = (
@@ -460,7 +472,7 @@ def latest_of_every(
         .scalar_subquery()
     )
     page = session.execute(
-        select(Camera.id, newest)
+        select(Camera.id, Camera.name, Camera.lat, Camera.lon, newest)
         .where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
         .order_by(Camera.id)
         .limit(limit)
@@ -471,10 +483,10 @@ def latest_of_every(
         for f, v in session.execute(
             select(Frame, SkyVerdict)
             .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-            .where(Frame.id.in_([fid for _, fid in page if fid is not None]))
+            .where(Frame.id.in_([row[-1] for row in page if row[-1] is not None]))
         ).all()
     }
-    return [(cid, *found.get(fid, (None, None))) for cid, fid in page]
+    return [(Place(cid, name, lat, lon), found.get(fid)) for cid, name, lat, lon, fid in page]
 
 
 def readings(

@@ -469,6 +469,12 @@ def test_the_latest_reading_of_every_camera_in_one_request(
     for row in rows:
         assert row == client.get(f"/air/cameras/{row['camera_id']}/latest").json()
     by_id = {r["camera_id"]: r for r in rows}
+    for cid in ("sky0", "sky2"):  # where each is, for a public map of every camera
+        registered = client.get(f"/cameras/{cid}", headers=admin).json()
+        assert {k: by_id[cid][k] for k in ("name", "lat", "lon")} == {
+            k: registered[k] for k in ("name", "lat", "lon")
+        }
+    assert by_id["sky2"]["lat"] is not None
     assert (by_id["sky2"]["level"], by_id["sky2"]["current"]) == (10, True)
     assert (by_id["sky1"]["level"], by_id["sky1"]["current"]) == (3, False)  # 4 h old
     assert by_id["sky0"]["reason"] == "no frames yet"
