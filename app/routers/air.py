@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Annotated, Any, Literal
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
@@ -559,6 +559,15 @@ def _map_query(
 MapQueryDep = Annotated[MapQuery, Depends(_map_query)]
 
 
+def _window_start(at: datetime, window: int) -> datetime:
+    """``window`` seconds before ``at``; the first instant of year 1 for a window reaching
+    before it (``at=0001-01-01T00:00:00Z`` overflowed: a 500)."""
+    try:
+        return at - timedelta(seconds=window)
+    except OverflowError:
+        return datetime.min.replace(tzinfo=UTC)
+
+
 def _field(
     session: Session, policy: Policy, q: MapQuery
 ) -> tuple[
@@ -569,7 +578,7 @@ def _field(
         raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
     at = q.at or now
     box = q.bbox
-    st = air.stations(session, since=at - timedelta(seconds=q.window), until=at)
+    st = air.stations(session, since=_window_start(at, q.window), until=at)
     if not st:
         return st, None, box, at
     lon = np.array([s.lon for s in st])
@@ -631,7 +640,7 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     def compute(session: Session) -> bytes:
         st, f, box, at = _field(session, policy, q)
         body = _geojson(st, f, box, at, policy.now(), q)
-        off_map = air.unplaced(session, since=at - timedelta(seconds=q.window), until=at)
+        off_map = air.unplaced(session, since=_window_start(at, q.window), until=at)
         if off_map:
             named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
             some = (

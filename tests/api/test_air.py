@@ -540,6 +540,12 @@ def test_the_map_as_it_was_at_an_earlier_time(
     )
     assert ahead.status_code == 422
     assert ahead.json()["code"] == "bad_time"
+    for path in ("/air/isopleths", "/air/isopleths.png"):  # its window reaches before year 1
+        first = client.get(path, params={"at": "0001-01-01T00:00:00Z"})
+        assert first.status_code == 200, first.text
+    assert (
+        client.get("/air/isopleths", params={"at": "0001-01-01T00:00:00Z"}).json()["cameras"] == []
+    )
 
 
 def test_the_map_names_graded_cameras_it_cannot_place(
