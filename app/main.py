@@ -79,9 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     app.state.policy,
                     settings.alert_poll_seconds,
                     timedelta(hours=settings.alert_retry_hours),
-                    key=None
-                    if settings.alert_webhook_secret is None
-                    else webhooks.signing_key(settings.alert_webhook_secret.get_secret_value()),
+                    key=app.state.webhook_key,
                 )
             )
             if settings.alert_webhook_secret is None:
@@ -146,6 +144,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.frame_store = frame_store(settings)
     app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
+    secret = settings.alert_webhook_secret
+    app.state.webhook_key = (
+        None if secret is None else webhooks.signing_key(secret.get_secret_value())
+    )
 
     install_error_handlers(app)
     app.add_middleware(

@@ -456,6 +456,13 @@ class AirAggregate(Out):
     category: str
 
 
+class WebhookTestOut(Schema):
+    webhook_id: str = Field(description="The test alert's webhook-id (and alert_id).")
+    delivered: bool = Field(description="The receiver answered 2xx.")
+    error: str | None = Field(description="Why it did not take the test alert.")
+    signed: bool = Field(description="It carried webhook-signature (a secret is set).")
+
+
 class AirAlertOut(Out):
     id: str
     camera_id: str

@@ -37,7 +37,7 @@ from app.deps import (
     link_next,
     public_work,
 )
-from app.errors import NotFound, Unprocessable, UnsupportedMediaType
+from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
     BODY_ERRORS,
@@ -53,6 +53,7 @@ from app.schemas import (
     AirCalibrationOut,
     AirLatest,
     AirReading,
+    WebhookTestOut,
 )
 from app.services import air, training, webhooks
 from app.services.isopleth_cache import MapCache
@@ -427,6 +428,26 @@ def _zone(name: str) -> ZoneInfo:
         raise Unprocessable(
             f"unknown time zone {name!r}: give an IANA name such as Europe/Rome or Asia/Kolkata"
         ) from None
+
+
+@router.post(
+    "/alerts/test",
+    response_model=WebhookTestOut,
+    responses={**AUTH_ERRORS, 409: {"description": "No webhook is configured."}},
+)
+def try_alert_webhook(
+    request: Request, settings: SettingsDep, policy: PolicyDep, _: Admin
+) -> WebhookTestOut:
+    """POST a test alert (``kind: "test"``, recorded nowhere) to ``VANTAGE_ALERT_WEBHOOK_URL``
+    now, signed as every alert is, and say whether the receiver took it (a 2xx) or why not: a
+    receiver and its signing secret can be checked before the air turns Poor."""
+    if settings.alert_webhook_url is None:
+        raise Conflict("no webhook is configured: set VANTAGE_ALERT_WEBHOOK_URL", code="no_webhook")
+    key = request.app.state.webhook_key
+    msg_id, error = webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
+    return WebhookTestOut(
+        webhook_id=msg_id, delivered=error is None, error=error, signed=key is not None
+    )
 
 
 @router.get(

@@ -33,6 +33,7 @@ import logging
 import threading
 import urllib.error
 import urllib.request
+import uuid
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Literal
@@ -129,6 +130,34 @@ def _post(url: str, body: bytes, headers: dict[str, str]) -> None:
         raise DeliveryFailed(f"{type(exc).__name__}: {exc}") from None
 
 
+def _signed(msg_id: str, body: bytes, now: datetime, key: bytes | None) -> dict[str, str]:
+    """The Standard Webhooks headers of a POST made at ``now``."""
+    sent = int(now.timestamp())
+    headers = {"webhook-id": msg_id, "webhook-timestamp": str(sent)}
+    if key is not None:
+        headers["webhook-signature"] = signature(key, msg_id, sent, body)
+    return headers
+
+
+def send_test(url: str, now: datetime, *, key: bytes | None) -> tuple[str, str | None]:
+    """POST a test alert (``kind: "test"``, recorded nowhere) as the sweep posts alerts:
+    its id, and why it was not taken (None when the receiver answered 2xx)."""
+    msg_id = f"test_{uuid.uuid4()}"
+    body = json.dumps(
+        {
+            "alert_id": msg_id,
+            "kind": "test",
+            "created_at": now.isoformat(),
+            "message": "A test of the air-quality alert webhook: no air was measured.",
+        }
+    ).encode()
+    try:
+        _post(url, body, _signed(msg_id, body, now, key))
+    except DeliveryFailed as exc:
+        return msg_id, str(exc)[:500]
+    return msg_id, None
+
+
 def sweep(
     sessions: sessionmaker[Session],
     url: str,
@@ -181,13 +210,9 @@ def sweep(
                     "message": f"Today's Air Quality is {alert.category}",
                 }
             ).encode()
-            sent = int(now.timestamp())
-            headers = {"webhook-id": alert.id, "webhook-timestamp": str(sent)}
-            if key is not None:
-                headers["webhook-signature"] = signature(key, alert.id, sent, body)
             alert.attempts += 1
             try:
-                _post(url, body, headers)
+                _post(url, body, _signed(alert.id, body, now, key))
             except DeliveryFailed as exc:
                 alert.last_error = str(exc)[:500]
                 alert.next_attempt_at = now + backoff(alert.attempts)

@@ -819,6 +819,69 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
     assert received[1]["message"].startswith("Today's Air Quality is")
 
 
+def test_a_test_alert_checks_the_receiver_and_its_secret(
+    client: TestClient, settings: Any, engine: Any, admin: dict[str, str]
+) -> None:
+    """``POST /air/alerts/test``: the operator checks the receiver (and that it verifies the
+    signature) before the air turns Poor. Nothing is recorded; without a webhook, 409."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    import standardwebhooks
+    from pydantic import SecretStr
+
+    from app.main import create_app
+
+    assert client.post("/air/alerts/test", headers=admin).status_code == 409
+    secret = "whsec_" + "dGhlIGNpdHkncyB0ZXN0IHNpZ25pbmcga2V5IDMyYg=="
+    got: list[dict[str, Any]] = []
+    answers = [204, 500]
+
+    class Hook(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            got.append(standardwebhooks.Webhook(secret).verify(body, dict(self.headers.items())))
+            self.send_response(answers[len(got) - 1])
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    server = HTTPServer(("127.0.0.1", 0), Hook)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    app = create_app(
+        settings.model_copy(
+            update={
+                "alert_webhook_url": f"http://127.0.0.1:{server.server_port}/hook",
+                "alert_webhook_secret": SecretStr(secret),
+            }
+        )
+    )
+    try:
+        with TestClient(app) as hooked:
+            r = hooked.post("/air/alerts/test", headers=admin)
+            assert r.status_code == 200, r.text
+            assert r.json() == {
+                "webhook_id": got[0]["alert_id"],
+                "delivered": True,
+                "error": None,
+                "signed": True,
+            }
+            assert got[0]["kind"] == "test"
+            failed = hooked.post("/air/alerts/test", headers=admin).json()
+            assert (failed["delivered"], failed["error"]) == (
+                False,
+                "HTTP 500 Internal Server Error",
+            )
+            assert hooked.get("/air/alerts").json() == []
+            camera = hooked.post("/cameras", json={"id": "s", "kind": "sky"}, headers=admin)
+            as_camera = {"Authorization": f"Bearer {camera.json()['token']}"}
+            assert hooked.post("/air/alerts/test", headers=as_camera).status_code == 403
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 def test_regression_calibration(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
