@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from datetime import datetime, timedelta
 from functools import partial
-from typing import Annotated
+from typing import Annotated, Any
 
+import cv2
 from fastapi import APIRouter, Header, Query, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import TypeAdapter, ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
+from app.core import imaging, jpeg
 from app.db.models import Camera, Frame
 from app.deps import (
     Admin,
@@ -27,6 +31,7 @@ from app.deps import (
     TimeRangeQuery,
     UploadTargetDep,
     UtcTime,
+    image_work,
     link_next,
 )
 from app.errors import NotFound, Unprocessable
@@ -377,3 +382,67 @@ def get_frame_image(
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
     return Response(data, media_type="image/jpeg", headers=headers)
+
+
+RegionQuery = Annotated[
+    str | None,
+    Query(
+        max_length=2000,
+        description="Preview another region before giving it to the camera: JSON, a rectangle "
+        "[x, y, w, h] or a polygon [[x, y], ...] in the frame's pixels. Default: the region "
+        "the frame's verdict was measured in.",
+    ),
+]
+
+
+@router.get(
+    "/frames/{frame_id}/region.jpg",
+    response_class=Response,
+    responses={
+        200: {"content": {"image/jpeg": {}}},
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+        **UNPROCESSABLE,
+    },
+)
+async def get_frame_region(
+    frame_id: RecordId, session: SessionDep, _: Admin, request: Request, roi: RegionQuery = None
+) -> Response:
+    """The stored frame with the region its statistics were measured in outlined and the rest
+    darkened: where a sky camera's region (clear of overlays, buildings and the sun) or a panel
+    camera's panel lies, checked on a real frame; ``roi`` previews another region."""
+    frame = await run_in_threadpool(
+        session.get, Frame, frame_id, options=[selectinload(Frame.verdict)]
+    )
+    if frame is None or frame.stored_path is None:
+        raise NotFound(f"no stored image for frame {frame_id!r}")
+    region = frame.verdict.roi if frame.verdict is not None else None
+    if roi is not None:
+        try:
+            region = CameraUpdate.model_validate({"roi": json.loads(roi)}).roi
+        except (ValueError, ValidationError) as exc:
+            raise Unprocessable(f"roi is not a region: {exc}"[:300], code="bad_roi") from None
+    corners = imaging.region_corners(region, frame.width, frame.height)
+    if any(x >= frame.width or y >= frame.height for x, y in corners):
+        raise Unprocessable(
+            f"the region {region} does not lie inside the {frame.width}×{frame.height} frame",
+            code="roi_outside_frame",
+        )
+    store: FrameStore = request.app.state.frame_store
+    data = await run_in_threadpool(store.read, frame.stored_path)
+    if data is None:
+        raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
+    body = await image_work(request, _outlined, data, region)
+    return Response(body, media_type="image/jpeg", headers={"Cache-Control": "private"})
+
+
+def _outlined(data: bytes, region: list[Any] | None) -> bytes:
+    image = jpeg.decode_rgb(data, max_pixels=MAX_STORED_PIXELS)[1]
+    outlined = cv2.cvtColor(imaging.outline_region(image, region), cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".jpg", outlined, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    assert ok
+    return bytes(buf.tobytes())
+
+
+MAX_STORED_PIXELS = 1_000_000_000
+"""A stored frame passed the pixel limit of its day; a lower one since does not hide it."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import json
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -771,3 +772,67 @@ def test_a_cameras_frames_page_by_cursor(
     got = pages(client, "/cameras/cam-1/frames", {"limit": 2}, headers=admin)
     assert [len(p) for p in got] == [2, 2, 1]
     assert [(f["captured_at"], f["frame_id"]) for p in got for f in p] == sorted(sent, reverse=True)
+
+
+class TestRegionPreview:
+    """``GET /frames/{id}/region.jpg``: the frame with its region outlined and the rest
+    darkened, to check a camera's region on a real frame (or preview another)."""
+
+    @staticmethod
+    def grey(client: TestClient, admin: dict[str, str], roi: list[int] | None) -> str:
+        body = {"id": "sky-1", "kind": "sky", **({"roi": roi} if roi else {})}
+        token = client.post("/cameras", json=body, headers=admin).json()["token"]
+        image = np.full((120, 160, 3), 180, np.uint8)  # flat grey: darkened is 60
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 98])
+        assert ok
+        r = client.post(
+            "/cameras/sky-1/frames",
+            content=buf.tobytes(),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        return str(r.json()["frame_id"])
+
+    @staticmethod
+    def shown(r: Any) -> np.ndarray:
+        assert r.status_code == 200, r.text
+        assert r.headers["content-type"] == "image/jpeg"
+        return cv2.cvtColor(
+            cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB
+        )
+
+    def test_the_region_of_the_verdict_is_outlined(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        fid = self.grey(client, admin, [20, 10, 100, 50])
+        out = self.shown(client.get(f"/frames/{fid}/region.jpg", headers=admin)).astype(int)
+        assert np.abs(out[30, 70] - 180).max() <= 6  # inside: as taken
+        for y, x in ((100, 70), (30, 140), (5, 5)):  # outside: a third
+            assert np.abs(out[y, x] - 60).max() <= 6, (y, x)
+        edge = out[10, 70]  # the rectangle's top edge, amber
+        assert edge[0] > 200, edge
+        assert edge[2] < 80, edge
+
+    def test_another_region_previewed(self, client: TestClient, admin: dict[str, str]) -> None:
+        fid = self.grey(client, admin, [20, 10, 100, 50])
+        triangle = [[0, 0], [159, 0], [0, 119]]
+        r = client.get(
+            f"/frames/{fid}/region.jpg", params={"roi": json.dumps(triangle)}, headers=admin
+        )
+        out = self.shown(r).astype(int)
+        assert np.abs(out[20, 20] - 180).max() <= 6  # inside the triangle
+        assert np.abs(out[110, 150] - 60).max() <= 6  # below its hypotenuse
+
+    def test_refusals(self, client: TestClient, admin: dict[str, str], camera: Any) -> None:
+        fid = self.grey(client, admin, None)
+        path = f"/frames/{fid}/region.jpg"
+        for roi, code in (("[0, 0, 200, 10]", "roi_outside_frame"), ("[1, 2]", "bad_roi"),
+                          ("not json", "bad_roi"), ("[[0, 0], [5, 5]]", "bad_roi")):  # fmt: skip
+            r = client.get(path, params={"roi": roi}, headers=admin)
+            assert r.status_code == 422, roi
+            assert r.json()["code"] == code, roi
+        whole = self.shown(client.get(path, headers=admin)).astype(int)
+        assert np.abs(whole[60, 80] - 180).max() <= 6  # no region: the whole frame
+        assert client.get("/frames/none/region.jpg", headers=admin).status_code == 404
+        as_camera = {"Authorization": f"Bearer {camera['token']}"}
+        assert client.get(path, headers=as_camera).status_code == 403
