@@ -717,6 +717,7 @@ def _geojson(
         "cameras": [
             {
                 "camera_id": s.camera_id,
+                "name": s.name,
                 "lon": s.lon,
                 "lat": s.lat,
                 "level": s.level,

@@ -672,6 +672,7 @@ class Station:
     lat: float
     level: float
     captured_at: datetime
+    name: str | None = None
 
 
 def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]:
@@ -718,6 +719,7 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
     rows = session.execute(
         select(
             Camera.id,
+            Camera.name,
             Camera.lon,
             Camera.lat,
             SkyVerdict.smoothed_level,
@@ -736,9 +738,9 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
         )
     ).all()
     seen: dict[str, Station] = {}
-    for cid, lon, lat, smooth, level, t in rows:
+    for cid, name, lon, lat, smooth, level, t in rows:
         value = smooth if smooth is not None else level
         if lon is None or lat is None or value is None:
             continue
-        seen[cid] = Station(cid, float(lon), float(lat), float(value), t)
+        seen[cid] = Station(cid, float(lon), float(lat), float(value), t, name)
     return sorted(seen.values(), key=lambda s: s.camera_id)

@@ -558,9 +558,11 @@ def test_the_map_names_graded_cameras_it_cannot_place(
         "/cameras", json={"id": "roof", "kind": "sky", "roi": [0, 0, 160, 55]}, headers=admin
     )
     city["tokens"]["roof"] = (r.json()["token"], None)
+    assert client.patch("/cameras/sky1", json={"name": "Duomo"}, headers=admin).status_code == 200
     post(client, city, "sky1", 7, seed=1)
     fc = client.get("/air/isopleths").json()
     assert fc["warnings"] == []
+    assert [(c["camera_id"], c["name"]) for c in fc["cameras"]] == [("sky1", "Duomo")]
     post(client, city, "roof", 7, seed=2)
     fc = client.get("/air/isopleths", params={"method": "kriging"}).json()  # not the cached map
     assert [c["camera_id"] for c in fc["cameras"]] == ["sky1"]
