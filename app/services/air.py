@@ -357,15 +357,8 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     if smoothed is None:
         return verdict
     kind, alert = "raised", airquality.alert_category(smoothed, earlier)
-    if alert is None and smoothed >= airquality.CLEAR_LEVEL:
-        last = session.scalar(
-            select(AirAlert.kind)
-            .where(AirAlert.camera_id == camera.id)
-            .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
-            .limit(1)
-        )
-        if last == "raised":  # the episode the camera's last alert opened is over
-            kind, alert = "cleared", airquality.category(smoothed)
+    if alert is None and smoothed >= airquality.CLEAR_LEVEL and _in_episode(session, frame):
+        kind, alert = "cleared", airquality.category(smoothed)
     if (
         alert is not None
         # the air of hours ago, seen after newer readings: history, not an alert
@@ -386,6 +379,34 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
             )
         )
     return verdict
+
+
+def _in_episode(session: Session, frame: Frame) -> bool:
+    """Whether the camera's last alert was raised and no reading at ``CLEAR_LEVEL`` has been
+    taken since (before ``frame``): an episode of bad air not yet cleared. (Without the
+    second test, alerts raised before cleared ones existed would each be cleared by the next
+    clean frame, months after their air had cleared.)"""
+    last = session.execute(
+        select(AirAlert.kind, Frame.captured_at)
+        .join(Frame, Frame.id == AirAlert.frame_id)
+        .where(AirAlert.camera_id == frame.camera_id)
+        .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
+        .limit(1)
+    ).first()
+    if last is None or last.kind != "raised":
+        return False
+    clear_since = session.scalar(
+        select(Frame.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(
+            Frame.camera_id == frame.camera_id,
+            Frame.captured_at > last.captured_at,
+            Frame.captured_at < frame.captured_at,
+            SkyVerdict.smoothed_level >= airquality.CLEAR_LEVEL,
+        )
+        .limit(1)
+    )
+    return clear_since is None
 
 
 def upload_region(

@@ -306,6 +306,29 @@ def test_an_episode_of_poor_air_is_raised_then_cleared(
     assert [a["id"] for a in only] == [alerts[1]["id"]]
 
 
+def test_an_episode_over_before_cleared_alerts_existed_is_not_cleared_again(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
+) -> None:
+    """Alerts raised before this service sent cleared ones (here: the cleared alert removed,
+    as a database upgraded from then holds none) are over once a reading came back to 5.0:
+    the next clean frame, weeks on, clears nothing."""
+    from app.db.models import AirAlert
+
+    assert calibrate(client, admin).status_code == 201
+    for level, n in ((10, 3), (1, 6), (10, 12)):
+        for k in range(n):
+            city["clock"].advance(minutes=20)
+            post(client, city, "sky1", level, seed=400 + k)
+    kinds = [(a["kind"], a["category"]) for a in client.get("/air/alerts").json()]
+    assert kinds == [("cleared", "Fair"), ("raised", "Very Poor"), ("raised", "Poor")]
+    with app.state.sessionmaker() as s:
+        s.query(AirAlert).filter(AirAlert.kind == "cleared").delete()
+        s.commit()
+    city["clock"].advance(days=20)
+    post(client, city, "sky1", 10, seed=500)
+    assert [a["kind"] for a in client.get("/air/alerts").json()] == ["raised", "raised"]
+
+
 def test_air_hovering_on_the_poor_edge_is_one_alert(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
