@@ -12,43 +12,23 @@ reading every ``--every`` seconds each, for ``--days`` days (as ``bench/air_tren
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
-from sqlalchemy import create_engine
 from sqlalchemy.orm import Session
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.services import air  # noqa: E402
-from bench.air_trends import PG_ADMIN, city_readings, database  # noqa: E402
+from bench.air_trends import city_parser, scratch_city  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
-from tests.api.test_air_trends import store  # noqa: E402
-from tests.conftest import migrate  # noqa: E402
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
-    ap.add_argument("--cameras", type=int, default=1000)
-    ap.add_argument("--days", type=int, default=2)
-    ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
-    ap.add_argument("--rounds", type=int, default=3)
-    args = ap.parse_args()
-
-    url = database(args.backend)
-    migrate(url)
-    engine = create_engine(url)
-    readings = city_readings(args.cameras, args.days, args.every)
-    store(engine, readings)
-    if args.backend == "postgresql":
-        with engine.connect() as conn:
-            conn.exec_driver_sql("ANALYZE")
-            conn.commit()
-    ids = sorted({cam for cam, _, _ in readings})
-    with Session(engine) as session:
+    args = city_parser(__doc__ or "", cameras=1000, days=2, rounds=3).parse_args()
+    with scratch_city(args) as (engine, readings, _), Session(engine) as session:
+        ids = sorted({cam for cam, _, _ in readings})
         one_by_one: list[float] = []
         every: list[float] = []
         for _ in range(args.rounds):  # alternating, so that both see the machine alike
@@ -63,12 +43,6 @@ def main() -> None:
         f"| one request per camera | {', '.join(f'{v:.0f}' for v in one_by_one)} |\n"
         f"| one request for all | {', '.join(f'{v:.0f}' for v in every)} |"
     )
-    engine.dispose()
-    if args.backend == "postgresql":
-        import psycopg
-
-        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
-            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
 
 
 if __name__ == "__main__":

@@ -15,12 +15,14 @@ import argparse
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from zoneinfo import ZoneInfo
 
 import numpy as np
-from sqlalchemy import create_engine
+from sqlalchemy import Engine, create_engine
 from sqlalchemy.orm import Session
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,7 +47,10 @@ def database(backend: str) -> str:
     return PG_BENCH
 
 
-def city_readings(cameras: int, days: int, every: int) -> list[tuple[str, datetime, int]]:
+Reading = tuple[str, datetime, int]
+
+
+def city_readings(cameras: int, days: int, every: int) -> list[Reading]:
     """A city's readings: ``cameras`` cameras ``sky-0000``…, one every ``every`` seconds each
     for ``days`` days from 1 May 2026, levels drawn uniformly from 1–10 (seeded)."""
     rng = np.random.default_rng(0)
@@ -61,30 +66,60 @@ def city_readings(cameras: int, days: int, every: int) -> list[tuple[str, dateti
     ]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def city_parser(doc: str, *, cameras: int, days: int, rounds: int) -> argparse.ArgumentParser:
+    """The options of the benches over a city's readings (``scratch_city``)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
-    ap.add_argument("--cameras", type=int, default=200)
-    ap.add_argument("--days", type=int, default=30)
+    ap.add_argument("--cameras", type=int, default=cameras)
+    ap.add_argument("--days", type=int, default=days)
     ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
-    ap.add_argument("--rounds", type=int, default=2)
-    args = ap.parse_args()
+    ap.add_argument("--rounds", type=int, default=rounds)
+    return ap
 
+
+def analyze(engine: Engine) -> None:
+    """Fresh planner statistics on PostgreSQL (SQLite plans without them)."""
+    if engine.dialect.name == "postgresql":
+        with engine.connect() as conn:
+            conn.exec_driver_sql("ANALYZE")
+            conn.commit()
+
+
+@contextmanager
+def scratch_city(args: argparse.Namespace) -> Iterator[tuple[Engine, list[Reading], float]]:
+    """A scratch database holding the city's readings (``city_parser``'s options): its engine,
+    the readings and the seconds storing them took; dropped afterwards on PostgreSQL."""
     url = database(args.backend)
     migrate(url)
     engine = create_engine(url)
     readings = city_readings(args.cameras, args.days, args.every)
-    n = len(readings)
     t = time.perf_counter()
     store(engine, readings)
-    print(f"{args.backend}: {n} readings stored in {time.perf_counter() - t:.0f} s")
-    if args.backend == "postgresql":
-        with engine.connect() as conn:
-            conn.exec_driver_sql("ANALYZE")
+    stored = time.perf_counter() - t
+    analyze(engine)
+    try:
+        yield engine, readings, stored
+    finally:
+        engine.dispose()
+        if args.backend == "postgresql":
+            import psycopg
+
+            with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
+                conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
+
+
+def main() -> None:
+    args = city_parser(__doc__ or "", cameras=200, days=30, rounds=2).parse_args()
+    with scratch_city(args) as (engine, readings, stored):
+        print(f"{args.backend}: {len(readings)} readings stored in {stored:.0f} s")
+        trends(engine, len(readings), args.rounds)
+
+
+def trends(engine: Engine, n: int, rounds: int) -> None:
     print("| round | what | buckets | readings counted | time [s] |")
     print("|---|---|---|---|---|")
     with Session(engine) as session:
-        for r in range(args.rounds):
+        for r in range(rounds):
             for zone, bucket in (("UTC", "daily"), ("Asia/Kolkata", "daily"), ("UTC", "hourly")):
                 t = time.perf_counter()
                 out = air.aggregate(
@@ -121,12 +156,6 @@ def main() -> None:
                 f"| {r + 1} | aggregate daily, one camera | {len(out)} |"
                 f" {sum(b['n'] for b in out)} | {time.perf_counter() - t:.2f} |"
             )
-    engine.dispose()
-    if args.backend == "postgresql":
-        import psycopg
-
-        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
-            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import create_engine
+from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,9 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.services import air  # noqa: E402
 from app.services.registry import FrameKey  # noqa: E402
-from bench.air_trends import PG_ADMIN, city_readings, database  # noqa: E402
-from tests.api.test_air_trends import store  # noqa: E402
-from tests.conftest import migrate  # noqa: E402
+from bench.air_trends import Reading, analyze, city_parser, scratch_city  # noqa: E402
 
 
 def timed(fn: Callable[[], Any], rounds: int) -> list[float]:
@@ -42,29 +40,14 @@ def timed(fn: Callable[[], Any], rounds: int) -> list[float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", choices=["sqlite", "postgresql"], default="sqlite")
-    ap.add_argument("--cameras", type=int, default=200)
-    ap.add_argument("--days", type=int, default=30)
-    ap.add_argument("--every", type=int, default=300, help="seconds between a camera's readings")
-    ap.add_argument("--rounds", type=int, default=3)
-    args = ap.parse_args()
+    args = city_parser(__doc__ or "", cameras=200, days=30, rounds=3).parse_args()
+    with scratch_city(args) as (engine, readings, _):
+        pages(engine, readings, args)
 
-    url = database(args.backend)
-    migrate(url)
-    engine = create_engine(url)
-    readings = city_readings(args.cameras, args.days, args.every)
+
+def pages(engine: Engine, readings: list[Reading], args: argparse.Namespace) -> None:
     n = len(readings)
-    store(engine, readings)
     end = readings[-1][1]
-
-    def analyze() -> None:
-        if args.backend == "postgresql":
-            with engine.connect() as conn:
-                conn.exec_driver_sql("ANALYZE")
-                conn.commit()
-
-    analyze()
     print(f"{args.backend}: {n:,} readings of {args.cameras} cameras; ms per page of 100")
     print("| page | with the index | without |")
     print("|---|---|---|")
@@ -91,7 +74,7 @@ def main() -> None:
                 session.commit()
                 with engine.begin() as conn:
                     conn.exec_driver_sql("DROP INDEX ix_frames_captured_at_id")
-                analyze()
+                analyze(engine)
             for name, fn in cases.items():
                 results[name].append(timed(fn, args.rounds))
         for name, (yes, no) in results.items():
@@ -99,12 +82,6 @@ def main() -> None:
                 f"| {name} | {', '.join(f'{v:.0f}' for v in yes)} |"
                 f" {', '.join(f'{v:.0f}' for v in no)} |"
             )
-    engine.dispose()
-    if args.backend == "postgresql":
-        import psycopg
-
-        with psycopg.connect(PG_ADMIN, autocommit=True) as conn:
-            conn.execute("DROP DATABASE IF EXISTS vantage_trends_bench")
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ import json
 import socket
 import threading
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from http.server import BaseHTTPRequestHandler, HTTPServer
 from typing import Any
@@ -88,10 +89,16 @@ def recorder(
     return Receiver, got
 
 
-def serve(handler: type[BaseHTTPRequestHandler]) -> tuple[HTTPServer, str]:
+@contextmanager
+def served(handler: type[BaseHTTPRequestHandler]) -> Iterator[str]:
+    """``handler`` serving on a local port for the block: its base URL."""
     server = HTTPServer(("127.0.0.1", 0), handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    return server, f"http://127.0.0.1:{server.server_port}"
+    try:
+        yield f"http://127.0.0.1:{server.server_port}"
+    finally:
+        server.shutdown()
+        server.server_close()
 
 
 def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Session]) -> None:
@@ -116,12 +123,8 @@ def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Ses
             pass
 
     seed_alerts(engine, 1)
-    server, base = serve(Moved)
-    try:
+    with served(Moved) as base:
         assert webhooks.sweep(sessions, f"{base}/hook", at(T0)) == 0
-    finally:
-        server.shutdown()
-        server.server_close()
     assert seen == [("POST", "/hook")]
     delivered, attempts, error = state(engine)["a0"]
     assert (delivered, attempts) == (False, 1)
@@ -305,14 +308,10 @@ def test_alerts_are_signed_and_say_where_and_when(
     now = datetime.now(UTC)  # receivers refuse a timestamp more than 5 minutes off
     old = now - T0 + timedelta(days=1)  # the alerts were raised at T0: retried till now
     key = webhooks.signing_key(secret)
-    server, base = serve(receiver_class)
-    try:
+    with served(receiver_class) as base:
         for t, delivered in ((now, 0), (now + timedelta(seconds=3), 1)):  # 500, then 204
             sent = webhooks.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
             assert sent == delivered
-    finally:
-        server.shutdown()
-        server.server_close()
     receiver = standardwebhooks.Webhook(secret)
     for body, headers in got:
         alert = receiver.verify(body, headers)
@@ -340,12 +339,8 @@ def test_alerts_are_signed_and_say_where_and_when(
 def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Session]) -> None:
     receiver_class, got = recorder()
     seed_alerts(engine, 1)
-    server, base = serve(receiver_class)
-    try:
+    with served(receiver_class) as base:
         assert webhooks.sweep(sessions, f"{base}/hook", at(T0)) == 1
-    finally:
-        server.shutdown()
-        server.server_close()
     headers = got[0][1]
     assert headers["webhook-id"] == "a0"
     assert "webhook-signature" not in headers
