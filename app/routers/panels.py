@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from app.db.models import Baseline, CameraKind
+from app.db.models import Baseline, CameraKind, Panel
 from app.deps import (
     ID_PATTERN,
     Admin,
@@ -91,7 +91,7 @@ def list_panels(
     ] = False,
 ) -> list[PanelOut]:
     """List panels, ordered by id."""
-    rows = registry.list_panels(session, limit=limit, offset=offset, retired=retired)
+    rows = registry.listed(session, Panel, limit=limit, offset=offset, retired=retired)
     return [PanelOut.model_validate(p) for p in rows]
 
 

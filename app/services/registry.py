@@ -48,7 +48,7 @@ def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> No
         panel = panels.lock_panel(session, panel_id)
     except NotFound:
         raise Unprocessable(f"panel {panel_id!r} does not exist; create it first") from None
-    check_panel_in_service(panel)
+    check_in_service(panel)
 
 
 def _check_located(row: Camera | Panel) -> None:
@@ -80,17 +80,10 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
-def check_panel_in_service(panel: Panel) -> None:
-    """Refuse (409) to attach a camera to, or train a baseline for, a retired panel."""
-    if panel.retired_at is not None:
-        raise Conflict(
-            f"panel {panel.id!r} was retired at {panel.retired_at.isoformat()}",
-            code="panel_retired",
-        )
-
-
-def check_in_service(row: Camera | Robot) -> None:
-    """Refuse (409) to act for a retired camera or robot."""
+def check_in_service(row: Camera | Robot | Panel) -> None:
+    """Refuse (409 ``camera_retired``, ``robot_retired``, ``panel_retired``) to act for a
+    retired camera or robot, or to attach a camera to or train a baseline for a retired
+    panel."""
     if row.retired_at is not None:
         what = type(row).__name__.lower()
         raise Conflict(
@@ -181,13 +174,13 @@ def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: 
         _forget_on_commit(session, tokens, camera_id)
 
 
-Retirable = TypeVar("Retirable", Camera, Robot)
+Retirable = TypeVar("Retirable", Camera, Robot, Panel)
 
 
 def listed(
     session: Session, model: type[Retirable], *, limit: int, offset: int, retired: bool = False
 ) -> Sequence[Retirable]:
-    """Cameras or robots in service, by id; with ``retired``, the retired ones too."""
+    """Cameras, robots or panels in service, by id; with ``retired``, the retired ones too."""
     q = select(model)
     if not retired:
         q = q.where(model.retired_at.is_(None))
@@ -252,24 +245,13 @@ def get_panel(session: Session, panel_id: str) -> Panel:
 def panel_in_service(session: Session, panel_id: str) -> Panel:
     """The panel (404 when there is none), refused (409) when retired."""
     panel = get_panel(session, panel_id)
-    check_panel_in_service(panel)
+    check_in_service(panel)
     return panel
-
-
-def list_panels(
-    session: Session, *, limit: int, offset: int, retired: bool = False
-) -> Sequence[Panel]:
-    """Panels in service, by id; with ``retired``, the retired ones too."""
-    q = select(Panel)
-    if not retired:
-        q = q.where(Panel.retired_at.is_(None))
-    return session.scalars(q.order_by(Panel.id).limit(limit).offset(offset)).all()
 
 
 def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
     """Change the fields ``data`` carries (``null`` clears one)."""
-    panel = get_panel(session, panel_id)
-    check_panel_in_service(panel)
+    panel = panel_in_service(session, panel_id)
     for field, value in data.model_dump(include=data.model_fields_set).items():
         setattr(panel, field, value)
     _check_located(panel)

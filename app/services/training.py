@@ -27,7 +27,7 @@ from app.services.camera_info import (
 )
 from app.services.ingest import Decoded, analyse
 from app.services.panels import lock_panel
-from app.services.registry import check_panel_in_service
+from app.services.registry import check_in_service
 
 MIN_FLEET_PER_CLASS = 5
 
@@ -146,7 +146,7 @@ def train_baseline(
     """Fit and store the panel's baseline, measured in region ``roi``; verdicts use it from the
     next frame on."""
     panel = lock_panel(session, panel_id)
-    check_panel_in_service(panel)
+    check_in_service(panel)
     check_region_in_use(session, panel_id, roi)
     try:
         fit = soiling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
