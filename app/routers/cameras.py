@@ -422,12 +422,10 @@ async def get_frame_region(
             region = CameraUpdate.model_validate({"roi": json.loads(roi)}).roi
         except (ValueError, ValidationError) as exc:
             raise Unprocessable(f"roi is not a region: {exc}"[:300], code="bad_roi") from None
-    corners = imaging.region_corners(region, frame.width, frame.height)
-    if any(x >= frame.width or y >= frame.height for x, y in corners):
-        raise Unprocessable(
-            f"the region {region} does not lie inside the {frame.width}×{frame.height} frame",
-            code="roi_outside_frame",
-        )
+    try:
+        ingest.check_fits(region, frame.width, frame.height)
+    except ValueError as exc:
+        raise Unprocessable(str(exc), code="roi_outside_frame") from None
     store: FrameStore = request.app.state.frame_store
     data = await run_in_threadpool(store.read, frame.stored_path)
     if data is None:
@@ -436,13 +434,13 @@ async def get_frame_region(
     return Response(body, media_type="image/jpeg", headers={"Cache-Control": "private"})
 
 
+MAX_STORED_PIXELS = 1_000_000_000
+"""A stored frame passed the pixel limit of its day; a lower one since does not hide it."""
+
+
 def _outlined(data: bytes, region: list[Any] | None) -> bytes:
     image = jpeg.decode_rgb(data, max_pixels=MAX_STORED_PIXELS)[1]
     outlined = cv2.cvtColor(imaging.outline_region(image, region), cv2.COLOR_RGB2BGR)
     ok, buf = cv2.imencode(".jpg", outlined, [cv2.IMWRITE_JPEG_QUALITY, 85])
     assert ok
     return bytes(buf.tobytes())
-
-
-MAX_STORED_PIXELS = 1_000_000_000
-"""A stored frame passed the pixel limit of its day; a lower one since does not hide it."""

@@ -45,15 +45,18 @@ class CameraInfo:
 
     @classmethod
     def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
-        r = camera.roi
-        roi: Roi | None = None
-        polygon: Polygon | None = None
-        if r and isinstance(r[0], list):
-            polygon = tuple((int(p[0]), int(p[1])) for p in r if isinstance(p, list))
-        elif r:
-            x, y, w, h = (int(v) for v in r if isinstance(v, int))
-            roi = (x, y, w, h)
+        roi, polygon = parse_region(camera.roi)
         return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
+
+
+def parse_region(r: Region) -> tuple[Roi | None, Polygon | None]:
+    """A region as stored (JSON): its rectangle, or its polygon, or neither (the whole frame)."""
+    if r and isinstance(r[0], list):
+        return None, tuple((int(p[0]), int(p[1])) for p in r if isinstance(p, list))
+    if r:
+        x, y, w, h = (int(v) for v in r if isinstance(v, int))
+        return (x, y, w, h), None
+    return None, None
 
 
 def region_now(camera: Camera) -> Region:

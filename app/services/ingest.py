@@ -33,7 +33,7 @@ from app.db.ids import time_ordered_id
 from app.db.models import CameraKind, Frame, Verdict
 from app.db.rows import insert_rows
 from app.errors import Unprocessable, UnsupportedMediaType
-from app.services.camera_info import CameraInfo
+from app.services.camera_info import CameraInfo, Region, parse_region
 from app.services.policy import Policy
 from app.services.storage import FrameStore, digest
 from app.services.verdicts import conclude
@@ -82,6 +82,16 @@ def scale_polygon(polygon: Polygon, width: int, height: int, reduction: int) -> 
             f"{width}×{height} frame"
         )
     return tuple((x // reduction, y // reduction) for x, y in polygon)
+
+
+def check_fits(region: Region, width: int, height: int) -> None:
+    """Raise ValueError when ``region`` (as stored) does not lie inside a ``width`` ×
+    ``height`` frame: the check every upload's region gets."""
+    roi, polygon = parse_region(region)
+    if polygon is not None:
+        scale_polygon(polygon, width, height, 1)
+    elif roi is not None:
+        scale_roi(roi, width, height, 1)
 
 
 def region_of(

@@ -16,8 +16,8 @@ from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
 from app.security import hash_token, new_token
 from app.services import cleaning, panels
-from app.services.camera_info import CameraInfo, TokenCache
-from app.services.ingest import scale_polygon, scale_roi
+from app.services.camera_info import TokenCache
+from app.services.ingest import check_fits
 from app.services.policy import Policy
 
 
@@ -115,13 +115,8 @@ def _check_region_fits(session: Session, camera: Camera) -> None:
     latest = session.execute(_newest(camera.id, Frame.width, Frame.height)).first()
     if latest is None:
         return
-    width, height = latest
-    info = CameraInfo.of(camera)  # the region as the ingest path reads it
     try:
-        if info.polygon is not None:
-            scale_polygon(info.polygon, width, height, 1)
-        elif info.roi is not None:
-            scale_roi(info.roi, width, height, 1)
+        check_fits(camera.roi, *latest)
     except ValueError as exc:
         raise Unprocessable(
             f"{exc} the camera sent last; its frames of that size would all be refused"
