@@ -12,8 +12,8 @@ from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import and_, func, literal_column, or_, select
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy import ColumnElement, Select, and_, func, literal_column, or_, select
+from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.core import airquality, soiling
 from app.db.base import time_slot
@@ -464,34 +464,25 @@ class Place:
     lon: float | None
 
 
-def latest(session: Session, camera_id: str) -> tuple[Place, tuple[Frame, SkyVerdict] | None]:
+Reading = tuple[Frame, SkyVerdict]
+
+
+def latest(session: Session, camera_id: str) -> tuple[Place, Reading | None]:
     """The sky camera (404 when there is none) and its latest reading, if any."""
     camera = sky_camera(session, camera_id)
     place = Place(camera.id, camera.name, camera.lat, camera.lon)
     row = session.execute(
-        select(Frame, SkyVerdict)
-        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == camera_id)
-        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
-        .limit(1)
+        _with_verdicts(Frame.id == _newest_reading(camera_id).scalar_subquery())
     ).first()
     return place, ((row[0], row[1]) if row else None)
 
 
 def latest_of_every(
     session: Session, *, limit: int, offset: int
-) -> list[tuple[Place, tuple[Frame, SkyVerdict] | None]]:
+) -> list[tuple[Place, Reading | None]]:
     """Each sky camera in service (by id, a page of them) with its latest reading, if any: one
-    statement, an index lookup per camera for its newest graded frame."""
-    newest = (
-        select(Frame.id)
-        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == Camera.id)
-        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
-        .limit(1)
-        .correlate(Camera)
-        .scalar_subquery()
-    )
+    statement, an index lookup per camera for its newest graded frame; then those frames."""
+    newest = _newest_reading(Camera.id).correlate(Camera).scalar_subquery()
     page = session.execute(
         select(Camera.id, Camera.name, Camera.lat, Camera.lon, newest)
         .where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
@@ -499,15 +490,24 @@ def latest_of_every(
         .limit(limit)
         .offset(offset)
     ).all()
-    found = {
-        f.id: (f, v)
-        for f, v in session.execute(
-            select(Frame, SkyVerdict)
-            .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-            .where(Frame.id.in_([row[-1] for row in page if row[-1] is not None]))
-        ).all()
-    }
-    return [(Place(cid, name, lat, lon), found.get(fid)) for cid, name, lat, lon, fid in page]
+    wanted = [row[-1] for row in page if row[-1] is not None]
+    found = {f.camera_id: (f, v) for f, v in session.execute(_with_verdicts(Frame.id.in_(wanted)))}
+    return [(Place(cid, name, lat, lon), found.get(cid)) for cid, name, lat, lon, _ in page]
+
+
+def _newest_reading(camera_id: str | QueryableAttribute[str]) -> Select[str]:
+    """The id of the camera's newest graded frame (the (camera_id, captured_at) index)."""
+    return (
+        select(Frame.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.camera_id == camera_id)
+        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
+        .limit(1)
+    )
+
+
+def _with_verdicts(which: ColumnElement[bool]) -> Select[Frame, SkyVerdict]:
+    return select(Frame, SkyVerdict).join(SkyVerdict, SkyVerdict.frame_id == Frame.id).where(which)
 
 
 def readings(
