@@ -589,22 +589,30 @@ def _window_start(at: datetime, window: int) -> datetime:
         return datetime.min.replace(tzinfo=UTC)
 
 
-def _field(
-    session: Session, policy: Policy, q: MapQuery
-) -> tuple[
-    list[air.Station], isopleths.Field | None, tuple[float, float, float, float] | None, datetime
-]:
+@dataclass(frozen=True)
+class MapData:
+    """What a map is drawn from: the cameras' levels in the window [since, at], the field
+    interpolated from them (None without any) over ``box``."""
+
+    stations: list[air.Station]
+    field: isopleths.Field | None
+    box: tuple[float, float, float, float] | None
+    since: datetime
+    at: datetime
+
+
+def _field(session: Session, policy: Policy, q: MapQuery) -> MapData:
     now = policy.now()
     if q.at is not None and q.at > now:
         raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
     at = q.at or now
-    box = q.bbox
-    st = air.stations(session, since=_window_start(at, q.window), until=at)
+    since = _window_start(at, q.window)
+    st = air.stations(session, since=since, until=at)
     if not st:
-        return st, None, box, at
+        return MapData(st, None, q.bbox, since, at)
     lon = np.array([s.lon for s in st])
     lat = np.array([s.lat for s in st])
-    box = box or isopleths.default_bbox(lon, lat)
+    box = q.bbox or isopleths.default_bbox(lon, lat)
     try:
         f = isopleths.interpolate(
             lon,
@@ -617,7 +625,7 @@ def _field(
         )
     except isopleths.IsoplethError as exc:
         raise Unprocessable(str(exc), code="bad_field") from None
-    return st, f, box, at
+    return MapData(st, f, box, since, at)
 
 
 async def _cached_map(
@@ -659,33 +667,18 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     and its ETag answers ``If-None-Match`` with 304."""
 
     def compute(session: Session) -> bytes:
-        st, f, box, at = _field(session, policy, q)
-        body = _geojson(st, f, box, at, policy.now(), q)
-        off_map = air.unplaced(session, since=_window_start(at, q.window), until=at)
-        if off_map:
-            named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
-            some = (
-                "1 sky camera with readings has"
-                if len(off_map) == 1
-                else (f"{len(off_map)} sky cameras with readings have")
-            )
-            body["warnings"].append(
-                f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
-                " with both)"
-            )
+        m = _field(session, policy, q)
+        off_map = air.unplaced(session, since=m.since, until=m.at)
+        body = _geojson(m, off_map, policy.now(), q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
     return await _cached_map(request, ("geojson", q), compute, "application/geo+json")
 
 
-def _geojson(
-    st: list[air.Station],
-    f: isopleths.Field | None,
-    box: tuple[float, float, float, float] | None,
-    at: datetime,
-    now: datetime,
-    q: MapQuery,
-) -> dict[str, Any]:
+def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[str, Any]:
+    """The collection: the bands (or the uncertainty layer), the cameras, and warnings of
+    cameras drawn in another category's band and of graded cameras with no place."""
+    st, f, box, at = m.stations, m.field, m.box, m.at
     features = []
     if f is not None:
         features = isopleths.bands(f) if q.layer == "levels" else isopleths.uncertainty_bands(f)
@@ -704,6 +697,17 @@ def _geojson(
                 " smaller bbox or a larger resolution (up to 512); cameras close together"
                 " that disagree stay so at any resolution"
             )
+    if off_map:
+        named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
+        some = (
+            "1 sky camera with readings has"
+            if len(off_map) == 1
+            else f"{len(off_map)} sky cameras with readings have"
+        )
+        warnings.append(
+            f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
+            " with both)"
+        )
     return {
         "type": "FeatureCollection",
         "features": features,
@@ -749,7 +753,7 @@ async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> 
     from app.services.airmap import render
 
     def compute(session: Session) -> bytes:
-        st, f, box, at = _field(session, policy, q)
-        return render(f, st, box, at, q.layer)
+        m = _field(session, policy, q)
+        return render(m.field, m.stations, m.box, m.at, q.layer)
 
     return await _cached_map(request, ("png", q), compute, "image/png")
