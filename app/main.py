@@ -31,7 +31,7 @@ from app.routers import (
     robots,
     vision,
 )
-from app.security import admin_token_hash
+from app.security import admin_token_hash, hash_token
 from app.services import rate_limit, retention, webhooks
 from app.services.camera_info import TokenCache
 from app.services.isopleth_cache import MapCache
@@ -137,6 +137,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.sessionmaker, preparers=settings.effective_ingest_threads
     )
     app.state.admin_token_hash = admin_token_hash(settings)
+    metrics = settings.metrics_token
+    app.state.metrics_token_hash = (
+        None if metrics is None else hash_token(metrics.get_secret_value())
+    )
     app.state.camera_tokens = TokenCache(ttl=settings.camera_cache_seconds)
     app.state.rate_budgets = rate_limit.LocalBudgets()
     app.state.policy = Policy(

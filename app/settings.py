@@ -167,13 +167,14 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> Settings:
-        if self.env == "production" and self.admin_token is not None:
-            if len(self.admin_token.get_secret_value()) < 24:
-                raise ValueError("VANTAGE_ADMIN_TOKEN must be at least 24 characters in production")
-        if self.env == "production" and self.metrics_token is not None:
-            if len(self.metrics_token.get_secret_value()) < 24:
+        for name, token in (("ADMIN", self.admin_token), ("METRICS", self.metrics_token)):
+            if (
+                self.env == "production"
+                and token is not None
+                and len(token.get_secret_value()) < 24
+            ):
                 raise ValueError(
-                    "VANTAGE_METRICS_TOKEN must be at least 24 characters in production"
+                    f"VANTAGE_{name}_TOKEN must be at least 24 characters in production"
                 )
         if (
             self.history_retention_days is not None

@@ -41,7 +41,7 @@ def _legend_uncertainty(
     ramp = cv2.applyColorMap(
         np.linspace(40, 230, n).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_VIRIDIS
     )[::-1]
-    colours = [tuple(int(c) for c in ramp[i, 0]) for i in range(n)]
+    colours = [(int(b), int(g), int(r)) for b, g, r in ramp[:, 0]]
 
     def label(v: float) -> str:
         return f"{v / 1000:g} km" if unit == "m" and v >= 1000 else f"{v:g}"
@@ -54,7 +54,7 @@ def _legend_uncertainty(
         )
         for i in range(n)
     ]  # fmt: skip
-    return entries, colours  # type: ignore[return-value]
+    return entries, colours
 
 
 def render(

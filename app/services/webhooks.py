@@ -41,6 +41,7 @@ from typing import Literal
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.core import airquality
 from app.db.models import AirAlert, Camera, Frame
 from app.services.background import in_thread
 from app.services.policy import Policy
@@ -207,7 +208,7 @@ def sweep(
                     "kind": alert.kind,
                     "smoothed_level": alert.smoothed_level,
                     "category": alert.category,
-                    "message": f"Today's Air Quality is {alert.category}",
+                    "message": airquality.message(alert.category),
                 }
             ).encode()
             alert.attempts += 1
