@@ -333,7 +333,7 @@ def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | 
     with get_sessionmaker(request)() as session:
         camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
         if camera is not None:
-            return _info(session, camera)
+            return replace(_info(session, camera), token_hash=digest)
         robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
     return Principal("robot", robot_id) if robot_id is not None else None
 

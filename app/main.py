@@ -32,7 +32,7 @@ from app.routers import (
     vision,
 )
 from app.security import admin_token_hash, hash_token
-from app.services import rate_limit, retention, webhooks
+from app.services import rate_limit, registry, retention, webhooks
 from app.services.camera_info import TokenCache
 from app.services.isopleth_cache import MapCache
 from app.services.policy import Policy
@@ -134,7 +134,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # disk store about as many as there are cores, because more decoding threads than cores
     # only contend for the cores and the GIL (bench/README.md)
     app.state.writer = GroupCommitWriter(
-        app.state.sessionmaker, preparers=settings.effective_ingest_threads
+        app.state.sessionmaker,
+        preparers=settings.effective_ingest_threads,
+        revoked=registry.revoked,
     )
     app.state.admin_token_hash = admin_token_hash(settings)
     metrics = settings.metrics_token

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.db.models import CameraKind  # noqa: E402
-from app.services import ingest  # noqa: E402
+from app.services import ingest, registry  # noqa: E402
 from app.services.camera_info import CameraInfo  # noqa: E402
 from app.services.policy import Policy  # noqa: E402
 from app.services.writer import GroupCommitWriter, _Job  # noqa: E402
@@ -45,7 +45,15 @@ def main() -> None:
     args = parser.parse_args()
 
     engine, sessions = bench_database(args.database_url)
-    writer = GroupCommitWriter(sessions)
+    # as the service runs it: each batch checks its jobs' camera tokens (absent before the
+    # writer did, so the script compares with older checkouts too)
+    checks = "credential" in _Job.__dataclass_fields__
+    writer = (
+        GroupCommitWriter(sessions, revoked=registry.revoked)
+        if checks
+        else GroupCommitWriter(sessions)
+    )
+    extra = {"credential": ("c", "-")} if checks else {}
     writer._holding = True  # as on the writer's own thread (a connection kept between batches)
     camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
     policy = Policy()
@@ -69,7 +77,11 @@ def main() -> None:
         t0 = time.thread_time()
         for _ in range(args.batches):
             batch = [
-                _Job(partial(ingest.record, prepared=next(prepared), policy=policy), Future())
+                _Job(
+                    partial(ingest.record, prepared=next(prepared), policy=policy),
+                    Future(),
+                    **extra,
+                )
                 for _ in range(args.batch)
             ]
             outcomes = writer._write(batch)

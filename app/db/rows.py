@@ -14,7 +14,7 @@ The sqlite3 module releases the GIL around every step, and under load the writer
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cache
@@ -147,6 +147,26 @@ def _as_sqlalchemy_error(connection: Connection, sql: str) -> Iterator[None]:
         yield
     except dbapi_error as exc:
         raise DBAPIError.instance(sql, None, exc, dbapi_error, dialect=connection.dialect) from exc
+
+
+def select_rows(session: Session, sql: str, params: Sequence[Any]) -> list[tuple[Any, ...]]:
+    """A plain SELECT sent through the driver itself, on the session's connection (its held
+    inserts first), placeholders written ``?``. For a query the writer makes in every batch:
+    through SQLAlchemy a one-row select by primary key cost ~100–160 µs of CPU on this
+    machine, through the driver ~4 µs (SQLite)."""
+    connection = session.connection()
+    if connection.dialect.paramstyle != "qmark":
+        sql = sql.replace("?", "%s")
+    pending: _Pending | None = connection.info.get(_PENDING)
+    if pending is not None:
+        pending.send(connection)
+    cursor = connection.connection.dbapi_connection.cursor()  # type: ignore[union-attr]
+    try:
+        with _as_sqlalchemy_error(connection, sql):
+            cursor.execute(sql, list(params))
+            return [tuple(row) for row in cursor.fetchall()]
+    finally:
+        cursor.close()
 
 
 def _bulk_sender(

@@ -34,7 +34,7 @@ from app.deps import (
     image_work,
     link_next,
 )
-from app.errors import NotFound, Unprocessable
+from app.errors import NotFound, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
@@ -188,7 +188,13 @@ async def post_frame(
     # decoding and the file write take one of the writer's preparing threads, which then queues
     # the database part itself; the wait for the commit takes no thread, so a stalled database
     # (a failover) holds none
-    done = await writer.submit_after(prepare)
+    credential = None if target.token_hash is None else (target.id, target.token_hash)
+    try:
+        done = await writer.submit_after(prepare, credential=credential)
+    except Unauthorized:  # the token was replaced, or the camera retired, through another process
+        tokens: TokenCache = request.app.state.camera_tokens
+        tokens.forget(target.id)  # the next upload looks it up, and is refused before its body
+        raise
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

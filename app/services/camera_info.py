@@ -30,6 +30,10 @@ class CameraInfo:
     polygon: Polygon | None = None
     """The region as a polygon instead of ``roi``'s rectangle."""
 
+    token_hash: str | None = None
+    """The hash of the camera's own token this snapshot was found by (None when it was looked
+    up for the admin token): the writer checks it still holds before storing a frame."""
+
     region: Region = field(init=False, compare=False)
     """The region as the camera's ``roi`` stores it: [x, y, w, h], [[x, y], ...] or None. Built
     once per snapshot (the token cache keeps one per camera) rather than once per frame: it is

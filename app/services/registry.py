@@ -12,6 +12,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.db.models import Camera, CameraKind, Frame, Panel, Robot, TaskStatus
+from app.db.rows import select_rows
 from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
 from app.security import hash_token, new_token
@@ -128,6 +129,17 @@ def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> N
     concurrent upload could cache the old row again). Other processes' caches expire within
     their ``TokenCache.ttl``."""
     event.listen(session, "after_commit", lambda _: tokens.forget(camera_id), once=True)
+
+
+def revoked(session: Session, credentials: set[tuple[str, str]]) -> set[tuple[str, str]]:
+    """Which (camera id, token hash) pairs no longer hold: the token was replaced, or its camera
+    retired (which replaces it too). One query for all of them, made by the group-commit
+    writer in every batch of frames, so sent through the driver (``select_rows``)."""
+    ids = sorted({camera_id for camera_id, _ in credentials})
+    marks = ", ".join("?" * len(ids))
+    sql = f"SELECT id, token_hash FROM cameras WHERE retired_at IS NULL AND id IN ({marks})"
+    held = {(camera_id, token_hash) for camera_id, token_hash in select_rows(session, sql, ids)}
+    return credentials - held
 
 
 def update_camera(

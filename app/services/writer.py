@@ -27,6 +27,7 @@ from sqlalchemy.exc import DBAPIError, IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import deferred_inserts
+from app.errors import Unauthorized
 
 log = logging.getLogger("vantage.writer")
 
@@ -37,6 +38,13 @@ PREPARERS = 32
 the commit takes no thread). The service sets it from ``Settings.effective_ingest_threads``."""
 
 
+Credential = tuple[str, str]
+"""(camera id, token hash): the camera token a job's request was accepted with."""
+
+Revoked = Callable[[Session, set[Credential]], set[Credential]]
+"""Which of the credentials no longer hold (the token was replaced, or its camera retired)."""
+
+
 @dataclass(slots=True)
 class _Job:
     fn: Callable[..., Any]
@@ -44,9 +52,13 @@ class _Job:
     future: Future[Any] | asyncio.Future[Any]
     loop: asyncio.AbstractEventLoop | None = None
     """The event loop an asyncio ``future`` belongs to; None for a thread's future."""
+    credential: Credential | None = None
+    """Checked again inside the job's batch (``GroupCommitWriter``'s ``revoked``)."""
 
 
 Outcome = tuple[Any, BaseException | None]
+
+_REVOKED = object()
 
 
 def _settle(future: Future[Any] | asyncio.Future[Any], outcome: Outcome) -> None:
@@ -68,9 +80,20 @@ class GroupCommitWriter:
     """Runs write jobs ``fn(session)`` on one thread, committing each batch once."""
 
     def __init__(
-        self, sessions: sessionmaker[Session], *, max_batch: int = 64, preparers: int = PREPARERS
+        self,
+        sessions: sessionmaker[Session],
+        *,
+        max_batch: int = 64,
+        preparers: int = PREPARERS,
+        revoked: Revoked | None = None,
     ) -> None:
         self._sessions = sessions
+        self._revoked = revoked
+        """Checks, once per batch and in its transaction, that the camera tokens its jobs were
+        accepted with still hold. Processes keep the cameras they have seen for seconds (the
+        token cache), so without it a token replaced or a camera retired through another
+        process would go on storing frames here until then; with it, no frame is stored on a
+        token after the change's commit (the jobs get 401)."""
         self._max_batch = max_batch
         self._preparers = preparers
         self._pool: ThreadPoolExecutor | None = None
@@ -116,7 +139,7 @@ class GroupCommitWriter:
             self._queue.put(None)
             thread.join(timeout=30)
 
-    def run(self, fn: Callable[[Session], T]) -> T:
+    def run(self, fn: Callable[[Session], T], *, credential: Credential | None = None) -> T:
         """Run ``fn(session)`` in the next batch; return its result once the batch committed.
 
         Called from a thread, which it blocks (never the event loop; the ingest path uses
@@ -126,10 +149,15 @@ class GroupCommitWriter:
         if self._thread is None:
             self.start()
         future: Future[T] = Future()
-        self._queue.put(_Job(fn, future))
+        self._queue.put(_Job(fn, future, credential=credential))
         return future.result()
 
-    def submit_after(self, prepare: Callable[[], Callable[[Session], T]]) -> asyncio.Future[T]:
+    def submit_after(
+        self,
+        prepare: Callable[[], Callable[[Session], T]],
+        *,
+        credential: Credential | None = None,
+    ) -> asyncio.Future[T]:
         """Run ``prepare()`` on one of the writer's preparing threads (at most ``preparers`` at
         once, the rest queue), then the job it returns in the next batch; await the returned
         future for the job's result once its batch committed. No thread waits for the commit.
@@ -137,7 +165,8 @@ class GroupCommitWriter:
         The preparing thread queues the job itself, and each batch's results reach an event
         loop in one call, so a frame wakes the loop once. When ``prepare`` raises, the future
         gets its exception. A request cancelled before its preparation ends queues no job.
-        Must be called on the loop.
+        Must be called on the loop. With ``credential``, the job runs only if that camera token
+        still holds in its batch (else the future gets ``Unauthorized``).
         """
         pool = self._pool
         if pool is None:
@@ -156,7 +185,7 @@ class GroupCommitWriter:
                     loop.call_soon_threadsafe(_settle, future, outcome)
                 return
             if not future.done():  # a read only: the loop alone settles or cancels it
-                self._queue.put(_Job(job, future, loop))
+                self._queue.put(_Job(job, future, loop, credential))
 
         pool.submit(work)
         return future
@@ -227,13 +256,28 @@ class GroupCommitWriter:
             self._release()
             return (None, first)
 
+    def _revoked_in(self, session: Session, batch: list[_Job]) -> set[Credential]:
+        """The batch's credentials that no longer hold: one query for the whole batch."""
+        if self._revoked is None:
+            return set()
+        credentials = {job.credential for job in batch if job.credential is not None}
+        return self._revoked(session, credentials) if credentials else set()
+
     def _write(self, batch: list[_Job], *, again: bool = True) -> list[Outcome]:
         try:
             with self._session() as session:
+                revoked = self._revoked_in(session, batch)
                 with deferred_inserts(session):  # one INSERT per table for the batch
-                    results = [job.fn(session) for job in batch]
+                    results = [
+                        _REVOKED if job.credential in revoked else job.fn(session) for job in batch
+                    ]
                 session.commit()
-            return [(r, None) for r in results]
+            return [
+                (None, Unauthorized("unknown token: it was replaced, or its camera retired"))
+                if r is _REVOKED
+                else (r, None)
+                for r in results
+            ]
         except Exception as exc:
             held = self._held is not None
             self._release()  # the next attempt checks out a pinged connection

@@ -3,13 +3,16 @@ it (DELETE)."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine
+from sqlalchemy import Engine, update
 
-from app.db.models import CameraKind
+from app.db.models import Camera, CameraKind
+from app.security import hash_token
 from app.services.camera_info import CameraInfo, TokenCache
 from tests.conftest import make_jpeg, table_counts
 
@@ -282,6 +285,35 @@ class TestRetire:
         assert client.delete("/cameras/cam", headers=own).status_code == 403
         assert client.get("/cameras/cam", headers=admin).json()["retired_at"] is None
         assert post(client, token, make_jpeg())[0] == 201
+
+
+@pytest.mark.parametrize("change", ["token replaced", "camera retired"])
+def test_a_change_made_by_another_process_stops_the_next_frame(
+    client: TestClient, admin: dict[str, str], engine: Engine, change: str
+) -> None:
+    token = register(client, admin)
+    assert post(client, token, halves())[0] == 201  # this process now keeps the camera
+    before = table_counts(engine)
+    # another process replaces the token, or retires the camera: this one is not told
+    values: dict[str, object] = (
+        {"token_hash": hash_token("vc_elsewhere")}
+        if change == "token replaced"
+        else {"retired_at": datetime(2026, 1, 1, tzinfo=UTC)}
+    )
+    with engine.begin() as conn:
+        conn.execute(update(Camera).where(Camera.id == "cam").values(**values))
+    status, body = post(client, token, halves())
+    assert status == 401, body
+    assert body["detail"] == "unknown token: it was replaced, or its camera retired"
+    assert table_counts(engine) == before  # no frame, no verdict
+    # and this process has forgotten the camera: the next upload is looked up and refused
+    status, body = post(client, token, halves())
+    assert status == 401, body
+    if change == "token replaced":  # an operator's upload with the admin token still counts
+        r = client.post(
+            "/cameras/cam/frames", content=halves(), headers={**admin, "Content-Type": "image/jpeg"}
+        )
+        assert r.status_code == 201, r.text
 
 
 def test_the_token_cache_forgets_one_camera() -> None:
