@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal, TypeVar
 import anyio
 from fastapi import Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from pydantic import AfterValidator
+from pydantic import AfterValidator, StringConstraints
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -189,6 +189,15 @@ RigId = Annotated[str, Path(pattern=ID_PATTERN, description="Rig id.")]
 RobotId = Annotated[str, Path(pattern=ID_PATTERN, description="Robot id.")]
 RecordId = Annotated[str, Path(pattern=ID_PATTERN, description="Id given by the service.")]
 IdFilter = Annotated[str | None, Query(pattern=ID_PATTERN, description="Only this id.")]
+MAX_IDS = 100
+IdsFilter = Annotated[
+    list[Annotated[str, StringConstraints(pattern=ID_PATTERN)]] | None,
+    Query(
+        max_length=MAX_IDS,
+        description=f"Only these ids (up to {MAX_IDS}): repeat the parameter, `?camera_id=a"
+        "&camera_id=b`.",
+    ),
+]
 
 
 def _utc(value: datetime) -> datetime:

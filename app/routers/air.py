@@ -25,6 +25,7 @@ from app.deps import (
     CameraId,
     FrameCursor,
     IdFilter,
+    IdsFilter,
     Limit,
     Offset,
     OptionalPrincipal,
@@ -349,7 +350,7 @@ async def readings(
     response: Response,
     session: SessionDep,
     span: TimeRangeQuery,
-    camera_id: IdFilter = None,
+    camera_id: IdsFilter = None,
     aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
     tz: Annotated[
         str,
@@ -380,13 +381,13 @@ async def readings(
     if cursor is not None and aggregate != "none":
         raise Unprocessable("cursor pages readings, not aggregates: use offset")
     if aggregate == "none":
-        if camera_id is not None:  # a misspelt id is an error, not a camera with no readings
-            await run_in_threadpool(air.sky_camera, session, camera_id)
+        if camera_id:  # a misspelt id is an error, not a camera with no readings
+            await run_in_threadpool(air.sky_cameras, session, camera_id)
         rows = await run_in_threadpool(
             partial(
                 air.readings,
                 session,
-                camera_id=camera_id,
+                camera_ids=camera_id,
                 since=since,
                 until=until,
                 limit=limit,
@@ -407,12 +408,12 @@ async def readings(
             )
             for r in rows
         ]
-    if camera_id is not None:  # not in the request's session: on SQLite it would hold the
-        await public_work(request, air.sky_camera, camera_id)  # write lock meanwhile
+    if camera_id:  # not in the request's session: on SQLite it would hold the write lock
+        await public_work(request, air.sky_cameras, camera_id)
     buckets = await public_work(  # every reading of the range: seconds for a city's month
         request,
         air.aggregate,
-        camera_id=camera_id,
+        camera_ids=camera_id,
         since=since,
         until=until,
         bucket=aggregate,
@@ -461,7 +462,7 @@ def alerts(
     policy: PolicyDep,
     span: TimeRangeQuery,
     caller: OptionalPrincipal,
-    camera_id: IdFilter = None,
+    camera_id: IdsFilter = None,
     kind: Annotated[
         Literal["raised", "cleared"] | None, Query(description="Only alerts of this kind.")
     ] = None,
@@ -474,11 +475,10 @@ def alerts(
     (``last_error``: the receiver's answer, a redirect's address) is the operator's to read:
     null without the admin token."""
     operator = caller is not None and caller.role == "admin"
-    if camera_id is not None:
-        air.sky_camera(session, camera_id)
+    air.sky_cameras(session, camera_id)
     rows = air.alerts(
         session,
-        camera_id=camera_id,
+        camera_ids=camera_id,
         limit=limit,
         offset=offset,
         since=span.since,

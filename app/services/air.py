@@ -447,6 +447,21 @@ def upload_region(
     ]
 
 
+def sky_cameras(session: Session, camera_ids: Sequence[str] | None) -> None:
+    """Refuse (404) ids that name no sky camera, all of them in one answer: a misspelt id is
+    an error, not a camera with no readings."""
+    if not camera_ids:
+        return
+    known = set(
+        session.scalars(
+            select(Camera.id).where(Camera.id.in_(camera_ids), Camera.kind == CameraKind.sky)
+        )
+    )
+    unknown = sorted(set(camera_ids) - known)
+    if unknown:
+        raise NotFound(f"no sky camera {', '.join(map(repr, unknown))}", unknown=unknown)
+
+
 def sky_camera(session: Session, camera_id: str) -> Camera:
     camera = session.get(Camera, camera_id)
     if camera is None or camera.kind != CameraKind.sky:
@@ -513,7 +528,7 @@ def _with_verdicts(which: ColumnElement[bool]) -> Select[Frame, SkyVerdict]:
 def readings(
     session: Session,
     *,
-    camera_id: str | None,
+    camera_ids: Sequence[str] | None,
     since: datetime | None,
     until: datetime | None,
     limit: int,
@@ -530,14 +545,14 @@ def readings(
         SkyVerdict.smoothed_level,
         SkyVerdict.reason,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-    q = q.where(*taken_in(camera_id, since, until), *after(cursor))
+    q = q.where(*taken_in(camera_ids, since, until), *after(cursor))
     return session.execute(q.order_by(*NEWEST_FIRST).limit(limit).offset(offset)).all()
 
 
 def aggregate(
     session: Session,
     *,
-    camera_id: str | None,
+    camera_ids: Sequence[str] | None,
     since: datetime | None,
     until: datetime | None,
     bucket: Literal["hourly", "daily"],
@@ -554,7 +569,7 @@ def aggregate(
     length = 3600 if bucket == "hourly" else 86400
     first, last = session.execute(
         select(func.min(Frame.captured_at), func.max(Frame.captured_at)).where(
-            *taken_in(camera_id, since, until)
+            *taken_in(camera_ids, since, until)
         )
     ).one()
     if first is None:
@@ -575,7 +590,7 @@ def aggregate(
                 func.max(SkyVerdict.level),
             )
             .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-            .where(SkyVerdict.level.is_not(None), *taken_in(camera_id, since, until))
+            .where(SkyVerdict.level.is_not(None), *taken_in(camera_ids, since, until))
             .group_by(key, Frame.camera_id)  # this order: SQLite scans the readings, not the
             # (camera, time) index with a lookup per row (3.4 against 11 s for 1.7 M readings)
         )
@@ -664,7 +679,7 @@ def _fixed(t: datetime) -> datetime:
 def alerts(
     session: Session,
     *,
-    camera_id: str | None,
+    camera_ids: Sequence[str] | None,
     limit: int,
     offset: int,
     since: datetime | None = None,
@@ -675,8 +690,8 @@ def alerts(
     q = select(AirAlert)
     if kind is not None:
         q = q.where(AirAlert.kind == kind)
-    if camera_id is not None:
-        q = q.where(AirAlert.camera_id == camera_id)
+    if camera_ids is not None:
+        q = q.where(AirAlert.camera_id.in_(camera_ids))
     if since is not None:
         q = q.where(AirAlert.created_at >= since)
     if until is not None:

@@ -349,12 +349,14 @@ def after(key: FrameKey | None) -> list[ColumnElement[bool]]:
 
 
 def taken_in(
-    camera_id: str | None, since: datetime | None, until: datetime | None
+    camera_id: str | Sequence[str] | None, since: datetime | None, until: datetime | None
 ) -> list[ColumnElement[bool]]:
-    """Conditions on frames: one camera's (or all), taken in [since, until)."""
+    """Conditions on frames: one camera's (or several, or all), taken in [since, until)."""
     conditions = []
-    if camera_id is not None:
+    if isinstance(camera_id, str):
         conditions.append(Frame.camera_id == camera_id)
+    elif camera_id is not None:
+        conditions.append(Frame.camera_id.in_(camera_id))
     if since is not None:
         conditions.append(Frame.captured_at >= since)
     if until is not None:

@@ -229,6 +229,11 @@ def test_alerts_of_a_period(
     ]
     backwards = client.get("/air/alerts", params={"since": span["until"], "until": span["since"]})
     assert backwards.status_code == 422
+    # a district's cameras: camera_id repeated (before, the last one alone was answered)
+    district = client.get("/air/alerts", params={"camera_id": ["sky1", "sky3"]})
+    assert [a["camera_id"] for a in district.json()] == ["sky3", "sky1"]
+    unknown = client.get("/air/alerts", params={"camera_id": ["sky1", "sky99"]})
+    assert (unknown.status_code, unknown.json()["unknown"]) == (404, ["sky99"])
 
 
 def test_why_a_delivery_failed_is_for_the_operator(

@@ -280,3 +280,52 @@ def test_bad_paging_is_422(client: TestClient) -> None:
         r = client.get("/air/readings", params=params)
         assert r.status_code == 422, params
         assert r.headers["content-type"] == "application/problem+json"
+
+
+def test_readings_of_several_cameras_in_one_request(client: TestClient, engine: Engine) -> None:
+    """A district's dashboard asks for three of a city's cameras: ``camera_id`` repeated. Before,
+    the last one given won without a word (the readings of one camera, answered as if of all
+    three)."""
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    readings: list[Reading] = [
+        (f"sky-{k % 5}", t0 + timedelta(minutes=7 * k), 1 + k % 10) for k in range(60)
+    ]
+    store(engine, readings)
+    wanted = ("sky-1", "sky-3", "sky-4")
+    inside = [(k, r) for k, r in enumerate(readings) if r[0] in wanted]
+    newest_first = sorted(
+        ((t.isoformat().replace("+00:00", "Z"), f"f{k:07d}") for k, (_, t, _) in inside),
+        reverse=True,
+    )
+    got = pages(client, "/air/readings", {"camera_id": list(wanted), "limit": 7})
+    assert [len(p) for p in got] == [7, 7, 7, 7, 7, 1]  # the cursor keeps all three ids
+    assert [(r["captured_at"], r["frame_id"]) for p in got for r in p] == newest_first
+
+    hourly = fetch(client, aggregate="hourly", camera_id=list(wanted))
+    assert as_expected(hourly) == expected([r for _, r in inside], "hourly", ZoneInfo("UTC"))
+
+    # a misspelt id is named, with every other unknown one, not taken for a camera without data
+    r = client.get("/air/readings", params={"camera_id": ["sky-1", "sky-7", "sky-x"]})
+    assert r.status_code == 404, r.text
+    assert r.json()["unknown"] == ["sky-7", "sky-x"]
+    r = client.get("/air/readings", params={"camera_id": [f"sky-{k}" for k in range(101)]})
+    assert r.status_code == 422, r.text  # at most 100 at once
+
+
+@pytest.mark.parametrize(
+    "query",
+    [
+        "since=2026-05-01T00:00:00Z&since=2026-06-01T00:00:00Z",
+        "aggregate=daily&aggregate=hourly",
+        "limit=5&limit=50",
+        "camera_id=sky-1&tz=UTC&tz=Asia/Kolkata",
+    ],
+)
+def test_a_parameter_that_takes_one_value_given_twice_is_422(
+    client: TestClient, engine: Engine, query: str
+) -> None:
+    store(engine, [("sky-1", datetime(2026, 5, 1, tzinfo=UTC), 5)])
+    r = client.get(f"/air/readings?{query}")
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["code"] == "repeated_parameter"
