@@ -288,13 +288,22 @@ def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLa
     return _latest_out(place, found, policy.now())
 
 
-@router.get("/latest", response_model=list[AirLatest])
+@router.get("/latest", response_model=list[AirLatest], responses={**NOT_FOUND, **UNPROCESSABLE})
 async def latest_of_every_camera(
-    request: Request, policy: PolicyDep, limit: Limit = 1000, offset: Offset = 0
+    request: Request,
+    policy: PolicyDep,
+    camera_id: IdsFilter = None,
+    limit: Limit = 1000,
+    offset: Offset = 0,
 ) -> list[AirLatest]:
     """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
-    gives it (a dashboard's list of the city's cameras in one request, not one per camera)."""
-    rows = await public_work(request, partial(air.latest_of_every, limit=limit, offset=offset))
+    gives it (a dashboard's list of the city's cameras in one request, not one per camera);
+    with ``camera_id``, those cameras (a district's)."""
+    if camera_id:
+        await public_work(request, air.sky_cameras, camera_id)
+    rows = await public_work(
+        request, partial(air.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id)
+    )
     now = policy.now()
     return [_latest_out(place, found, now) for place, found in rows]
 

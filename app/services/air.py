@@ -493,14 +493,16 @@ def latest(session: Session, camera_id: str) -> tuple[Place, Reading | None]:
 
 
 def latest_of_every(
-    session: Session, *, limit: int, offset: int
+    session: Session, *, limit: int, offset: int, camera_ids: Sequence[str] | None = None
 ) -> list[tuple[Place, Reading | None]]:
-    """Each sky camera in service (by id, a page of them) with its latest reading, if any: one
-    statement, an index lookup per camera for its newest graded frame; then those frames."""
+    """Each sky camera in service (by id, a page of them), or each of ``camera_ids`` (retired
+    ones too: they were asked for), with its latest reading, if any: one statement, an index
+    lookup per camera for its newest graded frame; then those frames."""
     newest = _newest_reading(Camera.id).correlate(Camera).scalar_subquery()
+    which = Camera.retired_at.is_(None) if camera_ids is None else Camera.id.in_(camera_ids)
     page = session.execute(
         select(Camera.id, Camera.name, Camera.lat, Camera.lon, newest)
-        .where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
+        .where(Camera.kind == CameraKind.sky, which)
         .order_by(Camera.id)
         .limit(limit)
         .offset(offset)

@@ -508,6 +508,16 @@ def test_the_latest_reading_of_every_camera_in_one_request(
     assert by_id["sky0"]["reason"] == "no frames yet"
     page = client.get("/air/latest", params={"limit": 2, "offset": 1}).json()
     assert [r["camera_id"] for r in page] == sorted(ids)[1:3]
+    # a district's: the cameras named (the retired one too: it was asked for), by id
+    district = client.get("/air/latest", params={"camera_id": ["sky2", "sky3", "sky1"]}).json()
+    assert [(r["camera_id"], r["level"]) for r in district] == [
+        ("sky1", 3),
+        ("sky2", 10),
+        ("sky3", 7),
+    ]
+    assert district[1] == by_id["sky2"]
+    unknown = client.get("/air/latest", params={"camera_id": ["sky1", "nowhere"]})
+    assert (unknown.status_code, unknown.json()["unknown"]) == (404, ["nowhere"])
 
 
 def test_a_retired_camera_leaves_the_map_and_keeps_its_readings(
