@@ -299,8 +299,6 @@ async def latest_of_every_camera(
     """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
     gives it (a dashboard's list of the city's cameras in one request, not one per camera);
     with ``camera_id``, those cameras (a district's)."""
-    if camera_id:
-        await public_work(request, air.sky_cameras, camera_id)
     rows = await public_work(
         request, partial(air.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id)
     )
@@ -390,8 +388,6 @@ async def readings(
     if cursor is not None and aggregate != "none":
         raise Unprocessable("cursor pages readings, not aggregates: use offset")
     if aggregate == "none":
-        if camera_id:  # a misspelt id is an error, not a camera with no readings
-            await run_in_threadpool(air.sky_cameras, session, camera_id)
         rows = await run_in_threadpool(
             partial(
                 air.readings,
@@ -417,8 +413,6 @@ async def readings(
             )
             for r in rows
         ]
-    if camera_id:  # not in the request's session: on SQLite it would hold the write lock
-        await public_work(request, air.sky_cameras, camera_id)
     buckets = await public_work(  # every reading of the range: seconds for a city's month
         request,
         air.aggregate,
@@ -484,7 +478,6 @@ def alerts(
     (``last_error``: the receiver's answer, a redirect's address) is the operator's to read:
     null without the admin token."""
     operator = caller is not None and caller.role == "admin"
-    air.sky_cameras(session, camera_id)
     rows = air.alerts(
         session,
         camera_ids=camera_id,

@@ -497,7 +497,9 @@ def latest_of_every(
 ) -> list[tuple[Place, Reading | None]]:
     """Each sky camera in service (by id, a page of them), or each of ``camera_ids`` (retired
     ones too: they were asked for), with its latest reading, if any: one statement, an index
-    lookup per camera for its newest graded frame; then those frames."""
+    lookup per camera for its newest graded frame; then those frames. 404 for ids in
+    ``camera_ids`` that name no sky camera."""
+    sky_cameras(session, camera_ids)
     newest = _newest_reading(Camera.id).correlate(Camera).scalar_subquery()
     which = Camera.retired_at.is_(None) if camera_ids is None else Camera.id.in_(camera_ids)
     page = session.execute(
@@ -537,7 +539,9 @@ def readings(
     offset: int,
     cursor: FrameKey | None = None,
 ) -> Sequence[Any]:
-    """Sky readings taken in [since, until), newest first (after ``cursor``)."""
+    """Sky readings taken in [since, until), newest first (after ``cursor``); 404 for ids in
+    ``camera_ids`` that name no sky camera."""
+    sky_cameras(session, camera_ids)
     q = select(
         Frame.camera_id,
         Frame.id,
@@ -567,7 +571,9 @@ def aggregate(
     cameras by day, from 1.7 million readings). The range is cut where ``tz`` changes its
     offset from UTC; within each piece a local hour or day is a fixed stretch of UTC. A local
     hour that occurs twice (clocks put back) is two buckets, told apart by their UTC offset; a
-    local day is 23 to 25 hours long around a change of clocks (its pieces are added up)."""
+    local day is 23 to 25 hours long around a change of clocks (its pieces are added up). 404
+    for ids in ``camera_ids`` that name no sky camera."""
+    sky_cameras(session, camera_ids)
     length = 3600 if bucket == "hourly" else 86400
     first, last = session.execute(
         select(func.min(Frame.captured_at), func.max(Frame.captured_at)).where(
@@ -688,7 +694,9 @@ def alerts(
     until: datetime | None = None,
     kind: str | None = None,
 ) -> Sequence[AirAlert]:
-    """Alerts newest first, made in [``since``, ``until``); only ``kind`` ones when given."""
+    """Alerts newest first, made in [``since``, ``until``); only ``kind`` ones when given; 404
+    for ids in ``camera_ids`` that name no sky camera."""
+    sky_cameras(session, camera_ids)
     q = select(AirAlert)
     if kind is not None:
         q = q.where(AirAlert.kind == kind)
