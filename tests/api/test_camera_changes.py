@@ -306,10 +306,13 @@ def test_a_change_made_by_another_process_stops_the_next_frame(
     assert status == 401, body
     assert body["detail"] == "unknown token: it was replaced, or its camera retired"
     assert table_counts(engine) == before  # no frame, no verdict
-    # and this process has forgotten the camera: the next upload is looked up and refused
+    # and this process has forgotten the camera: the next upload is looked up again (and, its
+    # token now unknown, refused before its body is read, not by the writer)
     status, body = post(client, token, halves())
     assert status == 401, body
-    if change == "token replaced":  # an operator's upload with the admin token still counts
+    if change == "token replaced":
+        assert body["detail"] == "unknown token"
+        # an operator's upload with the admin token is not a camera token's: stored
         r = client.post(
             "/cameras/cam/frames", content=halves(), headers={**admin, "Content-Type": "image/jpeg"}
         )
