@@ -6,11 +6,29 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 import shapely
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
 from app.db.models import CameraKind
 
-Id = Annotated[str, Field(pattern=r"^[A-Za-z0-9._-]{1,64}$", examples=["roof-3"])]
+
+def _addressable(value: str) -> str:
+    """An id that a URL can name: ``.`` and ``..`` match the id pattern, but every HTTP client
+    resolves them as dot-segments (RFC 3986 §5.2.4), so ``/air/cameras/../latest`` is sent as
+    ``/air/latest`` and the thing registered could never be reached."""
+    if value in (".", ".."):
+        raise ValueError(f"{value!r} cannot be an id: URLs resolve it as a dot-segment")
+    return value
+
+
+Id = Annotated[
+    str,
+    Field(
+        pattern=r"^[A-Za-z0-9._-]{1,64}$",
+        examples=["roof-3"],
+        description="Letters, digits, '.', '_', '-'; not '.' or '..' alone (URLs resolve those).",
+    ),
+    AfterValidator(_addressable),
+]
 Lat = Annotated[float, Field(ge=-90, le=90, description="Latitude [°], WGS 84.")]
 Lon = Annotated[float, Field(ge=-180, le=180, description="Longitude [°], WGS 84.")]
 
@@ -526,8 +544,9 @@ class CalibratedCamera(Schema):
         return v
 
 
-class RigCreate(Schema):
-    id: Id
+class RigSpec(Schema):
+    """A rig's geometry: what ``PUT /rigs/{id}`` replaces."""
+
     kind: Literal["cross", "calibrated"]
     f_px: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
     ax: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
@@ -553,11 +572,18 @@ class RigCreate(Schema):
     )
 
 
+class RigCreate(RigSpec):
+    id: Id
+
+
 class RigOut(Out):
     id: str
     kind: str
     spec: dict[str, object]
     created_at: datetime
+    updated_at: datetime | None = Field(
+        default=None, description="When its geometry was last replaced (PUT), if ever."
+    )
 
 
 class TriangulateIn(Schema):

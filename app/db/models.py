@@ -377,6 +377,8 @@ class Rig(Base):
     """cross or calibrated."""
     spec: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    updated_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    """When its geometry was last replaced."""
 
 
 class RateBudget(Base):

@@ -6,15 +6,23 @@ import math
 from functools import partial
 
 import numpy as np
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Request, Response
 from sqlalchemy.orm import Session
 
-from app.core import laser_grid, shapes
-from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
-from app.db.base import utcnow
+from app.core import shapes
+from app.core.triangulation import triangulate_cross, triangulate_views
 from app.db.models import Rig
-from app.deps import Admin, RigId, RobotOrAdmin, SessionDep, SettingsDep, image_work
-from app.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
+from app.deps import (
+    Admin,
+    Limit,
+    Offset,
+    RigId,
+    RobotOrAdmin,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
+from app.errors import Unprocessable, UnsupportedMediaType
 from app.routers.responses import (
     AUTH_ERRORS,
     BODY_ERRORS,
@@ -28,12 +36,13 @@ from app.schemas import (
     LaserGridOut,
     RigCreate,
     RigOut,
+    RigSpec,
     ShapeFitOut,
     ShapeMatchIn,
     TriangulateIn,
     TriangulateOut,
 )
-from app.services import calibrations, grid
+from app.services import grid, rigs
 from app.settings import Settings
 from app.uploads import Form, content_type, read_form
 
@@ -49,78 +58,42 @@ router = APIRouter(prefix="/rigs", tags=["stereo"])
 def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
     """Register a 4-camera cross (f_px, ax, ay, principal_point), or 2+ calibrated cameras
     (``cameras``, or the ``calibration_id`` of a stereo calibration)."""
-    if session.get(Rig, body.id) is not None:
-        raise Conflict(f"a rig with id {body.id!r} already exists")
-    if body.kind == "cross":
-        if body.cameras is not None or body.calibration_id is not None:
-            raise Unprocessable("a cross rig takes f_px, ax, ay and principal_point")
-        if body.f_px is None or body.ax is None or body.ay is None:
-            raise Unprocessable("a cross rig needs f_px, ax and ay")
-        cx, cy = body.principal_point or [0.0, 0.0]
-        spec: dict[str, object] = {
-            "f_px": body.f_px,
-            "ax": body.ax,
-            "ay": body.ay,
-            "principal_point": [cx, cy],
-            "image_size": body.image_size,
-        }
-    elif body.image_size is not None:
-        raise Unprocessable("a calibrated rig gives image_size per camera (cameras[i].image_size)")
-    elif body.calibration_id is not None:
-        if body.cameras is not None:
-            raise Unprocessable("give the cameras or a calibration_id, not both")
-        cameras = calibrations.stereo_cameras(session, body.calibration_id)
-        spec = {"cameras": cameras, "calibration_id": body.calibration_id}
-    else:
-        if not body.cameras or len(body.cameras) < 2:
-            raise Unprocessable(
-                "a calibrated rig needs at least 2 cameras, or the calibration_id of a stereo pair"
-            )
-        for i, c in enumerate(body.cameras):
-            r = np.array(c.R)
-            if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
-                raise Unprocessable(f"camera {i}: R is not a rotation")
-            if np.linalg.det(np.array(c.K)) == 0:
-                raise Unprocessable(f"camera {i}: K is singular")
-        spec = {"cameras": [c.model_dump() for c in body.cameras]}
-    row = Rig(id=body.id, kind=body.kind, spec=spec, created_at=utcnow())
-    session.add(row)
-    session.flush()
-    return RigOut.model_validate(row)
+    return RigOut.model_validate(rigs.create(session, body.id, body))
+
+
+@router.get("", response_model=list[RigOut], responses=AUTH_ERRORS)
+def list_rigs(
+    session: SessionDep, _: RobotOrAdmin, limit: Limit = 100, offset: Offset = 0
+) -> list[RigOut]:
+    """Rigs, ordered by id."""
+    return [RigOut.model_validate(r) for r in rigs.listed(session, limit=limit, offset=offset)]
 
 
 @router.get("/{rig_id}", response_model=RigOut, responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_rig(rig_id: RigId, session: SessionDep, _: RobotOrAdmin) -> RigOut:
     """One rig."""
-    row = session.get(Rig, rig_id)
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
-    return RigOut.model_validate(row)
+    return RigOut.model_validate(rigs.get(session, rig_id))
 
 
-def _cross(row: Rig) -> CrossRig:
-    s = row.spec
-    return CrossRig(
-        f=s["f_px"], ax=s["ax"], ay=s["ay"], cx=s["principal_point"][0], cy=s["principal_point"][1]
-    )
+@router.put(
+    "/{rig_id}",
+    response_model=RigOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+)
+def replace_rig(rig_id: RigId, body: RigSpec, session: SessionDep, _: Admin) -> RigOut:
+    """Give a rig new geometry (its cameras moved, or were calibrated again), the same fields
+    as when it was registered, without the id: every measurement from now on uses it, on every
+    server process (``updated_at`` says when)."""
+    return RigOut.model_validate(rigs.replace(session, rig_id, body))
 
 
-def _views(row: Rig) -> list[View]:
-    return [
-        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
-        for c in row.spec["cameras"]
-    ]
-
-
-def _sizes(row: Rig) -> list[tuple[int, int] | None]:
-    """Per camera, the image size its K was calibrated for, when known."""
-    if row.kind == "cross":
-        size = row.spec.get("image_size")  # none on rigs registered before it was asked
-        return [(int(size[0]), int(size[1])) if size else None] * 4
-    return [
-        (int(c["image_size"][0]), int(c["image_size"][1])) if c.get("image_size") else None
-        for c in row.spec["cameras"]
-    ]
+@router.delete(
+    "/{rig_id}", status_code=204, response_class=Response, responses={**AUTH_ERRORS, **NOT_FOUND}
+)
+def delete_rig(rig_id: RigId, session: SessionDep, _: Admin) -> Response:
+    """Remove a rig; its id can be registered again."""
+    rigs.delete(session, rig_id)
+    return Response(status_code=204)
 
 
 def _clean(values: np.ndarray) -> list[float | None]:
@@ -137,10 +110,8 @@ def triangulate(
 ) -> TriangulateOut:
     """Points in the rig's frame from pixel observations (null for a camera that did not see
     the point), with per-point reprojection RMS; for the cross, the ten pairwise depths."""
-    row = session.get(Rig, rig_id)
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
-    n_cams = 4 if row.kind == "cross" else len(row.spec["cameras"])
+    row = rigs.get(session, rig_id)
+    n_cams = rigs.cameras(row)
     obs = np.full((len(body.observations), n_cams, 2), np.nan)
     for i, point in enumerate(body.observations):
         if len(point) != n_cams:
@@ -153,7 +124,7 @@ def triangulate(
     if len(obs) == 0:
         return TriangulateOut(points=[], reprojection_rms_px=[])
     if row.kind == "cross":
-        rig = _cross(row)
+        rig = rigs.cross_of(row)
         few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
         safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
         with np.errstate(all="ignore"):
@@ -168,7 +139,7 @@ def triangulate(
             z_estimates=[_clean(e) for e in est],
             z_spread=_clean(np.where(few, np.nan, r.z_spread)),
         )
-    views = _views(row)
+    views = rigs.views_of(row)
     res = triangulate_views(views, obs)
     return TriangulateOut(
         points=[None if not np.isfinite(p).all() else p.tolist() for p in res.points],
@@ -176,19 +147,11 @@ def triangulate(
     )
 
 
-def _geometry(row: Rig) -> laser_grid.Geometry:
-    if row.kind == "cross":
-        return laser_grid.cross_geometry(_cross(row))
-    return laser_grid.views_geometry(_views(row))
-
-
 async def _rig_and_form(
     rig_id: str, request: Request, session: Session, settings: Settings, *parts: str
 ) -> tuple[Rig, Form]:
     """The rig, and the images (and fields: ``parts``) of a multipart upload to it."""
-    row = session.get(Rig, rig_id)
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
+    row = rigs.get(session, rig_id)
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
     form = await read_form(request, settings.max_upload_bytes, max_files=64, parts=parts)
@@ -196,7 +159,7 @@ async def _rig_and_form(
 
 
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
-    dot = grid.locate_dot(_geometry(row), files, max_pixels, _sizes(row))
+    dot = grid.locate_dot(rigs.geometry_of(row), files, max_pixels, rigs.sizes_of(row))
     return LaserDotOut(
         point=dot.point.tolist(),
         pixels=[list(p) if p is not None else None for p in dot.pixels],
@@ -244,13 +207,13 @@ async def laser_grid_measure(
         request,
         partial(
             grid.measure,
-            _geometry(row),
+            rigs.geometry_of(row),
             form.files_of("files"),
             dot_files=form.files_of("dot_files"),
             origin=form.fields.get("origin", []),
             base_plane=form.fields.get("base_plane", []),
             max_pixels=settings.max_pixels,
-            sizes=_sizes(row),
+            sizes=rigs.sizes_of(row),
         ),
     )
 

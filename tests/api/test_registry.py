@@ -101,6 +101,28 @@ class TestPanelsAndRobots:
         assert "token" not in client.get("/robots", headers=admin).json()[0]
 
 
+@pytest.mark.parametrize("dots", [".", ".."])
+@pytest.mark.parametrize(
+    ("path", "body"),
+    [
+        ("/cameras", {"kind": "sky"}),
+        ("/panels", {}),
+        ("/robots", {}),
+        ("/rigs", {"kind": "cross", "f_px": 800, "ax": 100, "ay": 100}),
+    ],
+)
+def test_dot_segment_ids_are_refused(
+    client: TestClient, admin: dict[str, str], path: str, body: dict[str, object], dots: str
+) -> None:
+    # every client resolves /air/cameras/../latest to /air/latest (RFC 3986 §5.2.4): such an id
+    # could be registered but never reached
+    r = client.post(path, json={"id": dots, **body}, headers=admin)
+    assert r.status_code == 422, r.text
+    assert "dot-segment" in r.text
+    assert client.get(path, headers=admin).json() == []
+    assert client.post(path, json={"id": f"{dots}x", **body}, headers=admin).status_code == 201
+
+
 def test_nul_characters_are_refused(client: TestClient, admin: dict[str, str]) -> None:
     # PostgreSQL cannot store NUL in text: refused as input, never a 500
     assert (

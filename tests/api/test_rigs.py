@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.core.triangulation import project_views
+from app.core.triangulation import CrossRig, project_views
 from tests.core.test_triangulation import RIG, calibrated_views, points
 
 
@@ -42,6 +42,46 @@ def test_cross_rig(client: TestClient, admin: dict[str, str]) -> None:
     assert r.status_code == 200, r.text
     assert r.json()["points"][4] is None
     np.testing.assert_allclose(r.json()["points"][:4], p[:4], rtol=1e-9)
+
+
+def test_a_rig_given_new_geometry_measures_with_it(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    # the cell's cameras were spread wider (ax 0.3 → 0.5) and the rig told so: the same points,
+    # projected through the new cross, come back where they are only with the new geometry
+    body = {"kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2, "principal_point": [320, 240]}
+    assert client.post("/rigs", json={"id": "cell-1", **body}, headers=admin).status_code == 201
+    wider = CrossRig(f=800.0, ax=0.5, ay=0.2, cx=320.0, cy=240.0)
+    p = points(5)
+    obs = {"observations": wider.project(p).tolist()}
+    before = client.post("/rigs/cell-1/triangulate", json=obs, headers=admin).json()
+    assert not np.allclose(before["points"], p, atol=1e-3)  # the old geometry measures wrong
+
+    r = client.put("/rigs/cell-1", json={**body, "ax": 0.5}, headers=admin)
+    assert r.status_code == 200, r.text
+    assert r.json()["spec"]["ax"] == 0.5
+    assert r.json()["updated_at"] is not None
+    after = client.post("/rigs/cell-1/triangulate", json=obs, headers=admin).json()
+    np.testing.assert_allclose(after["points"], p, rtol=1e-9)
+    assert client.get("/rigs/cell-1", headers=admin).json()["spec"]["ax"] == 0.5
+
+    robot = client.post("/robots", json={"id": "arm"}, headers=admin).json()["token"]
+    as_robot = {"Authorization": f"Bearer {robot}"}
+    assert [g["id"] for g in client.get("/rigs", headers=as_robot).json()] == ["cell-1"]
+    assert client.put("/rigs/cell-1", json=body, headers=as_robot).status_code == 403
+    assert client.delete("/rigs/cell-1", headers=as_robot).status_code == 403
+    # a replacement that is no rig changes nothing
+    bad = client.put("/rigs/cell-1", json={**body, "ax": None}, headers=admin)
+    assert bad.status_code == 422
+    assert client.get("/rigs/cell-1", headers=admin).json()["spec"]["ax"] == 0.5
+    assert client.put("/rigs/nope", json=body, headers=admin).status_code == 404
+
+    assert client.delete("/rigs/cell-1", headers=admin).status_code == 204
+    assert client.get("/rigs/cell-1", headers=admin).status_code == 404
+    assert client.post("/rigs/cell-1/triangulate", json=obs, headers=admin).status_code == 404
+    assert client.get("/rigs", headers=admin).json() == []
+    assert client.delete("/rigs/cell-1", headers=admin).status_code == 404
+    assert client.post("/rigs", json={"id": "cell-1", **body}, headers=admin).status_code == 201
 
 
 def test_calibrated_rig(client: TestClient, admin: dict[str, str]) -> None:

@@ -1,0 +1,124 @@
+"""Measuring rigs: their geometry as registered, kept, replaced and read back as core objects."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.core import laser_grid
+from app.core.triangulation import CrossRig, View
+from app.db.base import utcnow
+from app.db.models import Rig
+from app.errors import Conflict, NotFound, Unprocessable
+from app.schemas import RigSpec
+from app.services import calibrations
+
+
+def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
+    """The geometry a rig keeps, checked: a cross's f_px, ax, ay, principal point; or the
+    calibrated cameras, given or from a stereo calibration."""
+    if body.kind == "cross":
+        if body.cameras is not None or body.calibration_id is not None:
+            raise Unprocessable("a cross rig takes f_px, ax, ay and principal_point")
+        if body.f_px is None or body.ax is None or body.ay is None:
+            raise Unprocessable("a cross rig needs f_px, ax and ay")
+        cx, cy = body.principal_point or [0.0, 0.0]
+        return {
+            "f_px": body.f_px,
+            "ax": body.ax,
+            "ay": body.ay,
+            "principal_point": [cx, cy],
+            "image_size": body.image_size,
+        }
+    if body.image_size is not None:
+        raise Unprocessable("a calibrated rig gives image_size per camera (cameras[i].image_size)")
+    if body.calibration_id is not None:
+        if body.cameras is not None:
+            raise Unprocessable("give the cameras or a calibration_id, not both")
+        cameras = calibrations.stereo_cameras(session, body.calibration_id)
+        return {"cameras": cameras, "calibration_id": body.calibration_id}
+    if not body.cameras or len(body.cameras) < 2:
+        raise Unprocessable(
+            "a calibrated rig needs at least 2 cameras, or the calibration_id of a stereo pair"
+        )
+    for i, c in enumerate(body.cameras):
+        r = np.array(c.R)
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+            raise Unprocessable(f"camera {i}: R is not a rotation")
+        if np.linalg.det(np.array(c.K)) == 0:
+            raise Unprocessable(f"camera {i}: K is singular")
+    return {"cameras": [c.model_dump() for c in body.cameras]}
+
+
+def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
+    if session.get(Rig, rig_id) is not None:
+        raise Conflict(f"a rig with id {rig_id!r} already exists")
+    row = Rig(id=rig_id, kind=body.kind, spec=spec_of(session, body), created_at=utcnow())
+    session.add(row)
+    session.flush()
+    return row
+
+
+def get(session: Session, rig_id: str, *, lock: bool = False) -> Rig:
+    q = select(Rig).where(Rig.id == rig_id)
+    row = session.scalars(q.with_for_update() if lock else q).one_or_none()
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    return row
+
+
+def replace(session: Session, rig_id: str, body: RigSpec) -> Rig:
+    """New geometry for a rig (the cameras were moved or calibrated again): every measurement
+    from now on uses it. Nothing measured is kept with a rig, so nothing else changes."""
+    row = get(session, rig_id, lock=True)
+    row.kind, row.spec, row.updated_at = body.kind, spec_of(session, body), utcnow()
+    session.flush()
+    return row
+
+
+def delete(session: Session, rig_id: str) -> None:
+    session.delete(get(session, rig_id, lock=True))
+    session.flush()
+
+
+def listed(session: Session, *, limit: int, offset: int) -> Sequence[Rig]:
+    return session.scalars(select(Rig).order_by(Rig.id).limit(limit).offset(offset)).all()
+
+
+def cameras(row: Rig) -> int:
+    return 4 if row.kind == "cross" else len(row.spec["cameras"])
+
+
+def cross_of(row: Rig) -> CrossRig:
+    s = row.spec
+    return CrossRig(
+        f=s["f_px"], ax=s["ax"], ay=s["ay"], cx=s["principal_point"][0], cy=s["principal_point"][1]
+    )
+
+
+def views_of(row: Rig) -> list[View]:
+    return [
+        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
+        for c in row.spec["cameras"]
+    ]
+
+
+def sizes_of(row: Rig) -> list[tuple[int, int] | None]:
+    """Per camera, the image size its K was calibrated for, when known."""
+    if row.kind == "cross":
+        size = row.spec.get("image_size")  # none on rigs registered before it was asked
+        return [(int(size[0]), int(size[1])) if size else None] * 4
+    return [
+        (int(c["image_size"][0]), int(c["image_size"][1])) if c.get("image_size") else None
+        for c in row.spec["cameras"]
+    ]
+
+
+def geometry_of(row: Rig) -> laser_grid.Geometry:
+    if row.kind == "cross":
+        return laser_grid.cross_geometry(cross_of(row))
+    return laser_grid.views_geometry(views_of(row))
