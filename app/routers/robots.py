@@ -53,6 +53,12 @@ def list_robots(
     return [RobotOut.model_validate(r) for r in robots]
 
 
+@router.get("/robots/{robot_id}", response_model=RobotOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_robot(robot_id: RobotId, session: SessionDep, _: Admin) -> RobotOut:
+    """One robot, retired or not (its tasks: ``GET /cleaning/tasks?robot_id=``)."""
+    return RobotOut.model_validate(registry.get_robot(session, robot_id))
+
+
 @router.post(
     "/robots/{robot_id}/token",
     response_model=RobotCreated,

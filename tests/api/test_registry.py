@@ -99,6 +99,16 @@ class TestPanelsAndRobots:
         assert r.status_code == 201
         assert r.json()["token"].startswith("vr_")
         assert "token" not in client.get("/robots", headers=admin).json()[0]
+        one = client.get("/robots/r1", headers=admin)
+        assert one.status_code == 200
+        assert one.json()["id"] == "r1"
+        assert one.json()["retired_at"] is None
+        assert "token" not in one.json()
+        assert client.get("/robots/r2", headers=admin).status_code == 404
+        robot = {"Authorization": f"Bearer {r.json()['token']}"}
+        assert client.get("/robots/r1", headers=robot).status_code == 403
+        assert client.delete("/robots/r1", headers=admin).status_code == 204
+        assert client.get("/robots/r1", headers=admin).json()["retired_at"] is not None
 
 
 @pytest.mark.parametrize("dots", [".", ".."])
