@@ -157,6 +157,9 @@ class PanelUpdate(Schema):
     lon: Lon | None = None
 
 
+PanelStateName = Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
+
+
 class PanelOut(Out):
     id: str
     name: str | None
@@ -165,6 +168,19 @@ class PanelOut(Out):
     created_at: datetime
     retired_at: datetime | None = Field(
         None, description="When the panel was retired (DELETE); null while in service."
+    )
+    state: PanelStateName = Field(
+        description="Its state now, as ``GET /panels/{id}/status`` reads it (a retired panel's "
+        "is history)."
+    )
+
+
+class PanelStateCounts(Out):
+    counted_at: datetime
+    total: int = Field(description="Panels in service.")
+    states: dict[str, int] = Field(
+        description="How many panels in service are in each state now (every state, zeros "
+        "included): no_baseline, unknown, clean, needs_cleaning, cleaning."
     )
 
 
@@ -332,7 +348,7 @@ class PanelVerdictSummary(PanelVerdictOut):
 
 class PanelStatus(Out):
     panel_id: str
-    state: Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
+    state: PanelStateName
     last_verdict: PanelVerdictSummary | None
     open_task: TaskOut | None
     ineffective: bool = Field(description="The last cleaning did not make the panel clean.")

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
+from app.core.panel_state import PanelState
 from app.db.models import Baseline, CameraKind, Panel
 from app.deps import (
     ID_PATTERN,
@@ -38,6 +39,7 @@ from app.schemas import (
     EvaluationOut,
     PanelCreate,
     PanelOut,
+    PanelStateCounts,
     PanelStatus,
     PanelUpdate,
     PanelVerdictSummary,
@@ -69,36 +71,61 @@ Shrinkage = Annotated[
 _FILES_BODY = multipart_body(json=BaselineFromFrames, files="files")
 
 
+def _out(
+    session: Session, policy: Policy, panel: Panel, state: PanelState | None = None
+) -> PanelOut:
+    return PanelOut(
+        id=panel.id,
+        name=panel.name,
+        lat=panel.lat,
+        lon=panel.lon,
+        created_at=panel.created_at,
+        retired_at=panel.retired_at,
+        state=state if state is not None else panels.state_now(session, panel, policy),
+    )
+
+
 @router.post(
     "/panels",
     status_code=201,
     response_model=PanelOut,
     responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
-def create_panel(body: PanelCreate, session: SessionDep, _: Admin) -> PanelOut:
+def create_panel(body: PanelCreate, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
     """Register a solar panel."""
-    return PanelOut.model_validate(registry.create_panel(session, body))
+    return _out(session, policy, registry.create_panel(session, body))
 
 
 @router.get("/panels", response_model=list[PanelOut], responses=AUTH_ERRORS)
 def list_panels(
     session: SessionDep,
+    policy: PolicyDep,
     _: Admin,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
     retired: Annotated[
         bool, Query(description="Include retired panels (by default only those in service).")
     ] = False,
+    state: Annotated[
+        list[PanelState] | None,
+        Query(
+            max_length=5,
+            description="Only panels in these states now (repeat it for several): "
+            "``?state=needs_cleaning&state=cleaning``.",
+        ),
+    ] = None,
 ) -> list[PanelOut]:
-    """List panels, ordered by id."""
-    rows = registry.listed(session, Panel, limit=limit, offset=offset, retired=retired)
-    return [PanelOut.model_validate(p) for p in rows]
+    """List panels, ordered by id, each with its state now."""
+    rows = panels.listed_with_state(
+        session, policy, states=state or [], retired=retired, limit=limit, offset=offset
+    )
+    return [_out(session, policy, p, s) for p, s in rows]
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_panel(panel_id: PanelId, session: SessionDep, _: Admin) -> PanelOut:
+def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
     """One panel."""
-    return PanelOut.model_validate(registry.get_panel(session, panel_id))
+    return _out(session, policy, registry.get_panel(session, panel_id))
 
 
 @router.patch(
@@ -106,10 +133,24 @@ def get_panel(panel_id: PanelId, session: SessionDep, _: Admin) -> PanelOut:
     response_model=PanelOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **UNPROCESSABLE},
 )
-def update_panel(panel_id: PanelId, body: PanelUpdate, session: SessionDep, _: Admin) -> PanelOut:
+def update_panel(
+    panel_id: PanelId, body: PanelUpdate, session: SessionDep, policy: PolicyDep, _: Admin
+) -> PanelOut:
     """Change a panel's name or location (JSON merge: fields left out keep their value,
     ``null`` clears one)."""
-    return PanelOut.model_validate(registry.update_panel(session, panel_id, body))
+    return _out(session, policy, registry.update_panel(session, panel_id, body))
+
+
+@router.get("/panel-states", response_model=PanelStateCounts, responses=AUTH_ERRORS)
+def panel_states(session: SessionDep, policy: PolicyDep, _: Admin) -> PanelStateCounts:
+    """The farm at a glance: how many panels in service are in each state now (one query, for
+    tens of thousands of panels; ``GET /panels?state=`` lists those of a state)."""
+    counts = panels.state_counts(session, policy)
+    return PanelStateCounts(
+        counted_at=policy.now(),
+        total=sum(counts.values()),
+        states={s.value: n for s, n in counts.items()},
+    )
 
 
 @router.delete(

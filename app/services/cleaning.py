@@ -137,7 +137,7 @@ def get_task(session: Session, task_id: str) -> CleaningTask:
     return task
 
 
-def _shown_as(status: str, now: datetime) -> ColumnElement[bool]:
+def shown_as(status: str, now: datetime) -> ColumnElement[bool]:
     """Tasks whose status reads ``status`` at ``now`` (a claim whose lease ran out reads
     pending); ``open``: pending, claimed or completed awaiting confirmation."""
     if status == "pending":
@@ -167,7 +167,7 @@ def list_tasks(
     if robot_id is not None:
         q = q.where(CleaningTask.robot_id == robot_id)
     if statuses:
-        q = q.where(or_(*(_shown_as(s, now) for s in statuses)))
+        q = q.where(or_(*(shown_as(s, now) for s in statuses)))
     return session.scalars(
         q.order_by(CleaningTask.created_at.desc(), CleaningTask.id).limit(limit).offset(offset)
     ).all()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -958,3 +959,152 @@ class TestFleetModel:
         r = client.post("/fleet/model", files=files, data={"labels": "shiny"}, headers=admin)
         assert r.status_code == 422
         assert client.get("/fleet/model", headers=admin).status_code == 404
+
+
+Facts = tuple[bool, int, bool | None, bool, str]
+"""A panel's stored facts: has a baseline, dirty streak, last verdict clean, last cleaning
+ineffective, its open task (none, pending, claimed, lease_expired, completed)."""
+
+TASK_FACTS = ("none", "pending", "claimed", "lease_expired", "completed")
+
+
+def store_farm(engine: Any, now: datetime, facts: list[Facts], *, fleet: bool) -> list[str]:
+    """Panels ``p000000``… with these facts written straight to the tables (a baseline row for
+    each that has one, an open task for each that has one, held by robot ``r1`` once claimed),
+    and a fleet model when ``fleet``; their ids."""
+    from sqlalchemy import insert
+
+    from app.db.models import Baseline, CleaningTask, FleetModel, Panel, Robot
+
+    ids = [f"p{k:06d}" for k in range(len(facts))]
+    panels, baselines, tasks = [], [], []
+    for pid, (has_baseline, streak, last_clean, ineffective, task) in zip(ids, facts, strict=True):
+        panels.append(
+            {
+                "id": pid,
+                "created_at": now,
+                "baseline_id": f"b-{pid}" if has_baseline else None,
+                "dirty_streak": streak,
+                "last_clean": last_clean,
+                "ineffective": ineffective,
+            }
+        )
+        if has_baseline:
+            baselines.append(
+                {
+                    "id": f"b-{pid}",
+                    "panel_id": pid,
+                    "created_at": now,
+                    "n": 8,
+                    "mean_modes": [56.0, 60.0, 84.0],
+                    "covariance": np.eye(3).tolist(),
+                    "significance": 0.05,
+                    "f_critical": 9.0,
+                    "condition_number": 1.0,
+                    "shrinkage": 0.0,
+                }
+            )
+        if task != "none":
+            status = "claimed" if task == "lease_expired" else task
+            lease = {"claimed": 5, "lease_expired": -5}.get(task)
+            tasks.append(
+                {
+                    "id": f"t-{pid}",
+                    "panel_id": pid,
+                    "open_panel_id": pid,
+                    "status": status,
+                    "created_at": now,
+                    "robot_id": None if status == "pending" else "r1",
+                    "lease_expires_at": None if lease is None else now + timedelta(minutes=lease),
+                    "attempts": 0,
+                }
+            )
+    with engine.begin() as conn:
+        conn.execute(insert(Robot), [{"id": "r1", "token_hash": "x" * 64, "created_at": now}])
+        # the panels first without their baselines (each refers to the other)
+        conn.execute(insert(Panel), [{**p, "baseline_id": None} for p in panels])
+        if baselines:
+            conn.execute(insert(Baseline), baselines)
+            table = Panel.__table__
+            for b in baselines:
+                conn.execute(
+                    table.update().where(table.c.id == b["panel_id"]).values(baseline_id=b["id"])
+                )
+        if tasks:
+            conn.execute(insert(CleaningTask), tasks)
+        if fleet:
+            model = {
+                "id": "fleet-1",
+                "created_at": now,
+                "feature_names": ["r"],
+                "mean": [0.0],
+                "scale": [1.0],
+                "coef": [1.0],
+                "intercept": 0.0,
+                "threshold": 0.5,
+                "n_clean": 10,
+                "n_dirty": 10,
+                "cv_balanced_accuracy": None,
+            }
+            conn.execute(insert(FleetModel), [model])
+    return ids
+
+
+class TestTheFarmAtAGlance:
+    """Every panel's state in one query (``panels.state_column``), against the state its own
+    status reads (``panel_state.state_of`` over its facts), for every combination of facts."""
+
+    @pytest.mark.parametrize("fleet", [False, True])
+    def test_every_panels_state_as_its_status_reads_it(
+        self,
+        client: TestClient,
+        admin: dict[str, str],
+        engine: Any,
+        clock: Clock,
+        fleet: bool,
+    ) -> None:
+        every = itertools.product(
+            (False, True), (0, 2, 3), (None, True, False), (False, True), TASK_FACTS
+        )  # the debounce is 3
+        ids = store_farm(engine, clock(), list(every), fleet=fleet)
+        assert len(ids) == 180
+        status = {
+            pid: client.get(f"/panels/{pid}/status", headers=admin).json()["state"] for pid in ids
+        }
+        listed = client.get("/panels", params={"limit": 1000}, headers=admin).json()
+        assert {p["id"]: p["state"] for p in listed} == status
+        assert {
+            pid: client.get(f"/panels/{pid}", headers=admin).json()["state"] for pid in ids[:30]
+        } == {pid: status[pid] for pid in ids[:30]}
+        # every state occurs, so the comparison above covers each branch
+        wanted = {"clean", "needs_cleaning", "cleaning", "no_baseline" if not fleet else "unknown"}
+        assert wanted <= set(status.values())
+        counts = client.get("/panel-states", headers=admin).json()
+        assert counts["total"] == 180
+        assert counts["states"] == {
+            s: sum(v == s for v in status.values())
+            for s in ("no_baseline", "unknown", "clean", "needs_cleaning", "cleaning")
+        }
+        for s in ("needs_cleaning", "cleaning"):
+            page = client.get("/panels", params={"state": s, "limit": 1000}, headers=admin).json()
+            assert [p["id"] for p in page] == sorted(k for k, v in status.items() if v == s)
+        both = client.get(
+            "/panels",
+            params=[("state", "needs_cleaning"), ("state", "cleaning"), ("limit", "7")],
+            headers=admin,
+        ).json()
+        assert [p["id"] for p in both] == sorted(
+            k for k, v in status.items() if v in ("needs_cleaning", "cleaning")
+        )[:7]
+
+    def test_states_follow_the_robot_loop_and_bad_states_are_422(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        counts = client.get("/panel-states", headers=admin).json()["states"]
+        assert counts["no_baseline"] == 1
+        assert client.get("/panels", headers=admin).json()[0]["state"] == "no_baseline"
+        r = client.get("/panels", params={"state": "dusty"}, headers=admin)
+        assert r.status_code == 422
+        robot = bearer(farm["robots"]["r1"])
+        assert client.get("/panel-states", headers=robot).status_code == 403
+        assert client.get("/panel-states").status_code == 401
