@@ -18,8 +18,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
 from app.core import imaging, jpeg
-from app.db.models import Camera, Frame
+from app.db.models import Camera, CameraKind, Frame
 from app.deps import (
+    ID_PATTERN,
     Admin,
     CameraId,
     FrameCursor,
@@ -232,7 +233,7 @@ def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCr
     return _with_token(session, camera, token)
 
 
-@router.get("/cameras", response_model=list[CameraOut], responses=AUTH_ERRORS)
+@router.get("/cameras", response_model=list[CameraOut], responses={**AUTH_ERRORS, **NOT_FOUND})
 def list_cameras(
     session: SessionDep,
     policy: PolicyDep,
@@ -250,12 +251,28 @@ def list_cameras(
             description="Only cameras with no frame taken in the last … seconds (or none kept).",
         ),
     ] = None,
+    kind: Annotated[CameraKind | None, Query(description="Only cameras of this kind.")] = None,
+    panel_id: Annotated[
+        str | None,
+        Query(
+            pattern=ID_PATTERN,
+            description="Only the cameras watching this panel (404 when there is no such panel).",
+        ),
+    ] = None,
 ) -> list[CameraOut]:
     """List cameras, ordered by id, each with when its newest frame was taken; ``silent_for``
-    finds the cameras gone quiet."""
+    finds the cameras gone quiet, ``kind`` and ``panel_id`` those of a kind or a panel."""
     since = None if silent_for is None else policy.now() - timedelta(seconds=silent_for)
+    if panel_id is not None:
+        registry.get_panel(session, panel_id)  # a mistyped id is not a panel without cameras
     rows = registry.cameras_seen(
-        session, limit=limit, offset=offset, retired=retired, silent_since=since
+        session,
+        limit=limit,
+        offset=offset,
+        retired=retired,
+        silent_since=since,
+        kind=kind,
+        panel_id=panel_id,
     )
     return [_out(camera, last) for camera, last in rows]
 

@@ -216,13 +216,20 @@ def cameras_seen(
     offset: int,
     retired: bool = False,
     silent_since: datetime | None = None,
+    kind: CameraKind | None = None,
+    panel_id: str | None = None,
 ) -> list[tuple[Camera, datetime | None]]:
     """Cameras (as ``listed``) with their newest frame's capture time; with ``silent_since``,
-    only those with no frame taken since then (or none kept)."""
+    only those with no frame taken since then (or none kept); of one ``kind``, or watching
+    ``panel_id``."""
     last = _last_captured()
     q = select(Camera, last)
     if not retired:
         q = q.where(Camera.retired_at.is_(None))
+    if kind is not None:
+        q = q.where(Camera.kind == kind)
+    if panel_id is not None:
+        q = q.where(Camera.panel_id == panel_id)
     if silent_since is not None:
         q = q.where(or_(last.is_(None), last < silent_since))
     rows = session.execute(q.order_by(Camera.id).limit(limit).offset(offset)).all()

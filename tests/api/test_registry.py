@@ -188,3 +188,32 @@ def test_cameras_gone_quiet(client: TestClient, admin: dict[str, str]) -> None:
     patched = client.patch("/cameras/old", json={"name": "roof"}, headers=admin).json()
     assert patched["last_captured_at"] == one["last_captured_at"]
     assert client.get("/cameras", params={"silent_for": 0}, headers=admin).status_code == 422
+
+
+def test_cameras_of_a_kind_or_a_panel(client: TestClient, admin: dict[str, str]) -> None:
+    for pid in ("p1", "p2"):
+        assert client.post("/panels", json={"id": pid}, headers=admin).status_code == 201
+    for cid, kind, pid in [
+        ("a", "panel", "p1"),
+        ("b", "sky", None),
+        ("c", "panel", "p2"),
+        ("d", "panel", "p1"),
+        ("e", "rig", None),
+    ]:
+        body = {"id": cid, "kind": kind, **({"panel_id": pid} if pid else {})}
+        assert client.post("/cameras", json=body, headers=admin).status_code == 201
+    assert client.delete("/cameras/d", headers=admin).status_code == 204
+
+    def ids(**params: object) -> list[str]:
+        r = client.get("/cameras", params=params, headers=admin)
+        assert r.status_code == 200, r.text
+        return [c["id"] for c in r.json()]
+
+    assert ids(kind="panel") == ["a", "c"]
+    assert ids(kind="sky") == ["b"]
+    assert ids(panel_id="p1") == ["a"]
+    assert ids(panel_id="p1", retired="true") == ["a", "d"]
+    assert ids(panel_id="p2", kind="sky") == []
+    assert client.get("/cameras", params={"panel_id": "nope"}, headers=admin).status_code == 404
+    assert client.get("/cameras", params={"kind": "toaster"}, headers=admin).status_code == 422
+    assert client.get("/cameras", params={"panel_id": "a/b"}, headers=admin).status_code == 422
