@@ -85,7 +85,7 @@ def fail(
     return TaskOut(**task_view(task, policy.now()))
 
 
-@router.get("/tasks", response_model=list[TaskOut], responses=AUTH_ERRORS)
+@router.get("/tasks", response_model=list[TaskOut], responses={**AUTH_ERRORS, **NOT_FOUND})
 def list_tasks(
     session: SessionDep,
     policy: PolicyDep,

@@ -15,7 +15,7 @@ from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
 from app.core.panel_state import TaskPhase, task_phase
-from app.db.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
+from app.db.models import OPEN_TASK_STATUSES, CleaningTask, Panel, Robot, TaskStatus
 from app.errors import Conflict, NotFound
 from app.services.policy import Policy
 
@@ -160,7 +160,11 @@ def list_tasks(
     offset: int,
 ) -> Sequence[CleaningTask]:
     """Tasks newest first: a panel's, a robot's, of the statuses given (as they read at
-    ``now``)."""
+    ``now``). An unknown panel or robot is 404: a mistyped id is not one without tasks."""
+    if panel_id is not None and session.get(Panel, panel_id) is None:
+        raise NotFound(f"no panel {panel_id!r}")
+    if robot_id is not None and session.get(Robot, robot_id) is None:
+        raise NotFound(f"no robot {robot_id!r}")
     q = select(CleaningTask)
     if panel_id is not None:
         q = q.where(CleaningTask.panel_id == panel_id)

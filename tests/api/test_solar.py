@@ -595,6 +595,11 @@ class TestRobotLoop:
         assert listed(status="closed") == []
         r = client.get("/cleaning/tasks", params={"status": "lost"}, headers=admin)
         assert r.status_code == 422
+        # a mistyped panel or robot is not one without tasks
+        for key in ("panel_id", "robot_id"):
+            r = client.get("/cleaning/tasks", params={key: "p9"}, headers=admin)
+            assert r.status_code == 404, r.text
+            assert "p9" in r.json()["detail"]
 
     def test_fail_is_idempotent_and_a_new_task_follows(
         self, client: TestClient, admin: dict[str, str], farm: Any
