@@ -356,6 +356,19 @@ def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
         return _info(session, camera)
 
 
+async def fresh_upload_target(request: Request, target: CameraInfo) -> CameraInfo:
+    """The upload's camera as it is now, looked up again (and cached again under its token):
+    the writer found it changed through another process since ``target`` was cached."""
+    info = await run_in_threadpool(_camera_by_id, request, target.id)
+    if info is None:
+        raise NotFound(f"no camera {target.id!r}")
+    info = replace(info, token_hash=target.token_hash)
+    if target.token_hash is not None:
+        cache: TokenCache = request.app.state.camera_tokens
+        cache.put(target.token_hash, info)
+    return info
+
+
 async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
     """Authenticate and authorise a frame upload and find its camera, before the body is read.
 

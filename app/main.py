@@ -137,7 +137,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.writer = GroupCommitWriter(
         app.state.sessionmaker,
         preparers=settings.effective_ingest_threads,
-        revoked=registry.revoked,
+        check=registry.refusals,
     )
     app.state.admin_token_hash = admin_token_hash(settings)
     metrics = settings.metrics_token

@@ -45,15 +45,19 @@ def main() -> None:
     args = parser.parse_args()
 
     engine, sessions = bench_database(args.database_url)
-    # as the service runs it: each batch checks its jobs' camera tokens (absent before the
-    # writer did, so the script compares with older checkouts too)
+    # as the service runs it: each batch checks its jobs' camera tokens, and (since) their
+    # cameras' views (absent before the writer did, so the script compares with older
+    # checkouts too)
     checks = "credential" in _Job.__dataclass_fields__
-    writer = (
-        GroupCommitWriter(sessions, revoked=registry.revoked)
-        if checks
-        else GroupCommitWriter(sessions)
-    )
-    extra = {"credential": ("c", "-")} if checks else {}
+    views = hasattr(registry, "refusals")
+    if views:
+        writer = GroupCommitWriter(sessions, check=registry.refusals)
+        extra: dict[str, object] = {"credential": ("c", "-", "[null,null]")}
+    elif checks:
+        writer = GroupCommitWriter(sessions, revoked=registry.revoked)
+        extra = {"credential": ("c", "-")}
+    else:
+        writer, extra = GroupCommitWriter(sessions), {}
     writer._holding = True  # as on the writer's own thread (a connection kept between batches)
     camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
     policy = Policy()

@@ -32,10 +32,11 @@ from app.deps import (
     TimeRangeQuery,
     UploadTargetDep,
     UtcTime,
+    fresh_upload_target,
     image_work,
     link_next,
 )
-from app.errors import NotFound, Unauthorized, Unprocessable
+from app.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
@@ -49,10 +50,10 @@ from app.routers.responses import (
 )
 from app.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.services import ingest, registry, retention
-from app.services.camera_info import TokenCache
+from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
 from app.services.storage import FrameStore
-from app.services.writer import GroupCommitWriter
+from app.services.writer import CameraChanged, GroupCommitWriter
 from app.settings import Settings
 from app.uploads import read_jpeg
 
@@ -61,6 +62,8 @@ router = APIRouter(tags=["cameras"])
 FRAMES_PATH = "/cameras/{camera_id}/frames"
 # a camera's clock may run a little ahead; further ahead is a broken clock
 MAX_CLOCK_SKEW = timedelta(minutes=10)
+MEASURES = 3
+"""Times a frame is measured when its camera keeps changing (through other processes) meanwhile."""
 
 _JPEG_BODY = {
     "requestBody": {
@@ -138,7 +141,17 @@ def _form_captured_at(
     FRAMES_PATH,
     status_code=201,
     response_model=FrameOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **CAMERA_RETIRED, **UPLOAD_ERRORS},
+    responses={
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+        **CAMERA_RETIRED,
+        **UPLOAD_ERRORS,
+        503: {
+            **UPLOAD_ERRORS[422],
+            "description": "The camera was changed again and again while the frame was "
+            "measured: send it again (Retry-After)",
+        },
+    },
     openapi_extra=_JPEG_BODY,
 )
 async def post_frame(
@@ -174,10 +187,10 @@ async def post_frame(
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer
 
-    def prepare() -> Callable[[Session], ingest.Recorded]:
+    def prepare(camera: CameraInfo) -> Callable[[Session], ingest.Recorded]:
         prepared = ingest.prepare(
             store,
-            camera=target,
+            camera=camera,
             data=data,
             captured_at=when,
             received_at=policy.now(),
@@ -189,13 +202,24 @@ async def post_frame(
     # decoding and the file write take one of the writer's preparing threads, which then queues
     # the database part itself; the wait for the commit takes no thread, so a stalled database
     # (a failover) holds none
-    credential = None if target.token_hash is None else (target.id, target.token_hash)
-    try:
-        done = await writer.submit_after(prepare, credential=credential)
-    except Unauthorized:  # the token was replaced, or the camera retired, through another process
-        tokens: TokenCache = request.app.state.camera_tokens
-        tokens.forget(target.id)  # the next upload looks it up, and is refused before its body
-        raise
+    tokens: TokenCache = request.app.state.camera_tokens
+    for _ in range(MEASURES):
+        try:
+            done = await writer.submit_after(partial(prepare, target), credential=target.credential)
+            break
+        except Unauthorized:  # the token was replaced, or the camera retired, elsewhere
+            tokens.forget(target.id)  # the next upload looks it up, refused before its body
+            raise
+        except CameraChanged:  # moved to another panel or region through another process
+            tokens.forget(target.id)
+            target = await fresh_upload_target(request, target)
+    else:
+        raise ServiceUnavailable(
+            f"camera {target.id} was changed {MEASURES} times while this frame was measured; "
+            "send it again",
+            headers={"Retry-After": "1"},
+            code="camera_changing",
+        )
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Sequence
@@ -22,10 +23,9 @@ class CameraInfo:
     roi: Roi | None
     panel_has_baseline: bool = False
     """The panel has a baseline of this camera's view (region): the fleet-model features need
-    not be computed. Possibly stale: a stale false costs a little work, never a wrong verdict;
-    a stale true (another process moved the camera's roi to a view with no baseline, within
-    the token cache's seconds) leaves that view's frames unjudged (``clean: null``) for as long,
-    where the fleet model would have judged them."""
+    not be computed. Possibly stale, false only (a baseline trained through another process
+    since): that costs a little work, never a wrong verdict. A view moved through another
+    process is caught by the writer's check of ``view``, and the frame measured again."""
 
     polygon: Polygon | None = None
     """The region as a polygon instead of ``roi``'s rectangle."""
@@ -33,6 +33,11 @@ class CameraInfo:
     token_hash: str | None = None
     """The hash of the camera's own token this snapshot was found by (None when it was looked
     up for the admin token): the writer checks it still holds before storing a frame."""
+
+    view: str | None = None
+    """What the camera measured with when this snapshot was taken, its panel and region as
+    stored (``view_of``): the writer checks it is still so before storing a frame measured by
+    it. None: not checked (a snapshot built by hand)."""
 
     region: Region = field(init=False, compare=False)
     """The region as the camera's ``roi`` stores it: [x, y, w, h], [[x, y], ...] or None. Built
@@ -50,7 +55,25 @@ class CameraInfo:
     @classmethod
     def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
         roi, polygon = parse_region(camera.roi)
-        return cls(camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon)
+        view = view_of(camera.panel_id, camera.roi)
+        return cls(
+            camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon, view=view
+        )
+
+    @property
+    def credential(self) -> tuple[str, str | None, str | None] | None:
+        """What the writer checks again in the batch that stores a frame measured by this
+        snapshot: (camera id, token hash, view); None when there is nothing to check."""
+        if self.token_hash is None and self.view is None:
+            return None
+        return (self.id, self.token_hash, self.view)
+
+
+def view_of(panel_id: str | None, roi: Region | str) -> str:
+    """A camera's panel and region as one comparable string; ``roi`` as the ORM gives it, or as
+    JSON text (the driver's answer on SQLite)."""
+    region = json.loads(roi) if isinstance(roi, str) else roi
+    return json.dumps([panel_id, region], separators=(",", ":"))
 
 
 def parse_region(r: Region) -> tuple[Roi | None, Polygon | None]:

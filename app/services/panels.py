@@ -293,7 +293,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         return verdict
     now = frame.received_at
     panel = lock_panel(session, camera.panel_id)
-    if panel.retired_at is not None:  # a process's cached camera, moved off it since
+    if panel.retired_at is not None:  # the camera moved off it, and it retired, since the check
         verdict.reason = f"panel {panel.id!r} is retired"
         return verdict
     task = open_task(session, panel.id, lock=True)

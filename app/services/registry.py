@@ -17,9 +17,10 @@ from app.errors import Conflict, NotFound, Unprocessable
 from app.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
 from app.security import hash_token, new_token
 from app.services import cleaning, panels
-from app.services.camera_info import TokenCache
+from app.services.camera_info import TokenCache, view_of
 from app.services.ingest import check_fits
 from app.services.policy import Policy
+from app.services.writer import Credential, Refusal
 
 
 def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
@@ -131,15 +132,34 @@ def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> N
     event.listen(session, "after_commit", lambda _: tokens.forget(camera_id), once=True)
 
 
-def revoked(session: Session, credentials: set[tuple[str, str]]) -> set[tuple[str, str]]:
-    """Which (camera id, token hash) pairs no longer hold: the token was replaced, or its camera
-    retired (which replaces it too). One query for all of them, made by the group-commit
-    writer in every batch of frames, so sent through the driver (``select_rows``)."""
-    ids = sorted({camera_id for camera_id, _ in credentials})
+def refusals(session: Session, credentials: set[Credential]) -> dict[Credential, Refusal]:
+    """Which (camera id, token hash, view) triples no longer hold, and how: ``revoked``, the
+    token was replaced or its camera retired; ``changed``, the camera now watches another
+    panel or measures another region (``view_of``), so a frame measured by the old view must be
+    measured again. One query for all of them, made by the group-commit writer in every batch
+    of frames, so sent through the driver (``select_rows``). A None token or view is not
+    checked (an upload with the admin token has no token of the camera's)."""
+    ids = sorted({camera_id for camera_id, _, _ in credentials})
     marks = ", ".join("?" * len(ids))
-    sql = f"SELECT id, token_hash FROM cameras WHERE retired_at IS NULL AND id IN ({marks})"
-    held = {(camera_id, token_hash) for camera_id, token_hash in select_rows(session, sql, ids)}
-    return credentials - held
+    sql = (
+        "SELECT id, token_hash, panel_id, roi FROM cameras"
+        f" WHERE retired_at IS NULL AND id IN ({marks})"
+    )
+    now = {
+        camera_id: (token_hash, panel_id, roi)
+        for camera_id, token_hash, panel_id, roi in select_rows(session, sql, ids)
+    }
+    out: dict[Credential, Refusal] = {}
+    for credential in credentials:
+        camera_id, token_hash, view = credential
+        found = now.get(camera_id)
+        if found is None:  # retired: its token went with it
+            out[credential] = "revoked" if token_hash is not None else "changed"
+        elif token_hash is not None and token_hash != found[0]:
+            out[credential] = "revoked"
+        elif view is not None and view != view_of(found[1], found[2]):
+            out[credential] = "changed"
+    return out
 
 
 def update_camera(

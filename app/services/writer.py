@@ -20,7 +20,7 @@ import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 from sqlalchemy import Connection, Engine
 from sqlalchemy.exc import DBAPIError, IntegrityError
@@ -38,11 +38,21 @@ PREPARERS = 32
 the commit takes no thread). The service sets it from ``Settings.effective_ingest_threads``."""
 
 
-Credential = tuple[str, str]
-"""(camera id, token hash): the camera token a job's request was accepted with."""
+Credential = tuple[str, str | None, str | None]
+"""(camera id, token hash, view): the camera token a job's request was accepted with, and the
+camera's panel and region its frame was measured by (``CameraInfo.credential``); None: not
+checked."""
 
-Revoked = Callable[[Session, set[Credential]], set[Credential]]
-"""Which of the credentials no longer hold (the token was replaced, or its camera retired)."""
+Refusal = Literal["revoked", "changed"]
+
+Check = Callable[[Session, set[Credential]], dict[Credential, Refusal]]
+"""Which of the credentials no longer hold, and how (``registry.refusals``)."""
+
+
+class CameraChanged(Exception):
+    """The camera watches another panel or measures another region since the frame was
+    measured (a change made through another process, whose cached camera this process had):
+    nothing was stored; measure the frame again with the camera as it is now."""
 
 
 @dataclass(slots=True)
@@ -53,12 +63,16 @@ class _Job:
     loop: asyncio.AbstractEventLoop | None = None
     """The event loop an asyncio ``future`` belongs to; None for a thread's future."""
     credential: Credential | None = None
-    """Checked again inside the job's batch (``GroupCommitWriter``'s ``revoked``)."""
+    """Checked again inside the job's batch (``GroupCommitWriter``'s ``check``)."""
 
 
 Outcome = tuple[Any, BaseException | None]
 
-_REVOKED = object()
+
+def _refused(refusal: Refusal) -> BaseException:
+    if refusal == "revoked":
+        return Unauthorized("unknown token: it was replaced, or its camera retired")
+    return CameraChanged()
 
 
 def _settle(future: Future[Any] | asyncio.Future[Any], outcome: Outcome) -> None:
@@ -85,15 +99,17 @@ class GroupCommitWriter:
         *,
         max_batch: int = 64,
         preparers: int = PREPARERS,
-        revoked: Revoked | None = None,
+        check: Check | None = None,
     ) -> None:
         self._sessions = sessions
-        self._revoked = revoked
+        self._check = check
         """Checks, once per batch and in its transaction, that the camera tokens its jobs were
-        accepted with still hold. Processes keep the cameras they have seen for seconds (the
-        token cache), so without it a token replaced or a camera retired through another
-        process would go on storing frames here until then; with it, no frame is stored on a
-        token after the change's commit (the jobs get 401)."""
+        accepted with still hold, and that their cameras still watch the panel and measure the
+        region their frames were measured by. Processes keep the cameras they have seen for
+        seconds (the token cache), so without it a token replaced or a camera retired through
+        another process would go on storing frames here until then (with it those jobs get
+        401), and a camera moved to another panel would go on judging the old one (those jobs
+        get ``CameraChanged``, and are measured again)."""
         self._max_batch = max_batch
         self._preparers = preparers
         self._pool: ThreadPoolExecutor | None = None
@@ -166,7 +182,8 @@ class GroupCommitWriter:
         loop in one call, so a frame wakes the loop once. When ``prepare`` raises, the future
         gets its exception. A request cancelled before its preparation ends queues no job.
         Must be called on the loop. With ``credential``, the job runs only if that camera token
-        still holds in its batch (else the future gets ``Unauthorized``).
+        still holds in its batch (else the future gets ``Unauthorized``), and its camera's view
+        is the one the frame was measured by (else ``CameraChanged``).
         """
         pool = self._pool
         if pool is None:
@@ -256,28 +273,26 @@ class GroupCommitWriter:
             self._release()
             return (None, first)
 
-    def _revoked_in(self, session: Session, batch: list[_Job]) -> set[Credential]:
+    def _refused_in(self, session: Session, batch: list[_Job]) -> dict[Credential, Refusal]:
         """The batch's credentials that no longer hold: one query for the whole batch."""
-        if self._revoked is None:
-            return set()
+        if self._check is None:
+            return {}
         credentials = {job.credential for job in batch if job.credential is not None}
-        return self._revoked(session, credentials) if credentials else set()
+        return self._check(session, credentials) if credentials else {}
 
     def _write(self, batch: list[_Job], *, again: bool = True) -> list[Outcome]:
         try:
             with self._session() as session:
-                revoked = self._revoked_in(session, batch)
+                refused = self._refused_in(session, batch)
                 with deferred_inserts(session):  # one INSERT per table for the batch
-                    results = [
-                        _REVOKED if job.credential in revoked else job.fn(session) for job in batch
+                    outcomes: list[Outcome] = [
+                        (None, _refused(refused[job.credential]))
+                        if job.credential in refused
+                        else (job.fn(session), None)
+                        for job in batch
                     ]
                 session.commit()
-            return [
-                (None, Unauthorized("unknown token: it was replaced, or its camera retired"))
-                if r is _REVOKED
-                else (r, None)
-                for r in results
-            ]
+            return outcomes
         except Exception as exc:
             held = self._held is not None
             self._release()  # the next attempt checks out a pinged connection

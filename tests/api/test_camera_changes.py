@@ -4,6 +4,7 @@ it (DELETE)."""
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Any
 
 import cv2
 import numpy as np
@@ -317,6 +318,70 @@ def test_a_change_made_by_another_process_stops_the_next_frame(
             "/cameras/cam/frames", content=halves(), headers={**admin, "Content-Type": "image/jpeg"}
         )
         assert r.status_code == 201, r.text
+
+
+@pytest.mark.parametrize("token", ["camera's", "admin"])
+def test_a_region_changed_by_another_process_measures_the_next_frame_in_it(
+    client: TestClient, admin: dict[str, str], engine: Engine, token: str
+) -> None:
+    own = register(client, admin, roi=[0, 0, 32, 48])
+    auth = {"Authorization": f"Bearer {own}"} if token == "camera's" else admin
+
+    def upload() -> dict[str, object]:
+        r = client.post(
+            "/cameras/cam/frames", content=halves(), headers={**auth, "Content-Type": "image/jpeg"}
+        )
+        assert r.status_code == 201, r.text
+        body: dict[str, object] = r.json()
+        return body
+
+    assert near(modes(upload()), LEFT)  # this process now keeps the camera
+    # another process moves the region to the right half: this one is not told
+    with engine.begin() as conn:
+        conn.execute(update(Camera).where(Camera.id == "cam").values(roi=[32, 0, 32, 48]))
+    body = upload()
+    assert near(modes(body), RIGHT), body  # measured again, in the region as it is now
+    verdict = body["verdict"]
+    assert isinstance(verdict, dict)
+    assert verdict["roi"] == [32, 0, 32, 48]
+    assert near(modes(upload()), RIGHT)
+    frames = client.get("/cameras/cam/frames", headers=admin).json()
+    assert len(frames) == 3  # each frame stored once
+
+
+def test_a_camera_moved_to_another_panel_by_another_process_judges_that_one(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    for pid in ("p1", "p2"):
+        assert client.post("/panels", json={"id": pid}, headers=admin).status_code == 201
+    own = register(client, admin, kind="panel", panel_id="p1")
+    status, body = post(client, own, halves())
+    assert status == 201, body
+    assert body["verdict"]["panel_id"] == "p1"  # type: ignore[index]
+    with engine.begin() as conn:  # another process re-attaches the camera
+        conn.execute(update(Camera).where(Camera.id == "cam").values(panel_id="p2"))
+    status, body = post(client, own, halves())
+    assert status == 201, body
+    assert body["verdict"]["panel_id"] == "p2"  # type: ignore[index]
+    p1 = client.get("/panels/p1/status", headers=admin).json()
+    assert p1["last_verdict"]["frame_id"] != body["frame_id"]
+
+
+def test_a_camera_that_keeps_changing_is_told_to_send_the_frame_again(
+    client: TestClient, admin: dict[str, str], engine: Engine, app: Any
+) -> None:
+    own = register(client, admin)
+    before = table_counts(engine)
+    measured: list[object] = []
+    # every batch finds the camera changed again (other processes changing it meanwhile)
+    app.state.writer._check = lambda session, credentials: (
+        measured.append(credentials) or dict.fromkeys(credentials, "changed")
+    )
+    status, body = post(client, own, halves())
+    assert status == 503, body
+    assert body["code"] == "camera_changing"
+    assert len(measured) == 3  # measured three times, then given up
+    assert table_counts(engine) == before
 
 
 def test_the_token_cache_forgets_one_camera() -> None:

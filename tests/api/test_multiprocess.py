@@ -6,7 +6,6 @@ Runs only when ``VANTAGE_TEST_DATABASE_URL`` names a PostgreSQL database (``.ci/
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -26,8 +25,9 @@ pytestmark = [
     pytest.mark.skipif(not URL.startswith("postgresql"), reason="needs PostgreSQL"),
 ]
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
-CACHE_SECONDS = 1.0
-"""How long each server keeps a camera it has seen (VANTAGE_CAMERA_CACHE_SECONDS)."""
+CACHE_SECONDS = 600.0
+"""How long each server keeps a camera it has seen (VANTAGE_CAMERA_CACHE_SECONDS): longer than
+any test, so what reaches the other process does so without the cache running out."""
 
 
 @pytest.fixture
@@ -113,7 +113,7 @@ def test_frames_alternately_and_a_baseline_shared_at_once(servers: list[str]) ->
         assert v["clean"] is False
 
 
-def test_a_new_token_and_retirement_stop_the_other_process_at_once_a_region_within_its_cache_time(
+def test_a_new_token_a_new_region_and_retirement_reach_the_other_process_at_once(
     servers: list[str],
 ) -> None:
     a, b = servers
@@ -142,15 +142,14 @@ def test_a_new_token_and_retirement_stop_the_other_process_at_once_a_region_with
         assert post(b, old).status_code == 401
         assert post(b, new).status_code == 201
 
-        # a new region through a: b measures in it within its cache time, never much later
-        changed = time.monotonic()
+        # a new region through a: b measures its next frame in it, though it kept the camera
         r = c.patch(f"{a}/cameras/r", json={"roi": [40, 0, 24, 48]})  # the right half
         assert r.status_code == 200, r.text
-        assert near(post(a, new).json()["verdict"]["modes"], RIGHT)  # at once where made
-        while near((frame := post(b, new)).json()["verdict"]["modes"], LEFT):
-            assert time.monotonic() - changed < CACHE_SECONDS + 5, "b still measures the left"
-            time.sleep(0.1)
+        assert near(post(a, new).json()["verdict"]["modes"], RIGHT)
+        frame = post(b, new)
+        assert frame.status_code == 201, frame.text
         assert near(frame.json()["verdict"]["modes"], RIGHT)
+        assert frame.json()["verdict"]["roi"] == [40, 0, 24, 48]
 
         # retired through a: b refuses the camera's next frame
         assert c.delete(f"{a}/cameras/r").status_code == 204

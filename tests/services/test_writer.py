@@ -23,6 +23,7 @@ from app.db.models import (
     Camera,
     CameraKind,
     Frame,
+    Panel,
     PanelVerdict,
     SkyVerdict,
     Verdict,
@@ -31,7 +32,8 @@ from app.db.rows import deferred_inserts, insert_rows
 from app.db.session import make_engine, make_sessionmaker
 from app.errors import Unauthorized
 from app.services import registry
-from app.services.writer import GroupCommitWriter, _Job
+from app.services.camera_info import view_of
+from app.services.writer import CameraChanged, Credential, GroupCommitWriter, Refusal, _Job
 from tests.conftest import _empty_tables
 
 T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
@@ -181,34 +183,74 @@ def test_a_conflicting_job_is_run_again_alone_and_the_rest_of_its_batch_is_store
         assert s.scalar(select(func.count()).select_from(Verdict)) == 3
 
 
-def test_a_batch_checks_its_camera_tokens_once_and_drops_only_the_revoked_jobs(
+def test_a_batch_checks_its_cameras_once_and_refuses_only_the_jobs_that_no_longer_hold(
     sessions: sessionmaker[Session],
 ) -> None:
-    with sessions() as s:  # a second camera whose token was replaced since its jobs were taken
+    # "other": its token was replaced since its job was taken; "moved": it measures another
+    # region now (both through another process, whose cached snapshots these jobs carry)
+    with sessions() as s:
         s.add(Camera(id="other", kind=CameraKind.rig, token_hash="new"))
+        s.add(Camera(id="moved", kind=CameraKind.rig, token_hash="m", roi=[0, 0, 32, 24]))
         s.commit()
-    asked: list[set[tuple[str, str]]] = []
+    asked: list[set[Credential]] = []
 
-    def revoked(session: Session, credentials: set[tuple[str, str]]) -> set[tuple[str, str]]:
+    def check(session: Session, credentials: set[Credential]) -> dict[Credential, Refusal]:
         asked.append(set(credentials))
-        return registry.revoked(session, credentials)
+        return registry.refusals(session, credentials)
 
-    writer = GroupCommitWriter(sessions, revoked=revoked)
+    cam = ("cam", "h", view_of(None, None))
+    old_view = view_of(None, [0, 0, 64, 48])
+    writer = GroupCommitWriter(sessions, check=check)
     batch = [
-        _Job(_storing(1), Future(), credential=("cam", "h")),
-        _Job(_storing(2), Future(), credential=("other", "old")),
-        _Job(_storing(3), Future()),  # the admin token's: nothing to check
-        _Job(_storing(4), Future(), credential=("cam", "h")),
+        _Job(_storing(1), Future(), credential=cam),
+        _Job(_storing(2), Future(), credential=("other", "old", view_of(None, None))),
+        _Job(_storing(3), Future()),  # nothing to check
+        _Job(_storing(4), Future(), credential=cam),
+        _Job(_storing(5), Future(), credential=("moved", "m", old_view)),
+        _Job(_storing(6), Future(), credential=("moved", None, old_view)),  # the admin token's
+        _Job(_storing(7), Future(), credential=("moved", "m", view_of(None, [0, 0, 32, 24]))),
     ]
     outcomes = writer._write(batch)
-    assert asked == [{("cam", "h"), ("other", "old")}]  # one query for the batch
-    assert [o[0] for o in outcomes] == ["f0001", None, "f0003", "f0004"]
-    error = outcomes[1][1]
-    assert isinstance(error, Unauthorized)
-    assert error.status == 401
+    assert len(asked) == 1  # one query for the batch
+    assert [o[0] for o in outcomes] == ["f0001", None, "f0003", "f0004", None, None, "f0007"]
+    revoked = outcomes[1][1]
+    assert isinstance(revoked, Unauthorized)
+    assert revoked.status == 401
+    assert isinstance(outcomes[4][1], CameraChanged)
+    assert isinstance(outcomes[5][1], CameraChanged)
     with sessions() as s:
-        assert s.scalars(select(Frame.id).order_by(Frame.id)).all() == ["f0001", "f0003", "f0004"]
-        assert s.scalar(select(func.count()).select_from(Verdict)) == 3
+        stored = s.scalars(select(Frame.id).order_by(Frame.id)).all()
+        assert stored == ["f0001", "f0003", "f0004", "f0007"]
+        assert s.scalar(select(func.count()).select_from(Verdict)) == 4
+
+
+def test_a_cameras_view_as_the_driver_reads_it_is_its_view_as_cached(
+    sessions: sessionmaker[Session],
+) -> None:
+    """The check compares the view the snapshot was built from (the ORM's JSON) with the one
+    the driver reads (JSON text on SQLite, parsed on PostgreSQL): equal for every kind of
+    region, or every frame would be measured again."""
+    from app.services.camera_info import CameraInfo
+
+    regions: list[Any] = [None, [0, 60, 640, 300], [[0, 0], [640, 0], [640, 200], [0, 300]]]
+    with sessions() as s:
+        s.add(Panel(id="p1"))
+        s.flush()
+        for k, roi in enumerate(regions):
+            s.add(
+                Camera(
+                    id=f"v{k}", kind=CameraKind.panel, panel_id="p1", token_hash=f"t{k}", roi=roi
+                )
+            )
+        s.commit()
+        credentials = {
+            CameraInfo.of(c).credential
+            for c in s.scalars(select(Camera).where(Camera.id.like("v%")))
+        }
+    with sessions() as s:
+        credentials = {(cid, f"t{cid[1:]}", view) for cid, _, view in credentials}
+        assert len(credentials) == 3
+        assert registry.refusals(s, credentials) == {}
 
 
 def test_a_select_through_the_driver_sees_the_rows_held_back_before_it(
@@ -440,7 +482,7 @@ def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None
 
         return fn
 
-    writer = GroupCommitWriter(sessions, revoked=registry.revoked)
+    writer = GroupCommitWriter(sessions, check=registry.refusals)
     writer.start()
     try:
         first = writer.run(backend_pid)
@@ -449,7 +491,7 @@ def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None
             assert other.scalar(text("SELECT pg_terminate_backend(:pid)"), {"pid": first})
         # the batch's first statement is the check of its camera token, sent through the
         # driver itself: the lost connection is still told apart, and the batch run once more
-        second = writer.run(store(1), credential=("cam", "h"))
+        second = writer.run(store(1), credential=("cam", "h", view_of(None, None)))
         assert second != first
     finally:
         writer.stop()
