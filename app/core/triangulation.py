@@ -92,20 +92,30 @@ class CrossResult:
     """(N,): standard deviation of the available estimates."""
     reprojection_rms: NDArray[np.float64]
     """(N,) [px]."""
+    behind: NDArray[np.bool_]
+    """(N,): points left out because their rays meet behind the lens plane (mismatched
+    pixels), where nothing in front of it was found."""
 
 
-def z_estimates(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The ten pairwise depth estimates Z = B/d of each point (module docstring)."""
+def _signed_depths(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The ten pairwise Z = B/d of each point, of either sign; ±inf or NaN where a pair has no
+    disparity or lacks a view."""
     n = rig.normalised(obs)
     b = rig.baselines()
     out = np.full((obs.shape[0], len(PAIRS)), np.nan)
     for k, (i, j, axis) in enumerate(PAIRS):
         a = 0 if axis == "x" else 1
-        d = n[:, i, a] - n[:, j, a]
         with np.errstate(divide="ignore", invalid="ignore"):
-            z = b[k] / d  # Z = B/d: a zero disparity (or a missing view) gives no estimate
-        out[:, k] = np.where(np.isfinite(z) & (z > 0), z, np.nan)
+            out[:, k] = b[k] / (n[:, i, a] - n[:, j, a])
     return out
+
+
+def z_estimates(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The ten pairwise depth estimates Z = B/d of each point (module docstring): NaN where a
+    pair has no disparity, lacks a view, or sees the point behind the lens plane."""
+    z = _signed_depths(rig, obs)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(z) & (z > 0), z, np.nan)
 
 
 def _nanmean(a: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
@@ -157,6 +167,10 @@ def triangulate_cross(
     if obs.ndim != 3 or obs.shape[1:] != (4, 2):
         raise ValueError(f"observations must have shape (N, 4, 2); got {obs.shape}")
     est = z_estimates(rig, obs)
+    with np.errstate(invalid="ignore"):
+        # the pairs' depths Z = B/d dropped for lying behind (d of the wrong sign, 4.14–4.41)
+        signed = _signed_depths(rig, obs)
+        backwards = (np.isfinite(signed) & (signed < 0)).any(axis=1) & np.isnan(est).all(axis=1)
     if method == "mean":
         z = _nanmean(est, axis=1)  # eq. 4.47
         points = _xy(rig, obs, z)
@@ -171,12 +185,14 @@ def triangulate_cross(
         # between cameras give a point mirrored to Z < 0 that reprojects exactly); the pairwise
         # estimates drop such a depth likewise
         with np.errstate(invalid="ignore"):
-            behind = ~(points[:, 2] > 0)
-        points[behind] = np.nan
+            backwards = points[:, 2] <= 0
+            points[~(points[:, 2] > 0)] = np.nan
     else:
         raise ValueError(f"unknown method {method!r}")
     spread = _nanstd(est, axis=1)
-    return CrossResult(points, est, spread, _rms(rig, obs, points))
+    return CrossResult(
+        points, est, spread, _rms(rig, obs, points), np.asarray(backwards, dtype=np.bool_)
+    )
 
 
 def _solve_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -261,6 +277,9 @@ class RigResult:
     """(N,) [px] over the views used."""
     used: NDArray[np.bool_]
     """(N, V): the views each point was triangulated from (outliers rejected)."""
+    behind: NDArray[np.bool_]
+    """(N,): points left out because they lie behind a camera that saw them (mismatched
+    views)."""
 
 
 def _dist5(dist: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -352,10 +371,12 @@ def triangulate_views(
             list(pool.map(lambda job: _chunk(*job), jobs))
     # a point behind a camera that saw it was never seen: the views were mismatched
     depth = points @ rig.rs[:, 2, :].T + rig.ts[:, 2]  # (N, V): z in each camera's frame
+    found = np.isfinite(points).all(axis=1)  # not: rays that never meet (parallel)
     with np.errstate(invalid="ignore"):
-        behind = (use & ~(depth > 0)).any(axis=1)
-    points[behind], rms[behind], use[behind] = np.nan, np.nan, False
-    return RigResult(points, rms, use)
+        behind = found & (use & ~(depth > 0)).any(axis=1)
+    lost = ~found | behind
+    points[lost], rms[lost], use[lost] = np.nan, np.nan, False
+    return RigResult(points, rms, use, np.asarray(behind, dtype=np.bool_))
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,7 +10,6 @@ from fastapi import APIRouter, Request, Response
 from sqlalchemy.orm import Session
 
 from app.core import shapes
-from app.core.triangulation import triangulate_cross, triangulate_views
 from app.db.models import Rig
 from app.deps import (
     Admin,
@@ -121,29 +120,13 @@ def triangulate(
                 if len(uv) != 2:
                     raise Unprocessable(f"point {i}, camera {k}: expected [u, v]")
                 obs[i, k] = uv
-    if len(obs) == 0:
-        return TriangulateOut(points=[], reprojection_rms_px=[])
-    if row.kind == "cross":
-        rig = rigs.cross_of(row)
-        few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
-        safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
-        with np.errstate(all="ignore"):
-            r = triangulate_cross(rig, safe, method=body.method)
-        points = r.points.copy()
-        points[few] = np.nan
-        est = r.z_estimates.copy()
-        est[few] = np.nan
-        return TriangulateOut(
-            points=[None if not np.isfinite(p).all() else p.tolist() for p in points],
-            reprojection_rms_px=_clean(np.where(few, np.nan, r.reprojection_rms)),
-            z_estimates=[_clean(e) for e in est],
-            z_spread=_clean(np.where(few, np.nan, r.z_spread)),
-        )
-    views = rigs.views_of(row)
-    res = triangulate_views(views, obs)
+    out = rigs.triangulate(row, obs, body.method)
     return TriangulateOut(
-        points=[None if not np.isfinite(p).all() else p.tolist() for p in res.points],
-        reprojection_rms_px=_clean(res.reprojection_rms),
+        points=[None if not np.isfinite(p).all() else p.tolist() for p in out.points],
+        reprojection_rms_px=_clean(out.reprojection_rms),
+        null_reasons=out.reasons,
+        z_estimates=None if out.z_estimates is None else [_clean(e) for e in out.z_estimates],
+        z_spread=None if out.z_spread is None else _clean(out.z_spread),
     )
 
 

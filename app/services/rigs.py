@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.core import laser_grid
-from app.core.triangulation import CrossRig, View
+from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
 from app.db.base import utcnow
 from app.db.models import Rig
 from app.errors import Conflict, NotFound, Unprocessable
@@ -122,3 +124,57 @@ def geometry_of(row: Rig) -> laser_grid.Geometry:
     if row.kind == "cross":
         return laser_grid.cross_geometry(cross_of(row))
     return laser_grid.views_geometry(views_of(row))
+
+
+NULL_REASONS = {
+    "too_few_views": "seen by fewer than two cameras",
+    "behind_camera": "its rays meet behind a camera that saw it: the pixels are mismatched "
+    "(cameras in the wrong order, or another point's pixel)",
+    "no_depth": "no depth: the views see it with no disparity (at infinity, or the same pixel "
+    "in every camera)",
+}
+"""Why a point is null, by code (``Triangulated.reasons``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Triangulated:
+    points: NDArray[np.float64]
+    """(N, 3) in the rig's frame; NaN rows where no point was found."""
+    reprojection_rms: NDArray[np.float64]
+    reasons: list[str | None]
+    """Per point, why it is NaN (a key of ``NULL_REASONS``), or None when it was found."""
+    z_estimates: NDArray[np.float64] | None = None
+    """Cross rigs: (N, 10), the pairwise depths."""
+    z_spread: NDArray[np.float64] | None = None
+
+
+def _reasons(
+    points: NDArray[np.float64], few: NDArray[np.bool_], behind: NDArray[np.bool_]
+) -> list[str | None]:
+    found = np.asarray(np.isfinite(points).all(axis=1), dtype=np.bool_)
+    return [
+        None if ok else "too_few_views" if short else "behind_camera" if back else "no_depth"
+        for ok, short, back in zip(found, few, behind, strict=True)
+    ]
+
+
+def triangulate(row: Rig, obs: NDArray[np.float64], method: str) -> Triangulated:
+    """Points from pixel observations (N, cameras, 2) [px], NaN for a view that missed one."""
+    few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
+    if row.kind != "cross":
+        res = triangulate_views(views_of(row), obs)
+        return Triangulated(res.points, res.reprojection_rms, _reasons(res.points, few, res.behind))
+    rig = cross_of(row)
+    # a point seen once is solved from a stand-in (its depth would be undetermined) and dropped
+    safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
+    with np.errstate(all="ignore"):
+        r = triangulate_cross(rig, safe, method=method)
+    points, est = r.points.copy(), r.z_estimates.copy()
+    points[few], est[few] = np.nan, np.nan
+    return Triangulated(
+        points,
+        np.where(few, np.nan, r.reprojection_rms),
+        _reasons(points, few, r.behind),
+        est,
+        np.where(few, np.nan, r.z_spread),
+    )

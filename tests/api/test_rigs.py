@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.core.triangulation import CrossRig, project_views
+from app.core.triangulation import CrossRig, View, project_views
 from tests.core.test_triangulation import RIG, calibrated_views, points
 
 
@@ -42,6 +42,26 @@ def test_cross_rig(client: TestClient, admin: dict[str, str]) -> None:
     assert r.status_code == 200, r.text
     assert r.json()["points"][4] is None
     np.testing.assert_allclose(r.json()["points"][:4], p[:4], rtol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["least_squares", "weighted", "mean"])
+def test_a_point_not_found_says_why(client: TestClient, admin: dict[str, str], method: str) -> None:
+    body = {"kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2, "principal_point": [320, 240]}
+    assert client.post("/rigs", json={"id": "cell-1", **body}, headers=admin).status_code == 201
+    p = points(4)
+    seen = RIG.project(p)
+    once = [seen[0][0].tolist(), None, None, None]
+    swapped = seen[1][[1, 0, 3, 2]].tolist()  # cameras 1↔2 and 3↔4: mirrored behind the lens
+    nowhere = [[320.0, 240.0]] * 4  # no disparity in any pair
+    obs = [once, swapped, nowhere, seen[3].tolist()]
+    r = client.post(
+        "/rigs/cell-1/triangulate", json={"observations": obs, "method": method}, headers=admin
+    )
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert out["null_reasons"] == ["too_few_views", "behind_camera", "no_depth", None]
+    assert out["points"][:3] == [None, None, None]
+    np.testing.assert_allclose(out["points"][3], p[3], rtol=1e-9)
 
 
 def test_a_rig_given_new_geometry_measures_with_it(
@@ -101,6 +121,33 @@ def test_calibrated_rig(client: TestClient, admin: dict[str, str]) -> None:
     r = client.post("/rigs/r/triangulate", json={"observations": obs}, headers=admin)
     assert r.status_code == 200, r.text
     np.testing.assert_allclose(r.json()["points"], p, rtol=1e-7)
+    assert r.json()["null_reasons"] == [None] * 10
+    obs[0] = [obs[0][0], None, None, None]
+    r = client.post("/rigs/r/triangulate", json={"observations": obs}, headers=admin)
+    assert r.json()["null_reasons"][:2] == ["too_few_views", None]
+
+
+def test_a_point_behind_a_calibrated_pair_says_so(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    k = [[800.0, 0, 320], [0, 800, 240], [0, 0, 1]]
+    eye = np.eye(3).tolist()
+    cams = [{"K": k, "R": eye, "t": [x, 0.0, 0.0]} for x in (0.0, -0.3)]
+    r = client.post(
+        "/rigs", json={"id": "pair", "kind": "calibrated", "cameras": cams}, headers=admin
+    )
+    assert r.status_code == 201, r.text
+    views = [
+        View(np.array(k), np.zeros(5), np.eye(3), np.array([x, 0.0, 0.0])) for x in (0.0, -0.3)
+    ]
+    p = points(2, seed=6) + [0, 0, 1.0]
+    obs = project_views(views, p)
+    obs[1] = obs[1][::-1]  # each camera given the other's pixel
+    parallel = [[320.0, 240.0], [320.0, 240.0]]  # both rays along the optical axis
+    body = {"observations": [*obs.tolist(), parallel]}
+    r = client.post("/rigs/pair/triangulate", json=body, headers=admin)
+    assert r.json()["null_reasons"] == [None, "behind_camera", "no_depth"]
+    np.testing.assert_allclose(r.json()["points"][0], p[0], rtol=1e-7)
 
 
 def test_bad_rigs_and_observations(client: TestClient, admin: dict[str, str]) -> None:

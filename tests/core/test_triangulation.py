@@ -89,6 +89,7 @@ class TestCross:
         r = triangulate_cross(RIG, obs, method=method)
         assert np.isnan(r.points[2]).all()
         assert np.isnan(r.z_estimates[2]).all()
+        assert r.behind.tolist() == [False, False, True, False, False, False]
         keep = [0, 1, 3, 4, 5]
         np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-9)
 
@@ -144,6 +145,7 @@ class TestCalibratedRig:
         assert np.isnan(r.points[1]).all()
         assert np.isnan(r.reprojection_rms[1])
         assert not r.used[1].any()
+        assert r.behind.tolist() == [False, True, False, False, False]
         keep = [0, 2, 3, 4]
         np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-7)
 
