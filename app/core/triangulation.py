@@ -113,7 +113,10 @@ def _signed_depths(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float6
 def z_estimates(rig: CrossRig, obs: NDArray[np.float64]) -> NDArray[np.float64]:
     """The ten pairwise depth estimates Z = B/d of each point (module docstring): NaN where a
     pair has no disparity, lacks a view, or sees the point behind the lens plane."""
-    z = _signed_depths(rig, obs)
+    return _in_front(_signed_depths(rig, obs))
+
+
+def _in_front(z: NDArray[np.float64]) -> NDArray[np.float64]:
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(z) & (z > 0), z, np.nan)
 
@@ -166,10 +169,10 @@ def triangulate_cross(
     obs = np.asarray(obs, dtype=np.float64)
     if obs.ndim != 3 or obs.shape[1:] != (4, 2):
         raise ValueError(f"observations must have shape (N, 4, 2); got {obs.shape}")
-    est = z_estimates(rig, obs)
+    signed = _signed_depths(rig, obs)
+    est = _in_front(signed)
     with np.errstate(invalid="ignore"):
         # the pairs' depths Z = B/d dropped for lying behind (d of the wrong sign, 4.14–4.41)
-        signed = _signed_depths(rig, obs)
         backwards = (np.isfinite(signed) & (signed < 0)).any(axis=1) & np.isnan(est).all(axis=1)
     if method == "mean":
         z = _nanmean(est, axis=1)  # eq. 4.47
