@@ -171,9 +171,15 @@ def triangulate_cross(
         raise ValueError(f"observations must have shape (N, 4, 2); got {obs.shape}")
     signed = _signed_depths(rig, obs)
     est = _in_front(signed)
-    with np.errstate(invalid="ignore"):
-        # the pairs' depths Z = B/d dropped for lying behind (d of the wrong sign, 4.14–4.41)
-        backwards = (np.isfinite(signed) & (signed < 0)).any(axis=1) & np.isnan(est).all(axis=1)
+    # the points none of whose pairs gave a depth in front: behind when some pair's Z = B/d was
+    # negative (disparities of the wrong sign, 4.14–4.41); few, so looked at alone
+    backwards = np.zeros(len(obs), np.bool_)
+    none = np.isnan(est).all(axis=1)
+    if none.any():
+        lone = signed[none]
+        with np.errstate(invalid="ignore"):
+            backwards[none] = (np.isfinite(lone) & (lone < 0)).any(axis=1)
+    del signed
     if method == "mean":
         z = _nanmean(est, axis=1)  # eq. 4.47
         points = _xy(rig, obs, z)
