@@ -379,7 +379,10 @@ def triangulate_views(
         with ThreadPoolExecutor(workers) as pool:
             list(pool.map(lambda job: _chunk(*job), jobs))
     # a point behind a camera that saw it was never seen: the views were mismatched
-    depth = points @ rig.rs[:, 2, :].T + rig.ts[:, 2]  # (N, V): z in each camera's frame
+    # (N, V): z in each camera's frame; not through BLAS (`@`), whose threads would spin on
+    # for a while after it and take the cores from the next call's compiled loop (the bench:
+    # 100,000 points in 80 ms instead of 41)
+    depth = np.einsum("nk,vk->nv", points, rig.rs[:, 2, :]) + rig.ts[:, 2]
     found = np.isfinite(points).all(axis=1)  # not: rays that never meet (parallel)
     with np.errstate(invalid="ignore"):
         behind = found & (use & ~(depth > 0)).any(axis=1)
