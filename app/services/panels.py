@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats as sstats
-from sqlalchemy import ColumnElement, and_, case, func, or_, select
+from sqlalchemy import ColumnElement, Select, and_, case, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.core import soiling
@@ -90,7 +90,8 @@ def state_column(now: datetime, *, debounce: int, fleet_available: bool) -> Colu
     return case(*whens, else_=PanelState.clean)
 
 
-def _with_state(session: Session, policy: Policy) -> tuple[Any, ColumnElement[str]]:
+def _with_state(session: Session, policy: Policy) -> tuple[Select[Panel, str], ColumnElement[str]]:
+    """Panels left-joined to their open task, with their state now (``state_column``)."""
     state = state_column(
         policy.now(),
         debounce=policy.debounce,
