@@ -592,6 +592,12 @@ class RigCreate(RigSpec):
     id: Id
 
 
+class RigReplace(RigSpec):
+    id: Id | None = Field(
+        default=None, description="May be sent (the body POST /rigs took); must be the rig's."
+    )
+
+
 class RigOut(Out):
     id: str
     kind: str

@@ -35,7 +35,7 @@ from app.schemas import (
     LaserGridOut,
     RigCreate,
     RigOut,
-    RigSpec,
+    RigReplace,
     ShapeFitOut,
     ShapeMatchIn,
     TriangulateIn,
@@ -79,10 +79,12 @@ def get_rig(rig_id: RigId, session: SessionDep, _: RobotOrAdmin) -> RigOut:
     response_model=RigOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
 )
-def replace_rig(rig_id: RigId, body: RigSpec, session: SessionDep, _: Admin) -> RigOut:
+def replace_rig(rig_id: RigId, body: RigReplace, session: SessionDep, _: Admin) -> RigOut:
     """Give a rig new geometry (its cameras moved, or were calibrated again), the same fields
-    as when it was registered, without the id: every measurement from now on uses it, on every
-    server process (``updated_at`` says when)."""
+    as when it was registered (the id may be left out): every measurement from now on uses it,
+    on every server process (``updated_at`` says when)."""
+    if body.id is not None and body.id != rig_id:
+        raise Unprocessable(f"the body names rig {body.id!r}, the path {rig_id!r}")
     return RigOut.model_validate(rigs.replace(session, rig_id, body))
 
 

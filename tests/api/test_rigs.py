@@ -95,6 +95,12 @@ def test_a_rig_given_new_geometry_measures_with_it(
     assert bad.status_code == 422
     assert client.get("/rigs/cell-1", headers=admin).json()["spec"]["ax"] == 0.5
     assert client.put("/rigs/nope", json=body, headers=admin).status_code == 404
+    # the body POST took, id and all, is taken when the id is the rig's
+    same = client.put("/rigs/cell-1", json={"id": "cell-1", **body, "ax": 0.5}, headers=admin)
+    assert same.status_code == 200, same.text
+    other = client.put("/rigs/cell-1", json={"id": "cell-2", **body}, headers=admin)
+    assert other.status_code == 422
+    assert client.get("/rigs/cell-1", headers=admin).json()["spec"]["ax"] == 0.5
 
     assert client.delete("/rigs/cell-1", headers=admin).status_code == 204
     assert client.get("/rigs/cell-1", headers=admin).status_code == 404
