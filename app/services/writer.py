@@ -266,6 +266,9 @@ class GroupCommitWriter:
     def _once(self, job: _Job, first: Exception) -> Outcome:
         try:
             with self._session() as session:
+                refused = self._refused_in(session, [job])  # checked again, as in any batch
+                if job.credential in refused:
+                    return (None, _refused(refused[job.credential]))
                 result = job.fn(session, retry=True)
                 session.commit()
             return (result, None)

@@ -253,6 +253,32 @@ def test_a_cameras_view_as_the_driver_reads_it_is_its_view_as_cached(
         assert registry.refusals(s, credentials) == {}
 
 
+def test_a_conflicting_job_run_again_alone_is_checked_again(
+    sessions: sessionmaker[Session],
+) -> None:
+    """The camera's token is replaced between the batch that conflicted and the job's run alone:
+    the run alone checks it again (every transaction that stores a frame does)."""
+    with sessions() as s:
+        insert_rows(s, *frame_and_verdict(7, key="k"))
+        s.commit()
+    answers = iter([{}, None])
+
+    def check(session: Session, credentials: set[Credential]) -> dict[Credential, Refusal]:
+        found = next(answers)
+        return found if found is not None else dict.fromkeys(credentials, "revoked")
+
+    def fn(session: Session, retry: bool = False) -> str:
+        if retry:
+            return "replay"
+        insert_rows(session, *frame_and_verdict(8, key="k"))
+        return "stored"
+
+    writer = GroupCommitWriter(sessions, check=check)
+    outcomes = writer._write([_Job(fn, Future(), credential=("cam", "h", None))])
+    assert outcomes[0][0] is None
+    assert isinstance(outcomes[0][1], Unauthorized)
+
+
 def test_a_select_through_the_driver_sees_the_rows_held_back_before_it(
     sessions: sessionmaker[Session],
 ) -> None:
