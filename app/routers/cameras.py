@@ -40,6 +40,7 @@ from app.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
+    CAMERA_CHANGING,
     CAMERA_RETIRED,
     CONFLICT,
     NOT_FOUND,
@@ -146,11 +147,7 @@ def _form_captured_at(
         **NOT_FOUND,
         **CAMERA_RETIRED,
         **UPLOAD_ERRORS,
-        503: {
-            **UPLOAD_ERRORS[422],
-            "description": "The camera was changed again and again while the frame was "
-            "measured: send it again (Retry-After)",
-        },
+        **CAMERA_CHANGING,
     },
     openapi_extra=_JPEG_BODY,
 )

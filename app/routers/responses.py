@@ -47,6 +47,12 @@ BODY_ERRORS: Responses = {
     413: _problem("Body over the size limit"),
     415: _problem("Not a media type the endpoint takes"),
 }
+CAMERA_CHANGING: Responses = {
+    503: _problem(
+        "The camera was changed again and again while the frame was measured: send it again "
+        "(Retry-After)"
+    )
+}
 UPLOAD_ERRORS: Responses = {
     413: BODY_ERRORS[413],
     415: _problem("Not a JPEG"),
