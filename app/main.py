@@ -18,6 +18,7 @@ from app.core import triangulation
 from app.cors import PublicReadCors
 from app.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.errors import install_error_handlers
+from app.head import HeadAsGet
 from app.observability import RequestIdMiddleware, configure_logging
 from app.query import SingleValuedQuery
 from app.routers import (
@@ -163,6 +164,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     if settings.cors_origins:
         app.add_middleware(PublicReadCors, origins=settings.cors_origins)
+    app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
     for module in (
         cameras,  # first: the frame upload is matched first

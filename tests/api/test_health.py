@@ -27,6 +27,30 @@ def test_health_reports_database_and_version(client: TestClient) -> None:
     }
 
 
+@pytest.mark.parametrize("path", ["/health", "/air/latest", "/openapi.json", "/cameras"])
+def test_head_is_answered_wherever_get_is(
+    client: TestClient, admin: dict[str, str], path: str
+) -> None:
+    """Load balancers and uptime checks probe with HEAD (RFC 9110 §9.3.2): GET's status and
+    headers, no body."""
+    got = client.get(path, headers=admin)
+    head = client.head(path, headers=admin)
+    assert head.status_code == got.status_code == 200
+    assert head.content == b""
+    assert head.headers["content-type"] == got.headers["content-type"]
+    assert head.headers["content-length"] == str(len(got.content))
+
+
+def test_head_keeps_the_errors_of_get(client: TestClient) -> None:
+    assert client.head("/cameras").status_code == 401  # no token, as for GET
+    missing = client.head("/cameras/c1/frames", headers={"Authorization": "Bearer x"})
+    assert missing.status_code == 401
+    assert missing.content == b""
+    assert client.head("/panel-nope").status_code == 404
+    # a route without GET has no HEAD either
+    assert client.head("/cleaning/claim").status_code == 405
+
+
 def test_health_is_503_when_the_frame_directory_is_gone(
     client: TestClient, settings: Settings
 ) -> None:
