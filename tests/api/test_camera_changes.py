@@ -377,9 +377,14 @@ def test_a_camera_that_keeps_changing_is_told_to_send_the_frame_again(
     app.state.writer._check = lambda session, credentials: (
         measured.append(credentials) or dict.fromkeys(credentials, "changed")
     )
-    status, body = post(client, own, halves())
-    assert status == 503, body
-    assert body["code"] == "camera_changing"
+    r = client.post(
+        "/cameras/cam/frames",
+        content=halves(),
+        headers={"Authorization": f"Bearer {own}", "Content-Type": "image/jpeg"},
+    )
+    assert r.status_code == 503, r.text
+    assert r.json()["code"] == "camera_changing"
+    assert r.headers["retry-after"] == "1"
     assert len(measured) == 3  # measured three times, then given up
     assert table_counts(engine) == before
 
