@@ -20,10 +20,10 @@ from sqlalchemy.orm import Session, selectinload
 from app.core import imaging, jpeg
 from app.db.models import Camera, CameraKind, Frame
 from app.deps import (
-    ID_PATTERN,
     Admin,
     CameraId,
     FrameCursor,
+    IdFilter,
     Limit,
     Offset,
     PolicyDep,
@@ -273,19 +273,12 @@ def list_cameras(
         ),
     ] = None,
     kind: Annotated[CameraKind | None, Query(description="Only cameras of this kind.")] = None,
-    panel_id: Annotated[
-        str | None,
-        Query(
-            pattern=ID_PATTERN,
-            description="Only the cameras watching this panel (404 when there is no such panel).",
-        ),
-    ] = None,
+    panel_id: IdFilter = None,
 ) -> list[CameraOut]:
     """List cameras, ordered by id, each with when its newest frame was taken; ``silent_for``
-    finds the cameras gone quiet, ``kind`` and ``panel_id`` those of a kind or a panel."""
+    finds the cameras gone quiet, ``kind`` and ``panel_id`` those of a kind or watching a panel
+    (404 when there is no such panel)."""
     since = None if silent_for is None else policy.now() - timedelta(seconds=silent_for)
-    if panel_id is not None:
-        registry.get_panel(session, panel_id)  # a mistyped id is not a panel without cameras
     rows = registry.cameras_seen(
         session,
         limit=limit,

@@ -15,7 +15,7 @@ from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
 from app.core.panel_state import TaskPhase, task_phase
-from app.db.models import OPEN_TASK_STATUSES, CleaningTask, Panel, Robot, TaskStatus
+from app.db.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 from app.errors import Conflict, NotFound
 from app.services.policy import Policy
 
@@ -161,10 +161,12 @@ def list_tasks(
 ) -> Sequence[CleaningTask]:
     """Tasks newest first: a panel's, a robot's, of the statuses given (as they read at
     ``now``). An unknown panel or robot is 404: a mistyped id is not one without tasks."""
-    if panel_id is not None and session.get(Panel, panel_id) is None:
-        raise NotFound(f"no panel {panel_id!r}")
-    if robot_id is not None and session.get(Robot, robot_id) is None:
-        raise NotFound(f"no robot {robot_id!r}")
+    from app.services.registry import get_panel, get_robot  # registry imports this module
+
+    if panel_id is not None:
+        get_panel(session, panel_id)
+    if robot_id is not None:
+        get_robot(session, robot_id)
     q = select(CleaningTask)
     if panel_id is not None:
         q = q.where(CleaningTask.panel_id == panel_id)

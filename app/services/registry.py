@@ -241,7 +241,10 @@ def cameras_seen(
 ) -> list[tuple[Camera, datetime | None]]:
     """Cameras (as ``listed``) with their newest frame's capture time; with ``silent_since``,
     only those with no frame taken since then (or none kept); of one ``kind``, or watching
-    ``panel_id``."""
+    ``panel_id`` (404 when there is no such panel: a mistyped id is not a panel without
+    cameras)."""
+    if panel_id is not None:
+        get_panel(session, panel_id)
     last = _last_captured()
     q = select(Camera, last)
     if not retired:

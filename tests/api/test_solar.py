@@ -977,7 +977,7 @@ def store_farm(engine: Any, now: datetime, facts: list[Facts], *, fleet: bool) -
     """Panels ``p000000``… with these facts written straight to the tables (a baseline row for
     each that has one, an open task for each that has one, held by robot ``r1`` once claimed),
     and a fleet model when ``fleet``; their ids."""
-    from sqlalchemy import insert
+    from sqlalchemy import bindparam, insert
 
     from app.db.models import Baseline, CleaningTask, FleetModel, Panel, Robot
 
@@ -1031,10 +1031,12 @@ def store_farm(engine: Any, now: datetime, facts: list[Facts], *, fleet: bool) -
         if baselines:
             conn.execute(insert(Baseline), baselines)
             table = Panel.__table__
-            for b in baselines:
-                conn.execute(
-                    table.update().where(table.c.id == b["panel_id"]).values(baseline_id=b["id"])
-                )
+            conn.execute(  # one executemany
+                table.update()
+                .where(table.c.id == bindparam("pid"))
+                .values(baseline_id=bindparam("bid")),
+                [{"pid": b["panel_id"], "bid": b["id"]} for b in baselines],
+            )
         if tasks:
             conn.execute(insert(CleaningTask), tasks)
         if fleet:
