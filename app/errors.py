@@ -12,6 +12,7 @@ from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.observability import FRAMES_REJECTED
+from app.routes import operations
 
 log = logging.getLogger("vantage.errors")
 
@@ -117,6 +118,20 @@ def _count_rejected_frame(request: Request, status: int, code: str | None) -> No
     FRAMES_REJECTED.labels(camera or "unknown", code or str(status)).inc()
 
 
+def allowed_methods(request: Request, first: str | None) -> str:
+    """Every method the request's path answers, for a 405's ``Allow`` (RFC 9110 §15.5.6: the
+    resource's supported methods). Starlette names only those of the first route matching the
+    path (``first``), so ``DELETE /cameras`` was told ``Allow: POST`` where GET is served too;
+    the others come from the OpenAPI document. HEAD is answered wherever GET is
+    (``app.head``)."""
+    path = request.url.path
+    methods = {m for pattern, m, _ in operations(request.app.openapi()) if pattern.match(path)}
+    methods |= {m.strip() for m in (first or "").split(",") if m.strip()}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return ", ".join(sorted(methods))
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(VantageError)
     async def _vantage(request: Request, exc: VantageError) -> JSONResponse:
@@ -132,9 +147,12 @@ def install_error_handlers(app: FastAPI) -> None:
         return problem(422, "Unprocessable content", detail, errors=errors)
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         title = {404: "Not found", 405: "Method not allowed"}.get(exc.status_code, "Error")
         headers = dict(exc.headers) if exc.headers else None
+        if exc.status_code == 405:
+            allow = allowed_methods(request, (headers or {}).get("Allow"))
+            headers = {**(headers or {}), "Allow": allow}
         return problem(exc.status_code, title, str(exc.detail), headers=headers)
 
     @app.exception_handler(DataError)

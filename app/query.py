@@ -17,6 +17,7 @@ from fastapi import FastAPI
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.errors import problem
+from app.routes import operations
 
 Rule = tuple[re.Pattern[str], frozenset[str]]
 """A path of the OpenAPI document as a pattern, and its operation's single-valued query
@@ -33,15 +34,13 @@ def rules(document: dict[str, Any]) -> dict[str, list[Rule]]:
     """Per HTTP method, each path of the OpenAPI ``document`` with its query parameters that
     take one value (every one not declared an array)."""
     out: dict[str, list[Rule]] = {}
-    for path, operations in document.get("paths", {}).items():
-        pattern = re.compile("^" + re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(path)) + "$")
-        for method, operation in operations.items():
-            single = frozenset(
-                p["name"]
-                for p in operation.get("parameters", ())
-                if p.get("in") == "query" and not _takes_many(p.get("schema", {}))
-            )
-            out.setdefault(method.upper(), []).append((pattern, single))
+    for pattern, method, operation in operations(document):
+        single = frozenset(
+            p["name"]
+            for p in operation.get("parameters", ())
+            if p.get("in") == "query" and not _takes_many(p.get("schema", {}))
+        )
+        out.setdefault(method, []).append((pattern, single))
     return out
 
 

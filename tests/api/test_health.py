@@ -51,6 +51,26 @@ def test_head_keeps_the_errors_of_get(client: TestClient) -> None:
     assert client.head("/cleaning/claim").status_code == 405
 
 
+@pytest.mark.parametrize(
+    ("method", "path", "allow"),
+    [
+        ("DELETE", "/cameras", "GET, HEAD, POST"),
+        ("POST", "/rigs/r1", "DELETE, GET, HEAD, PUT"),
+        ("PUT", "/health", "GET, HEAD"),
+        ("GET", "/cleaning/claim", "POST"),
+        ("HEAD", "/cleaning/claim", "POST"),
+    ],
+)
+def test_405_allows_every_method_of_the_path(
+    client: TestClient, method: str, path: str, allow: str
+) -> None:
+    """RFC 9110 §15.5.6: a 405 lists the resource's supported methods, all of them (Starlette
+    named only the first route's: ``DELETE /cameras`` was told ``Allow: POST``)."""
+    r = client.request(method, path)
+    assert r.status_code == 405
+    assert r.headers["allow"] == allow
+
+
 def test_health_is_503_when_the_frame_directory_is_gone(
     client: TestClient, settings: Settings
 ) -> None:

@@ -1,0 +1,22 @@
+"""The service's operations as its OpenAPI document lists them, matched against request paths."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from typing import Any
+
+
+def path_pattern(path: str) -> re.Pattern[str]:
+    """An OpenAPI path (``/cameras/{camera_id}``) as a pattern matching the request paths it
+    serves: a parameter stands for one segment."""
+    return re.compile("^" + re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(path)) + "$")
+
+
+def operations(document: dict[str, Any]) -> Iterator[tuple[re.Pattern[str], str, dict[str, Any]]]:
+    """Each operation of the OpenAPI ``document``: its path's pattern, its method (upper
+    case) and the operation object."""
+    for path, by_method in document.get("paths", {}).items():
+        pattern = path_pattern(path)
+        for method, operation in by_method.items():
+            yield pattern, method.upper(), operation
