@@ -20,7 +20,7 @@ from app.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.head import HeadAsGet
 from app.observability import RequestIdMiddleware, configure_logging
-from app.query import SingleValuedQuery
+from app.query import CheckedQuery
 from app.routers import (
     air,
     calibrations,
@@ -158,7 +158,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
 
     install_error_handlers(app)
-    app.add_middleware(SingleValuedQuery, service=app)
+    app.add_middleware(CheckedQuery, service=app)
     app.add_middleware(
         BodyLimitMiddleware, body=settings.max_body_bytes, bulk=settings.max_upload_bytes
     )

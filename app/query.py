@@ -1,15 +1,26 @@
-"""Query strings: a parameter that takes one value is given one.
+"""Query strings: a request names only parameters its endpoint takes, and gives one value to
+each that takes one.
 
-Starlette and FastAPI read the last of a repeated parameter without a word, so
-``?camera_id=a&camera_id=b`` on an endpoint that takes one camera answered for camera b alone,
-and ``?kind=raised&kind=cleared`` listed the cleared alerts alone: a confident answer to
-another question. Here such a request gets 422 ``repeated_parameter``; parameters declared as
-lists (``camera_id`` of ``GET /air/readings``) still take many.
+Starlette and FastAPI let both go without a word, and the answer was a confident one to another
+question:
+- a parameter the endpoint does not take was ignored: ``GET /air/readings?camera=c1`` (for
+  ``camera_id``) answered with every camera's readings, ``GET /panels?status=needs_cleaning``
+  (for ``state``) listed every panel, and an upload's misspelt ``captured_at`` stored the frame
+  as taken when it arrived. Such a request gets 422 ``unknown_parameter``, naming what the
+  endpoint takes. Names beginning with ``_`` or ``utm_`` pass: the cache-busters and trackers
+  that pages and dashboard libraries add (``?_=1700000000``) ask for nothing;
+- the last of a repeated parameter was taken: ``?camera_id=a&camera_id=b`` on an endpoint that
+  takes one camera answered for camera b alone, and ``?kind=raised&kind=cleared`` listed the
+  cleared alerts alone. Such a request gets 422 ``repeated_parameter``; parameters declared as
+  lists (``camera_id`` of ``GET /air/readings``) still take many.
+Paths outside the OpenAPI document (``/metrics``, ``/docs``) are not checked.
 """
 
 from __future__ import annotations
 
+import difflib
 import re
+from dataclasses import dataclass
 from typing import Any
 from urllib.parse import parse_qsl
 
@@ -19,9 +30,19 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from app.errors import problem
 from app.routes import operations
 
-Rule = tuple[re.Pattern[str], frozenset[str]]
-"""A path of the OpenAPI document as a pattern, and its operation's single-valued query
-parameters."""
+PASSING_PREFIXES = ("_", "utm_")
+"""Query parameters no endpoint declares that pass unchecked: cache-busters and trackers."""
+
+
+@dataclass(frozen=True, slots=True)
+class Rule:
+    """An operation's path as a pattern, and its query parameters."""
+
+    pattern: re.Pattern[str]
+    known: frozenset[str]
+    """Every query parameter the operation takes."""
+    single: frozenset[str]
+    """Those that take one value (every one not declared an array)."""
 
 
 def _takes_many(schema: dict[str, Any]) -> bool:
@@ -31,33 +52,43 @@ def _takes_many(schema: dict[str, Any]) -> bool:
 
 
 def rules(document: dict[str, Any]) -> dict[str, list[Rule]]:
-    """Per HTTP method, each path of the OpenAPI ``document`` with its query parameters that
-    take one value (every one not declared an array)."""
+    """Per HTTP method, each path of the OpenAPI ``document`` with its query parameters."""
     out: dict[str, list[Rule]] = {}
     for pattern, method, operation in operations(document):
-        single = frozenset(
-            p["name"]
-            for p in operation.get("parameters", ())
-            if p.get("in") == "query" and not _takes_many(p.get("schema", {}))
-        )
-        out.setdefault(method, []).append((pattern, single))
+        query = [p for p in operation.get("parameters", ()) if p.get("in") == "query"]
+        known = frozenset(p["name"] for p in query)
+        single = frozenset(p["name"] for p in query if not _takes_many(p.get("schema", {})))
+        out.setdefault(method, []).append(Rule(pattern, known, single))
     return out
+
+
+def counted(query_string: bytes) -> dict[str, int]:
+    """Each parameter named, with how many times."""
+    counts: dict[str, int] = {}
+    for key, _ in parse_qsl(query_string.decode("latin-1"), keep_blank_values=True):
+        counts[key] = counts.get(key, 0) + 1
+    return counts
 
 
 def repeated(query_string: bytes) -> dict[str, int]:
     """The parameters given more than once, with how many times."""
-    counts: dict[str, int] = {}
-    for key, _ in parse_qsl(query_string.decode("latin-1"), keep_blank_values=True):
-        counts[key] = counts.get(key, 0) + 1
-    return {key: n for key, n in counts.items() if n > 1}
+    return {key: n for key, n in counted(query_string).items() if n > 1}
 
 
-class SingleValuedQuery:
-    """Refuse (422) a request that repeats a query parameter its endpoint takes once.
+def _unknown(name: str, rule: Rule, where: str) -> str:
+    takes = ", ".join(sorted(rule.known)) if rule.known else "no query parameters"
+    close = difflib.get_close_matches(name, rule.known, n=1)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    return f"{name} is not a parameter of {where}{hint} (it takes {takes})"
 
-    A request without a repeated parameter (every frame upload) costs one scan of its query
-    string, if it has one; the endpoint is looked up in the OpenAPI document (read once) only
-    for a request that repeats one.
+
+class CheckedQuery:
+    """Refuse (422) a request naming a query parameter its endpoint does not take, or repeating
+    one it takes once.
+
+    A request without a query string (most frame uploads) costs nothing here; one with a query
+    string costs a scan of it and a look-up of its endpoint (the upload's path is the first
+    tried). The rules are read from the OpenAPI document once.
     """
 
     def __init__(self, app: ASGIApp, *, service: FastAPI) -> None:
@@ -67,27 +98,47 @@ class SingleValuedQuery:
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http" and scope["query_string"]:
-            twice = repeated(scope["query_string"])
-            if twice:
-                bad = self._single_valued(scope["method"], scope["path"]) & twice.keys()
-                if bad:
-                    name = sorted(bad)[0]
-                    response = problem(
-                        422,
-                        "Unprocessable content",
-                        f"{name} is given {twice[name]} times; {scope['method']} "
-                        f"{scope['path']} takes one value of it",
-                        code="repeated_parameter",
-                        parameters=sorted(bad),
-                    )
+            rule = self._rule(scope["method"], scope["path"])
+            if rule is not None:
+                response = self._refusal(rule, scope)
+                if response is not None:
                     await response(scope, receive, send)
                     return
         await self.app(scope, receive, send)
 
-    def _single_valued(self, method: str, path: str) -> frozenset[str]:
+    def _refusal(self, rule: Rule, scope: Scope) -> Any:
+        counts = counted(scope["query_string"])
+        where = f"{scope['method']} {scope['path']}"
+        unknown = sorted(
+            name
+            for name in counts
+            if name not in rule.known and not name.startswith(PASSING_PREFIXES)
+        )
+        if unknown:
+            return problem(
+                422,
+                "Unprocessable content",
+                _unknown(unknown[0], rule, where),
+                code="unknown_parameter",
+                parameters=unknown,
+                accepted=sorted(rule.known),
+            )
+        twice = sorted(name for name in rule.single if counts.get(name, 0) > 1)
+        if twice:
+            name = twice[0]
+            return problem(
+                422,
+                "Unprocessable content",
+                f"{name} is given {counts[name]} times; {where} takes one value of it",
+                code="repeated_parameter",
+                parameters=twice,
+            )
+        return None
+
+    def _rule(self, method: str, path: str) -> Rule | None:
         if self._rules is None:
             self._rules = rules(self.service.openapi())
-        for pattern, single in self._rules.get(method, ()):
-            if pattern.match(path):
-                return single
-        return frozenset()
+        for rule in self._rules.get(method, ()):
+            if rule.pattern.match(path):
+                return rule
+        return None

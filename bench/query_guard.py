@@ -1,7 +1,7 @@
 """What the repeated-parameter check (``app/query.py``) costs a frame upload, in-process.
 
 Two minimal apps with a route shaped like the upload (a path parameter, an optional
-``captured_at``), one with ``SingleValuedQuery`` and one without, alternating; process CPU per
+``captured_at``), one with ``CheckedQuery`` and one without, alternating; process CPU per
 request through httpx's ASGI transport, with and without a query string:
 
     python bench/query_guard.py
@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx2 as httpx  # noqa: E402
 
-from app.query import SingleValuedQuery  # noqa: E402
+from app.query import CheckedQuery  # noqa: E402
 
 
 def service(guarded: bool) -> FastAPI:
@@ -31,7 +31,7 @@ def service(guarded: bool) -> FastAPI:
         return {}
 
     if guarded:
-        app.add_middleware(SingleValuedQuery, service=app)
+        app.add_middleware(CheckedQuery, service=app)
     return app
 
 

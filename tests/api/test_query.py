@@ -1,5 +1,6 @@
-"""A query parameter that takes one value, given twice: 422 ``repeated_parameter``, not the
-last value taken without a word (``app/query.py``)."""
+"""A query parameter the endpoint does not take: 422 ``unknown_parameter``, not ignored; one
+that takes one value, given twice: 422 ``repeated_parameter``, not the last value taken without
+a word (``app/query.py``)."""
 
 from __future__ import annotations
 
@@ -38,10 +39,52 @@ def test_paths_with_parameters_lists_and_other_names(
     )
     r = client.get("/cameras/c/frames?limit=1&limit=2", headers=admin)
     assert (r.status_code, r.json()["parameters"]) == (422, ["limit"])
-    # a list takes many; a name the endpoint does not know is not its business here
+    # a list takes many; cache-busters and trackers pass, repeated or not
     assert client.get("/air/readings?camera_id=c&camera_id=c").status_code == 200
-    assert client.get("/air/readings?utm=a&utm=b").status_code == 200
-    assert client.get("/health?x=1&x=2").status_code == 200
+    assert client.get("/air/readings?utm_source=a&utm_source=b&_=1").status_code == 200
+    assert client.get("/health?_=1700000000").status_code == 200
+
+
+def test_a_parameter_the_endpoint_does_not_take_is_refused(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """Ignored, it answered another question: every camera's readings for ``camera=``."""
+    r = client.get("/air/readings?camera=c1&limit=5")
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    body = r.json()
+    assert (body["code"], body["parameters"]) == ("unknown_parameter", ["camera"])
+    assert body["detail"].startswith(
+        "camera is not a parameter of GET /air/readings; did you mean camera_id? (it takes "
+    )
+    assert {"camera_id", "limit"} <= set(body["accepted"])
+    r = client.get("/panels?status=needs_cleaning", headers=admin)
+    assert (r.status_code, r.json()["parameters"]) == (422, ["status"])
+    r = client.get("/health?verbose=1")
+    assert r.status_code == 422
+    assert r.json()["detail"] == (
+        "verbose is not a parameter of GET /health (it takes no query parameters)"
+    )
+    # outside the OpenAPI document nothing is checked
+    assert client.get("/openapi.json?x=1").status_code == 200
+
+
+def test_an_upload_with_a_misspelt_capture_time_is_refused_and_stores_nothing(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """Ignored, the frame was stored as taken when it arrived."""
+    token = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()["token"]
+    before = table_counts(engine)
+    r = client.post(
+        "/cameras/c/frames?capture_at=2026-05-01T10:00:00Z",
+        content=make_jpeg(),
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert r.status_code == 422, r.text
+    body = r.json()
+    assert (body["code"], body["parameters"]) == ("unknown_parameter", ["capture_at"])
+    assert "did you mean captured_at?" in body["detail"]
+    assert table_counts(engine) == before
 
 
 def test_the_rules_come_from_the_openapi_document() -> None:
@@ -62,9 +105,10 @@ def test_the_rules_come_from_the_openapi_document() -> None:
             }
         }
     }
-    [(pattern, single)] = rules(document)["GET"]
-    assert single == {"one"}
-    assert pattern.match("/a/x.y-1/b")
-    assert not pattern.match("/a/x/y/b")
-    assert not pattern.match("/a/x/b/c")
+    [rule] = rules(document)["GET"]
+    assert rule.single == {"one"}
+    assert rule.known == {"one", "many"}
+    assert rule.pattern.match("/a/x.y-1/b")
+    assert not rule.pattern.match("/a/x/y/b")
+    assert not rule.pattern.match("/a/x/b/c")
     assert repeated(b"one=1&many=2&many=3&x=&x=") == {"many": 2, "x": 2}
