@@ -25,10 +25,14 @@ from typing import Any
 from urllib.parse import parse_qsl
 
 from fastapi import FastAPI
+from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from app.errors import problem
-from app.routes import operations
+from app.errors import FRAMES_ROUTE, problem
+from app.observability import FRAMES_REJECTED
+from app.routes import operations, path_pattern
+
+_UPLOAD = path_pattern(FRAMES_ROUTE)
 
 PASSING_PREFIXES = ("_", "utm_")
 """Query parameters no endpoint declares that pass unchecked: cache-busters and trackers."""
@@ -99,14 +103,18 @@ class CheckedQuery:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http" and scope["query_string"]:
             rule = self._rule(scope["method"], scope["path"])
-            if rule is not None:
-                response = self._refusal(rule, scope)
-                if response is not None:
-                    await response(scope, receive, send)
-                    return
+            refusal = self._refusal(rule, scope) if rule is not None else None
+            if refusal is not None:
+                code, response = refusal
+                if rule is not None and rule.pattern == _UPLOAD and scope["method"] == "POST":
+                    # counted as the other refused uploads are, under no camera: nothing has
+                    # authenticated the request (an id from the path is not a bounded label)
+                    FRAMES_REJECTED.labels("unknown", code).inc()
+                await response(scope, receive, send)
+                return
         await self.app(scope, receive, send)
 
-    def _refusal(self, rule: Rule, scope: Scope) -> Any:
+    def _refusal(self, rule: Rule, scope: Scope) -> tuple[str, JSONResponse] | None:
         counts = counted(scope["query_string"])
         where = f"{scope['method']} {scope['path']}"
         unknown = sorted(
@@ -115,7 +123,7 @@ class CheckedQuery:
             if name not in rule.known and not name.startswith(PASSING_PREFIXES)
         )
         if unknown:
-            return problem(
+            return "unknown_parameter", problem(
                 422,
                 "Unprocessable content",
                 _unknown(unknown[0], rule, where),
@@ -126,7 +134,7 @@ class CheckedQuery:
         twice = sorted(name for name in rule.single if counts.get(name, 0) > 1)
         if twice:
             name = twice[0]
-            return problem(
+            return "repeated_parameter", problem(
                 422,
                 "Unprocessable content",
                 f"{name} is given {counts[name]} times; {where} takes one value of it",

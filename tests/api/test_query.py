@@ -11,6 +11,13 @@ from app.query import repeated, rules
 from tests.conftest import make_jpeg, table_counts
 
 
+def rejected(client: TestClient, admin: dict[str, str], reason: str) -> float:
+    """The count of uploads refused for ``reason`` under no camera, from ``/metrics``."""
+    sample = f'vantage_frames_rejected_total{{camera_id="unknown",reason="{reason}"}} '
+    lines = client.get("/metrics", headers=admin).text.splitlines()
+    return next((float(line.removeprefix(sample)) for line in lines if line.startswith(sample)), 0)
+
+
 def test_an_upload_with_two_capture_times_is_refused_and_stores_nothing(
     client: TestClient, admin: dict[str, str], engine: Engine
 ) -> None:
@@ -75,6 +82,7 @@ def test_an_upload_with_a_misspelt_capture_time_is_refused_and_stores_nothing(
     """Ignored, the frame was stored as taken when it arrived."""
     token = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()["token"]
     before = table_counts(engine)
+    refused = rejected(client, admin, "unknown_parameter")
     r = client.post(
         "/cameras/c/frames?capture_at=2026-05-01T10:00:00Z",
         content=make_jpeg(),
@@ -85,6 +93,8 @@ def test_an_upload_with_a_misspelt_capture_time_is_refused_and_stores_nothing(
     assert (body["code"], body["parameters"]) == ("unknown_parameter", ["capture_at"])
     assert "did you mean captured_at?" in body["detail"]
     assert table_counts(engine) == before
+    # counted with the other refused uploads, under no camera (nothing authenticated it)
+    assert rejected(client, admin, "unknown_parameter") == refused + 1
 
 
 def test_the_rules_come_from_the_openapi_document() -> None:
