@@ -14,6 +14,7 @@ from functools import partial
 from fastapi import FastAPI
 
 from app import __version__
+from app.compression import CompressedReads
 from app.core import triangulation
 from app.cors import PublicReadCors
 from app.db.session import make_engine, make_read_engine, make_sessionmaker
@@ -164,6 +165,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     if settings.cors_origins:
         app.add_middleware(PublicReadCors, origins=settings.cors_origins)
+    app.add_middleware(CompressedReads)  # inside HEAD: a HEAD's Content-Length is its GET's
     app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
     for module in (

@@ -131,8 +131,9 @@ def multipart_body(
 
 
 def not_modified(if_none_match: str | None, etag: str) -> bool:
-    """Whether a client's ``If-None-Match`` names this ETag (or ``*``)."""
+    """Whether a client's ``If-None-Match`` names this ETag (or ``*``), compared weakly as RFC
+    9110 §13.1.2 asks: ``W/"a"`` and ``"a"`` match."""
     if not if_none_match:
         return False
     tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
-    return etag in tags or "*" in tags
+    return etag.removeprefix("W/") in tags or "*" in tags

@@ -57,7 +57,8 @@ class MapCache:
             return hit
         now = self.clock()
         body = compute()  # outside the lock: two first requests may both compute it
-        etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
+        # weak: the body may go gzipped (app.compression), a representation of its own
+        etag = 'W/"' + hashlib.sha256(body).hexdigest()[:32] + '"'
         if self.ttl > 0 and len(body) <= self.max_bytes:
             with self._lock:
                 old = self._items.pop(key, None)

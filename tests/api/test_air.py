@@ -693,6 +693,18 @@ def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
     assert again.json()["computed_at"] == first.json()["computed_at"]
     r = client.get("/air/isopleths", headers={"If-None-Match": etag})
     assert (r.status_code, r.content, r.headers["etag"]) == (304, b"", etag)
+    # weak: the map goes gzipped to clients that take it (RFC 9110 §8.8.1), and matches as
+    # such, in either form (§13.1.2)
+    assert etag.startswith('W/"')
+    zipped = client.get("/air/isopleths", headers={"Accept-Encoding": "gzip"})
+    plain = client.get("/air/isopleths", headers={"Accept-Encoding": "identity"})
+    assert zipped.headers["content-encoding"] == "gzip"
+    assert "content-encoding" not in plain.headers
+    assert zipped.content == plain.content  # decoded by the client
+    assert zipped.headers["etag"] == plain.headers["etag"] == etag
+    for tag in (etag, etag.removeprefix("W/")):
+        r = client.get("/air/isopleths", headers={"If-None-Match": tag, "Accept-Encoding": "gzip"})
+        assert r.status_code == 304
     other = client.get("/air/isopleths", params={"method": "kriging"})  # another request
     assert [c["camera_id"] for c in other.json()["cameras"]][-1] == "sky4"
     png = client.get("/air/isopleths.png")

@@ -14,6 +14,7 @@ from pydantic import SecretStr
 from app import __version__
 from app.main import create_app
 from app.settings import Settings
+from tests.conftest import make_jpeg
 
 
 def test_health_reports_database_and_version(client: TestClient) -> None:
@@ -38,7 +39,7 @@ def test_head_is_answered_wherever_get_is(
     assert head.status_code == got.status_code == 200
     assert head.content == b""
     assert head.headers["content-type"] == got.headers["content-type"]
-    assert head.headers["content-length"] == str(len(got.content))
+    assert head.headers["content-length"] == got.headers["content-length"]  # as sent (gzip)
 
 
 def test_head_keeps_the_errors_of_get(client: TestClient) -> None:
@@ -69,6 +70,44 @@ def test_405_allows_every_method_of_the_path(
     r = client.request(method, path)
     assert r.status_code == 405
     assert r.headers["allow"] == allow
+
+
+def test_large_bodies_go_gzipped_to_clients_that_take_them(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """A city's map, latest levels and readings are hundreds of kB of JSON a poll."""
+    zipped = client.get("/openapi.json", headers={"Accept-Encoding": "gzip"})
+    plain = client.get("/openapi.json", headers={"Accept-Encoding": "identity"})
+    assert zipped.headers["content-encoding"] == "gzip"
+    assert zipped.headers["vary"] == "Accept-Encoding"
+    assert int(zipped.headers["content-length"]) < len(plain.content) / 4
+    assert "content-encoding" not in plain.headers
+    assert zipped.json() == plain.json()
+    head = client.head("/openapi.json", headers={"Accept-Encoding": "gzip"})
+    assert head.headers["content-length"] == zipped.headers["content-length"]
+    small = client.get("/health", headers={"Accept-Encoding": "gzip"})  # under 1 KiB
+    assert "content-encoding" not in small.headers
+
+
+def test_frames_are_neither_compressed_nor_answered_compressed(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """A JPEG does not compress; an upload's verdict is small and every frame would pay (only
+    GET answers are compressed)."""
+    token = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()["token"]
+    jpeg = make_jpeg(320, 240, noise=20.0)
+    assert len(jpeg) > 4096  # over the 1 KiB below which nothing is compressed anyway
+    gzip_ok = {"Accept-Encoding": "gzip"}
+    r = client.post(
+        "/cameras/c/frames",
+        content=jpeg,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg", **gzip_ok},
+    )
+    assert r.status_code == 201, r.text
+    assert "content-encoding" not in r.headers
+    image = client.get(f"/frames/{r.json()['frame_id']}/image", headers={**admin, **gzip_ok})
+    assert (image.status_code, image.content) == (200, jpeg)
+    assert "content-encoding" not in image.headers
 
 
 def test_health_is_503_when_the_frame_directory_is_gone(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from app.services.isopleth_cache import MapCache
 
 
@@ -23,7 +25,7 @@ def test_kept_for_its_period_then_computed_again() -> None:
     b, etag = cache.get("k", lambda: compute(b"b"))
     assert (b, calls) == (b"b", ["a", "b"])
     assert etag != a1[1]
-    assert etag[0] == etag[-1] == '"'
+    assert re.fullmatch(r'W/"[0-9a-f]{32}"', etag)  # weak: the body may go gzipped
 
 
 def test_bounded_in_entries_and_in_bytes() -> None:
