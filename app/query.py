@@ -74,11 +74,6 @@ def counted(query_string: bytes) -> dict[str, int]:
     return counts
 
 
-def repeated(query_string: bytes) -> dict[str, int]:
-    """The parameters given more than once, with how many times."""
-    return {key: n for key, n in counted(query_string).items() if n > 1}
-
-
 def _unknown(name: str, rule: Rule, where: str) -> str:
     takes = ", ".join(sorted(rule.known)) if rule.known else "no query parameters"
     close = difflib.get_close_matches(name, rule.known, n=1)
@@ -103,18 +98,15 @@ class CheckedQuery:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http" and scope["query_string"]:
             rule = self._rule(scope["method"], scope["path"])
-            refusal = self._refusal(rule, scope) if rule is not None else None
-            if refusal is not None:
-                code, response = refusal
-                if rule is not None and rule.pattern == _UPLOAD and scope["method"] == "POST":
-                    # counted as the other refused uploads are, under no camera: nothing has
-                    # authenticated the request (an id from the path is not a bounded label)
-                    FRAMES_REJECTED.labels("unknown", code).inc()
+            response = None if rule is None else self._refusal(rule, scope)
+            if response is not None:
                 await response(scope, receive, send)
                 return
         await self.app(scope, receive, send)
 
-    def _refusal(self, rule: Rule, scope: Scope) -> tuple[str, JSONResponse] | None:
+    def _refusal(self, rule: Rule, scope: Scope) -> JSONResponse | None:
+        """The 422 for the request, counted as a refused frame for an upload; None when its
+        query string is fine."""
         counts = counted(scope["query_string"])
         where = f"{scope['method']} {scope['path']}"
         unknown = sorted(
@@ -122,26 +114,33 @@ class CheckedQuery:
             for name in counts
             if name not in rule.known and not name.startswith(PASSING_PREFIXES)
         )
+        twice = sorted(name for name in rule.single if counts.get(name, 0) > 1)
         if unknown:
-            return "unknown_parameter", problem(
+            code = "unknown_parameter"
+            response = problem(
                 422,
                 "Unprocessable content",
                 _unknown(unknown[0], rule, where),
-                code="unknown_parameter",
+                code=code,
                 parameters=unknown,
                 accepted=sorted(rule.known),
             )
-        twice = sorted(name for name in rule.single if counts.get(name, 0) > 1)
-        if twice:
-            name = twice[0]
-            return "repeated_parameter", problem(
+        elif twice:
+            code = "repeated_parameter"
+            response = problem(
                 422,
                 "Unprocessable content",
-                f"{name} is given {counts[name]} times; {where} takes one value of it",
-                code="repeated_parameter",
+                f"{twice[0]} is given {counts[twice[0]]} times; {where} takes one value of it",
+                code=code,
                 parameters=twice,
             )
-        return None
+        else:
+            return None
+        if rule.pattern == _UPLOAD and scope["method"] == "POST":
+            # counted as the other refused uploads are, under no camera: nothing has
+            # authenticated the request (an id from the path is not a bounded label)
+            FRAMES_REJECTED.labels("unknown", code).inc()
+        return response
 
     def _rule(self, method: str, path: str) -> Rule | None:
         if self._rules is None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.query import repeated, rules
+from app.query import counted, rules
 from tests.conftest import make_jpeg, table_counts
 
 
@@ -121,4 +121,4 @@ def test_the_rules_come_from_the_openapi_document() -> None:
     assert rule.pattern.match("/a/x.y-1/b")
     assert not rule.pattern.match("/a/x/y/b")
     assert not rule.pattern.match("/a/x/b/c")
-    assert repeated(b"one=1&many=2&many=3&x=&x=") == {"many": 2, "x": 2}
+    assert counted(b"one=1&many=2&many=3&x=&x=") == {"one": 1, "many": 2, "x": 2}
