@@ -16,13 +16,22 @@ from starlette.middleware.cors import CORSMiddleware
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 PUBLIC_PREFIX = "/air/"
+EXPOSED = ["Link", "ETag", "Retry-After", "X-Request-ID"]
+"""Headers a page may read besides the CORS-safelisted ones (Content-Type, Cache-Control …):
+without ``Link`` a dashboard elsewhere could not page through the readings, whose next page
+only ``Link`` names."""
 
 
 class PublicReadCors:
     def __init__(self, app: ASGIApp, *, origins: Sequence[str]) -> None:
         self.app = app
         self.cors = CORSMiddleware(
-            app, allow_origins=list(origins), allow_methods=["GET"], max_age=600
+            app,
+            allow_origins=list(origins),
+            allow_methods=["GET"],
+            allow_headers=["If-None-Match"],  # a page revalidating the map itself
+            expose_headers=EXPOSED,
+            max_age=600,
         )
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:

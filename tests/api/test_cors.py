@@ -42,6 +42,22 @@ def test_a_page_elsewhere_reads_the_air_endpoints_and_nothing_else(
     assert "access-control-allow-origin" not in r.headers
 
 
+def test_a_page_elsewhere_can_page_and_revalidate(client: TestClient) -> None:
+    """The next page of readings is named only by ``Link``, which a browser hides from a page
+    of another origin unless exposed; a page may also revalidate the map itself."""
+    r = client.get("/air/readings?limit=1", headers={"Origin": DASHBOARD})
+    exposed = {h.strip().lower() for h in r.headers["access-control-expose-headers"].split(",")}
+    assert {"link", "etag", "retry-after", "x-request-id"} <= exposed
+    preflight = {
+        "Origin": DASHBOARD,
+        "Access-Control-Request-Method": "GET",
+        "Access-Control-Request-Headers": "if-none-match",
+    }
+    r = client.options("/air/isopleths", headers=preflight)
+    assert r.status_code == 200, r.text
+    assert "if-none-match" in r.headers["access-control-allow-headers"].lower()
+
+
 def test_the_origins_are_a_setting(settings: Any, app: Any) -> None:
     """One dashboard named: others get no header; [] turns it off. (``app`` empties the
     tables; these tests run apps of their own settings.)"""
