@@ -4,7 +4,8 @@ default, 30 s) against off, in one process, through the HTTP layer (an in-proces
 ``--cameras`` located sky cameras with one reading each are written straight to a scratch
 SQLite database; each poll asks for the same map. With the cache, the first poll computes it
 and the others are served from memory; without, every poll reads the stations and
-interpolates and contours again.
+interpolates and contours again. With the cache on, the polls are made twice: asking for the
+body as it is, and gzipped (``Accept-Encoding: gzip``, as a browser asks).
 
     python bench/isopleth_polls.py                        # 1,000 cameras, kriging, 256 cells
     python bench/isopleth_polls.py --method idw --cameras 200
@@ -77,15 +78,19 @@ def seed(url: str, cameras: int, now: datetime) -> None:
     engine.dispose()
 
 
-def polls(settings: Settings, params: dict[str, object], n: int) -> list[float]:
-    """Seconds of each of ``n`` polls of the same map."""
+def polls(
+    settings: Settings, params: dict[str, object], n: int, encoding: str = "identity"
+) -> list[float]:
+    """Seconds of each of ``n`` polls of the same map, asked with ``Accept-Encoding:
+    encoding`` (``gzip``: sent compressed, and decoded by the client, as a browser's)."""
     out = []
     with TestClient(create_app(settings)) as client:
         for _ in range(n):
             t = time.perf_counter()
-            r = client.get("/air/isopleths", params=params)
+            r = client.get("/air/isopleths", params=params, headers={"Accept-Encoding": encoding})
             out.append(time.perf_counter() - t)
             assert r.status_code == 200, r.text
+            assert r.headers.get("content-encoding", "identity") == encoding
     return out
 
 
@@ -104,14 +109,18 @@ def main() -> None:
     params = {"method": args.method, "resolution": args.resolution, "max_distance": 20000}
     base = Settings(data_dir=data, database_url=url, admin_token="x" * 32)  # type: ignore[arg-type]
     off = polls(base.model_copy(update={"isopleth_cache_seconds": 0}), params, args.polls)
-    on = polls(base.model_copy(update={"isopleth_cache_seconds": 30}), params, args.polls)
+    cached = base.model_copy(update={"isopleth_cache_seconds": 30})
+    on = polls(cached, params, args.polls)
+    zipped = polls(cached, params, args.polls, "gzip")
     print(
         f"{args.cameras} cameras, {args.method}, {args.resolution} cells a side, "
         f"{args.polls} polls each:\n"
         f"  cache off: median {statistics.median(off) * 1000:.1f} ms a poll "
         f"(first {off[0] * 1000:.1f}), total {sum(off):.2f} s\n"
         f"  cache on:  first {on[0] * 1000:.1f} ms, then median "
-        f"{statistics.median(on[1:]) * 1000:.2f} ms a poll, total {sum(on):.2f} s"
+        f"{statistics.median(on[1:]) * 1000:.2f} ms a poll, total {sum(on):.2f} s\n"
+        f"  cache on, gzip: first {zipped[0] * 1000:.1f} ms, then median "
+        f"{statistics.median(zipped[1:]) * 1000:.2f} ms a poll, total {sum(zipped):.2f} s"
     )
 
 

@@ -17,6 +17,7 @@ from fastapi.responses import Response
 from pydantic import StringConstraints
 from sqlalchemy.orm import Session
 
+from app.compression import accepts_gzip
 from app.core import airquality, isopleths
 from app.db.models import Frame, SkyVerdict
 from app.deps import (
@@ -635,19 +636,29 @@ async def _cached_map(
     key: tuple[object, ...],
     compute: Callable[[Session], bytes],
     media_type: str,
+    *,
+    compress: bool = False,
 ) -> Response:
     """The map for ``key``, computed at most once per ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (as
     ``public_work``, one at a time; a kept map waits for none); 304 when the client's
-    ``If-None-Match`` names it."""
+    ``If-None-Match`` names it. With ``compress``, kept gzipped too, and sent so to clients
+    that take it (compressed once, not at every poll)."""
     cache: MapCache = request.app.state.isopleth_cache
-    hit = cache.kept(key)
-    if hit is None:
-        hit = await public_work(request, lambda session: cache.get(key, partial(compute, session)))
-    body, etag = hit
-    headers = {"ETag": etag, "Cache-Control": f"public, max-age={int(cache.ttl)}"}
-    if not_modified(request.headers.get("if-none-match"), etag):
-        return Response(status_code=304, headers=headers)
-    return Response(body, media_type=media_type, headers=headers)
+    kept = cache.kept(key)
+    if kept is None:
+        kept = await public_work(
+            request, lambda session: cache.get(key, partial(compute, session), compress=compress)
+        )
+    headers = {"ETag": kept.etag, "Cache-Control": f"public, max-age={int(cache.ttl)}"}
+    # Vary as the 200 would carry it (app.compression adds it to a body sent as it is)
+    varies = {"Vary": "Accept-Encoding"} if kept.gzipped is not None else {}
+    if not_modified(request.headers.get("if-none-match"), kept.etag):
+        return Response(status_code=304, headers={**headers, **varies})
+    if kept.gzipped is not None and accepts_gzip(request.headers):
+        # app.compression passes a body already encoded as it is
+        encoded = {**headers, **varies, "Content-Encoding": "gzip"}
+        return Response(kept.gzipped, media_type=media_type, headers=encoded)
+    return Response(kept.body, media_type=media_type, headers=headers)
 
 
 MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
@@ -674,7 +685,9 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
         body = _geojson(m, off_map, policy.now(), q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
-    return await _cached_map(request, ("geojson", q), compute, "application/geo+json")
+    return await _cached_map(
+        request, ("geojson", q), compute, "application/geo+json", compress=True
+    )
 
 
 def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[str, Any]:

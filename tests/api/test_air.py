@@ -700,6 +700,9 @@ def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
     plain = client.get("/air/isopleths", headers={"Accept-Encoding": "identity"})
     assert zipped.headers["content-encoding"] == "gzip"
     assert "content-encoding" not in plain.headers
+    for r in (zipped, plain, client.get("/air/isopleths", headers={"If-None-Match": etag})):
+        varies = [v.strip() for v in r.headers["vary"].split(",")]
+        assert varies.count("Accept-Encoding") == 1, r.headers["vary"]
     assert zipped.content == plain.content  # decoded by the client
     assert zipped.headers["etag"] == plain.headers["etag"] == etag
     for tag in (etag, etag.removeprefix("W/")):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gzip
 import re
 
 from app.services.isopleth_cache import MapCache
@@ -22,10 +23,28 @@ def test_kept_for_its_period_then_computed_again() -> None:
     assert a1 == a2
     assert calls == ["a"]
     now[0] = 30.0
-    b, etag = cache.get("k", lambda: compute(b"b"))
+    b, etag, zipped = cache.get("k", lambda: compute(b"b"))
     assert (b, calls) == (b"b", ["a", "b"])
     assert etag != a1[1]
     assert re.fullmatch(r'W/"[0-9a-f]{32}"', etag)  # weak: the body may go gzipped
+    assert zipped is None  # not asked for
+
+
+def test_a_map_is_kept_gzipped_when_asked_and_counted_so() -> None:
+    """Compressed once when computed, not at every poll; its bytes count against the cap."""
+    body = b'{"type":"FeatureCollection","features":[' + b'{"a":1},' * 200 + b"]}"
+    zipped = len(gzip.compress(body, 6, mtime=0))
+    # room for two bodies and one gzipped copy: two maps fit only if the copies were not counted
+    cache = MapCache(ttl=30.0, max_bytes=2 * len(body) + zipped, clock=lambda: 0.0)
+    kept = cache.get("k", lambda: body, compress=True)
+    assert kept.gzipped is not None
+    assert gzip.decompress(kept.gzipped) == body
+    assert len(kept.gzipped) == zipped < len(body) / 10
+    assert cache.kept("k") is kept  # served as it is, not compressed again
+    assert cache.get("small", lambda: b"{}", compress=True).gzipped is None  # under 1 KiB
+    cache.get("k2", lambda: body, compress=True)
+    assert cache.kept("k") is None
+    assert cache.kept("k2") is not None
 
 
 def test_bounded_in_entries_and_in_bytes() -> None:
