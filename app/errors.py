@@ -118,6 +118,10 @@ def _count_rejected_frame(request: Request, status: int, code: str | None) -> No
     FRAMES_REJECTED.labels(camera or "unknown", code or str(status)).inc()
 
 
+def _is_json(media_type: str) -> bool:
+    return media_type == "application/json" or media_type.endswith("+json")
+
+
 def allowed_methods(request: Request, first: str | None) -> str:
     """Every method the request's path answers, for a 405's ``Allow`` (RFC 9110 §15.5.6: the
     resource's supported methods). Starlette names only those of the first route matching the
@@ -140,8 +144,20 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        _count_rejected_frame(request, 422, "invalid_parameters")
         errors = _jsonable(exc.errors())
+        media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if not _is_json(media_type) and any(e["loc"][:1] == ["body"] for e in errors):
+            # FastAPI reads a JSON body only when labelled so; otherwise it reported the body
+            # as "not a valid dictionary", though `curl -d` had sent valid JSON labelled as a
+            # form (its default) or nothing labelled at all
+            return problem(
+                415,
+                "Unsupported media type",
+                f"the body must be JSON, sent with Content-Type: application/json; it came as "
+                f"{media_type or 'no Content-Type'}",
+                code="not_json",
+            )
+        _count_rejected_frame(request, 422, "invalid_parameters")
         first = errors[0] if errors else {"loc": [], "msg": "invalid request"}
         detail = f"{'.'.join(first['loc'])}: {first['msg']}"
         return problem(422, "Unprocessable content", detail, errors=errors)

@@ -133,6 +133,40 @@ def test_dot_segment_ids_are_refused(
     assert client.post(path, json={"id": f"{dots}x", **body}, headers=admin).status_code == 201
 
 
+@pytest.mark.parametrize(
+    ("content_type", "said"),
+    [
+        (None, "no Content-Type"),
+        ("application/x-www-form-urlencoded", "application/x-www-form-urlencoded"),  # curl -d
+        ("text/plain; charset=utf-8", "text/plain"),
+    ],
+)
+def test_json_sent_unlabelled_is_415_naming_what_came(
+    client: TestClient, admin: dict[str, str], content_type: str | None, said: str
+) -> None:
+    """Valid JSON labelled as a form (``curl -d`` without a Content-Type) was answered "body:
+    Input should be a valid dictionary", which sent the user looking at the JSON."""
+    headers = {**admin, **({"Content-Type": content_type} if content_type else {})}
+    r = client.post("/cameras", content=b'{"id": "c", "kind": "rig"}', headers=headers)
+    assert r.status_code == 415, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert (r.json()["code"], r.json()["detail"]) == (
+        "not_json",
+        f"the body must be JSON, sent with Content-Type: application/json; it came as {said}",
+    )
+    assert client.get("/cameras", headers=admin).json() == []
+    # labelled JSON, of any JSON flavour, is read; JSON that is wrong is still 422
+    for label in ("application/json; charset=utf-8", "application/merge-patch+json"):
+        r = client.patch(
+            "/cameras/c", content=b'{"name": "n"}', headers={**admin, "Content-Type": label}
+        )
+        assert r.status_code == 404  # read, and no such camera
+    r = client.post(
+        "/cameras", content=b'{"id": "c"}', headers={**admin, "Content-Type": "application/json"}
+    )
+    assert r.status_code == 422
+
+
 def test_nul_characters_are_refused(client: TestClient, admin: dict[str, str]) -> None:
     # PostgreSQL cannot store NUL in text: refused as input, never a 500
     assert (
