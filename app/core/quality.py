@@ -31,6 +31,16 @@ class QualityLimits:
 
 DEFAULT_LIMITS = QualityLimits()
 
+SKY_LIMITS = QualityLimits(glare_fraction=0.80, blank_std=0.5)
+"""For sky cameras, whose worst air is the frame the panel limits took for a fault. Smog is a
+white, even sky: on the labelled photos (``../shared/data/sky``, the sky regions of
+``bench/airquality_eval.py``), the panel limits refused 5 of 90, every one of them Severe or
+of the higher PM2.5 of Milan: a Severe sky in Uttar Pradesh as "blank" (its channels' spread
+at most 1.4 levels) and four as "glare" (28–56 % of the region at 250 or more). Their level
+was null, and the air's worst hours went unreported (and could not be calibrated). Here a sky
+is blank only when flat, as a camera's fault frame is (spread under 0.5 levels in every
+channel), and overexposed only when four fifths of it are at the ceiling."""
+
 
 _LEVELS_SQUARED = np.arange(256, dtype=np.float64) ** 2
 

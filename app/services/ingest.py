@@ -19,7 +19,7 @@ from app.core.jpeg import (
     decode_rgb,
     read_header,
 )
-from app.core.quality import unusable_reason
+from app.core.quality import DEFAULT_LIMITS, SKY_LIMITS, unusable_reason
 from app.core.stats import (
     ChannelStats,
     Polygon,
@@ -131,7 +131,8 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
     except ValueError as exc:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
-    quality = unusable_reason(stats)
+    limits = SKY_LIMITS if camera.kind == CameraKind.sky else DEFAULT_LIMITS
+    quality = unusable_reason(stats, limits)
     features = None
     if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
         features = fleet.features(region)

@@ -1196,3 +1196,60 @@ def test_a_calibration_for_cameras_that_are_not_sky_cameras_is_refused_and_store
     # full list shows it
     assert client.get("/air/calibrations").json() == []
     assert client.get("/air/calibration", params={"camera_id": "sky0"}).status_code == 404
+
+
+def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A white, even sky is what the worst air looks like: the panel cameras' quality gate took
+    it for a blank frame, so a sky camera's verdict had no level on those days, and such photos
+    could not calibrate level 1. Sky cameras are gated by limits of their own; a panel camera's
+    blank frame is still one."""
+    smog = make_jpeg(160, 120, (196, 198, 202), noise=1.5)
+    v = post_bytes(client, city, "sky0", smog)
+    assert v["level"] is None
+    assert "not calibrated" in v["reason"]  # gated, it had said "blank frame"
+    # calibrated with smog as level 1, the smoggy frame is graded Very Poor
+    files, levels = [], []
+    for level in (1, 3, 5, 7, 10):
+        for k in range(8):
+            image = (
+                make_jpeg(160, 120, (193 + k, 196 + k % 3, 200 + k % 4), noise=1.5, seed=k)
+                if level == 1
+                else sky_jpeg(level, seed=100 * level + k)
+            )
+            files.append(("files", (f"{level}-{k}.jpg", image, "image/jpeg")))
+            levels.append(str(level))
+    r = client.post(
+        "/air/calibration",
+        files=files,
+        data={"levels": levels},
+        headers=admin,
+        params={"camera_id": "sky0", "method": "regression"},
+    )
+    assert r.status_code == 201, r.text
+    v = post_bytes(client, city, "sky0", make_jpeg(160, 120, (196, 198, 202), noise=1.5, seed=99))
+    assert (v["level"], v["category"]) == (1, "Very Poor"), v
+
+    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
+    cam = {"id": "pc", "kind": "panel", "panel_id": "p"}
+    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
+    r = client.post(
+        "/cameras/pc/frames",
+        content=smog,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert r.json()["verdict"]["reason"].startswith("blank frame"), r.text
+
+
+def post_bytes(client: TestClient, city: dict[str, Any], camera: str, jpeg: bytes) -> Any:
+    r = client.post(
+        f"/cameras/{camera}/frames",
+        content=jpeg,
+        headers={
+            "Authorization": f"Bearer {city['tokens'][camera][0]}",
+            "Content-Type": "image/jpeg",
+        },
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]

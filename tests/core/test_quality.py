@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.core.jpeg import decode_rgb
-from app.core.quality import unusable_reason
+from app.core.quality import SKY_LIMITS, unusable_reason
 from app.core.stats import channel_stats
 from tests.conftest import SHARED_DATA
 
@@ -64,3 +64,55 @@ def test_no_real_panel_photo_is_gated() -> None:
         if (why := reason(image)) is not None:
             gated.append((r["file"], why))
     assert gated == []
+
+
+def smog(spread: float, seed: int = 0) -> np.ndarray:
+    """A white-grey, even sky: Gaussian noise of std ``spread`` levels on (196, 198, 202)."""
+    rng = np.random.default_rng(seed)
+    image = np.full((120, 160, 3), (196.0, 198.0, 202.0)) + rng.normal(0, spread, (120, 160, 3))
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+def test_a_smoggy_sky_is_graded_not_taken_for_a_fault() -> None:
+    """Smog is white and even: the panel limits called it a blank frame, and the worst air
+    went ungraded. A sky camera's flat fault frame and an overexposed sky are still refused."""
+    assert "blank" in (reason(smog(1.2)) or "")  # the panel limits
+    assert unusable_reason(channel_stats(smog(1.2)), SKY_LIMITS) is None
+    flat = np.full((120, 160, 3), (128, 128, 130), np.uint8)
+    assert "blank" in (unusable_reason(channel_stats(flat), SKY_LIMITS) or "")
+    white = smog(1.2)
+    white[:, :30] = 255  # a fifth of the sky overexposed: graded
+    assert unusable_reason(channel_stats(white), SKY_LIMITS) is None
+    white[:, :140] = 255  # seven eighths: nothing left to grade
+    assert "glare" in (unusable_reason(channel_stats(white), SKY_LIMITS) or "")
+    dark = (smog(1.2) * 0.15).astype(np.uint8)
+    assert "too dark" in (unusable_reason(channel_stats(dark), SKY_LIMITS) or "")
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "sky").exists(), reason="shared data absent")
+def test_no_real_sky_photo_is_gated() -> None:
+    """Every labelled sky photo is graded, in the sky regions of bench/airquality_eval.py: the
+    panel limits refused five, all Severe or of the higher PM2.5 of Milan."""
+    root = SHARED_DATA / "sky"
+    regions = []
+    with open(root / "india_nepal" / "labels.csv") as f:
+        for r in csv.DictReader(f):
+            _, image = decode_rgb((root / "india_nepal" / r["file"]).read_bytes(), max_pixels=10**8)
+            regions.append((r["file"], image[: int(image.shape[0] * 0.4)]))
+    with open(root / "milan_webcam" / "labels.csv") as f:
+        for r in csv.DictReader(f):
+            _, image = decode_rgb(
+                (root / "milan_webcam" / r["file"]).read_bytes(), max_pixels=10**8
+            )
+            h = image.shape[0]
+            regions.append((r["file"], image[int(0.03 * h) : int(0.35 * h)]))
+    assert len(regions) == 90
+    gated = [
+        (name, why)
+        for name, region in regions
+        if (why := unusable_reason(channel_stats(region), SKY_LIMITS))
+    ]
+    assert gated == []
+    by_panel_limits = [name for name, region in regions if reason(region) is not None]
+    assert len(by_panel_limits) == 5
+    assert all("SEV" in n or n.startswith(("pm25_20-30", "pm25_30plus")) for n in by_panel_limits)
