@@ -64,15 +64,15 @@ def calibrate(
     label: Any = None,
     applies_to: list[str] | None = None,
     method: str = "clusters",
+    image: Callable[[int, int], bytes] | None = None,
 ) -> Any:
-    """Calibrate from synthetic skies of levels 1, 3, 5, 7 and 10, each labelled ``label(level)``
-    (the level itself by default)."""
+    """Calibrate from synthetic skies of levels 1, 3, 5, 7 and 10 (eight each, the k-th of a
+    level ``image(level, k)``), each labelled ``label(level)`` (the level itself by default)."""
     files, levels = [], []
     for level in (1, 3, 5, 7, 10):
         for k in range(8):
-            files.append(
-                ("files", (f"{level}-{k}.jpg", sky_jpeg(level, seed=100 * level + k), "image/jpeg"))
-            )
+            jpeg = image(level, k) if image else sky_jpeg(level, seed=100 * level + k)
+            files.append(("files", (f"{level}-{k}.jpg", jpeg, "image/jpeg")))
             levels.append(str(label(level) if label else level))
     params: dict[str, Any] = {"significance": 0.01, "method": method}
     if camera is not None:
@@ -85,10 +85,14 @@ def calibrate(
 
 
 def post(client: TestClient, city: dict[str, Any], camera: str, level: float, seed: int) -> Any:
+    return post_bytes(client, city, camera, sky_jpeg(level, seed))
+
+
+def post_bytes(client: TestClient, city: dict[str, Any], camera: str, jpeg: bytes) -> Any:
     token = city["tokens"][camera][0]
     r = client.post(
         f"/cameras/{camera}/frames",
-        content=sky_jpeg(level, seed),
+        content=jpeg,
         headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
     )
     assert r.status_code == 201, r.text
@@ -1209,24 +1213,14 @@ def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
     v = post_bytes(client, city, "sky0", smog)
     assert v["level"] is None
     assert "not calibrated" in v["reason"]  # gated, it had said "blank frame"
+
     # calibrated with smog as level 1, the smoggy frame is graded Very Poor
-    files, levels = [], []
-    for level in (1, 3, 5, 7, 10):
-        for k in range(8):
-            image = (
-                make_jpeg(160, 120, (193 + k, 196 + k % 3, 200 + k % 4), noise=1.5, seed=k)
-                if level == 1
-                else sky_jpeg(level, seed=100 * level + k)
-            )
-            files.append(("files", (f"{level}-{k}.jpg", image, "image/jpeg")))
-            levels.append(str(level))
-    r = client.post(
-        "/air/calibration",
-        files=files,
-        data={"levels": levels},
-        headers=admin,
-        params={"camera_id": "sky0", "method": "regression"},
-    )
+    def image(level: int, k: int) -> bytes:
+        if level == 1:
+            return make_jpeg(160, 120, (193 + k, 196 + k % 3, 200 + k % 4), noise=1.5, seed=k)
+        return sky_jpeg(level, seed=100 * level + k)
+
+    r = calibrate(client, admin, "sky0", method="regression", image=image)
     assert r.status_code == 201, r.text
     v = post_bytes(client, city, "sky0", make_jpeg(160, 120, (196, 198, 202), noise=1.5, seed=99))
     assert (v["level"], v["category"]) == (1, "Very Poor"), v
@@ -1240,16 +1234,3 @@ def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
         headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
     )
     assert r.json()["verdict"]["reason"].startswith("blank frame"), r.text
-
-
-def post_bytes(client: TestClient, city: dict[str, Any], camera: str, jpeg: bytes) -> Any:
-    r = client.post(
-        f"/cameras/{camera}/frames",
-        content=jpeg,
-        headers={
-            "Authorization": f"Bearer {city['tokens'][camera][0]}",
-            "Content-Type": "image/jpeg",
-        },
-    )
-    assert r.status_code == 201, r.text
-    return r.json()["verdict"]
