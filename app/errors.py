@@ -8,7 +8,8 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import DataError
+from sqlalchemy.exc import DataError, DBAPIError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.observability import FRAMES_REJECTED
@@ -181,7 +182,45 @@ def install_error_handlers(app: FastAPI) -> None:
             "a value is not storable (out of range or containing NUL characters)",
         )
 
+    @app.exception_handler(DBAPIError)
+    async def _database(request: Request, exc: DBAPIError) -> JSONResponse:
+        if not database_unavailable(exc):
+            return await _unexpected(request, exc)
+        return _database_unavailable(request, exc)
+
+    @app.exception_handler(PoolTimeout)
+    async def _pool_timeout(request: Request, exc: PoolTimeout) -> JSONResponse:
+        return _database_unavailable(request, exc)
+
     @app.exception_handler(Exception)
     async def _unexpected(_: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error", exc_info=exc)
         return problem(500, "Internal server error", "the service failed; see its logs")
+
+
+DATABASE_RETRY_AFTER = "5"
+
+
+def database_unavailable(exc: DBAPIError) -> bool:
+    """Whether the database could not serve at all (down, restarting, its connection lost,
+    out of connections or disk, locked past the busy timeout, a serialization conflict)
+    rather than failed on this request: PostgreSQL's and SQLite's OperationalError, except
+    PostgreSQL's class 54 (a statement over a program limit, which a retry repeats)."""
+    if exc.connection_invalidated:
+        return True
+    sqlstate = getattr(exc.orig, "sqlstate", None) or ""
+    return isinstance(exc, OperationalError) and not sqlstate.startswith("54")
+
+
+def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    # An outage: a 503 the client retries (cameras, robots, dashboards), not a 500 "the
+    # service failed", and one line in the log per request, not a traceback.
+    log.warning("database unavailable: %s", str(exc).splitlines()[0])
+    _count_rejected_frame(request, 503, "database_unavailable")
+    return problem(
+        503,
+        "Service unavailable",
+        "the database cannot be reached or is busy: try again shortly",
+        headers={"Retry-After": DATABASE_RETRY_AFTER},
+        code="database_unavailable",
+    )

@@ -1,0 +1,279 @@
+"""The database down or locked (a failover, a restart, SQLite locked past its busy timeout):
+every endpoint answers 503 problem+json with Retry-After, which cameras, robots and
+dashboards retry, not 500 "the service failed"; and the service serves again as soon as the
+database is back, without a restart."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import httpx2 as httpx
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine, make_url, text
+from sqlalchemy.exc import DBAPIError, IntegrityError, InterfaceError, OperationalError
+
+from app.errors import database_unavailable
+from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, table_counts
+from tests.servers import free_port, server_env, start_server
+
+PG_URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+
+
+@contextmanager
+def database_down(app: Any) -> Iterator[None]:
+    """Every statement of the app's engines fails as the driver fails when its server is
+    gone (PostgreSQL) or its file locked (SQLite): the driver's own OperationalError."""
+    engines = {id(e): e for e in (app.state.engine, app.state.read_sessionmaker.kw["bind"])}
+    patched = []
+    for engine in engines.values():
+        dialect = engine.dialect
+        error = dialect.loaded_dbapi.OperationalError
+
+        def fail(*_: Any, error: type[Exception] = error, **__: Any) -> None:
+            raise error("database is locked / server closed the connection unexpectedly")
+
+        for name in ("do_execute", "do_executemany", "do_execute_no_params"):
+            patched.append((dialect, name))
+            setattr(dialect, name, fail)
+    try:
+        yield
+    finally:
+        for dialect, name in patched:
+            delattr(dialect, name)  # the class's method again
+
+
+@pytest.fixture
+def camera(client: TestClient, admin: dict[str, str]) -> dict[str, str]:
+    r = client.post(
+        "/cameras", json={"id": "sky-1", "kind": "sky", "lat": 45.5, "lon": 9.2}, headers=admin
+    )
+    assert r.status_code == 201, r.text
+    return {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+
+
+def test_an_outage_is_a_503_to_retry_and_passes(
+    client: TestClient,
+    app: Any,
+    engine: Engine,
+    camera: dict[str, str],
+    admin: dict[str, str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    before = table_counts(engine)
+    with database_down(app), caplog.at_level(logging.WARNING, "vantage"):
+        answers = {
+            "upload": client.post(
+                "/cameras/sky-1/frames", content=make_jpeg(seed=1, noise=5), headers=camera
+            ),
+            "registry": client.get("/cameras", headers=admin),
+            "dashboard": client.get("/air/latest"),
+            "readings": client.get("/air/readings", params={"camera_id": "sky-1"}),
+            "register": client.post("/panels", json={"id": "p-1"}, headers=admin),
+        }
+        health = client.get("/health")
+    for name, r in answers.items():
+        assert r.status_code == 503, (name, r.status_code, r.text)  # it had been 500
+        assert r.headers["content-type"] == "application/problem+json", name
+        assert r.headers["retry-after"] == "5", name
+        assert r.json()["code"] == "database_unavailable", name
+    assert health.status_code == 503
+    assert health.json()["database"] == "unreachable"
+    # one line per request in the log, not a traceback each
+    outage = [rec for rec in caplog.records if "database unavailable" in rec.getMessage()]
+    assert len(outage) == len(answers)
+    assert not any(rec.exc_info for rec in caplog.records)
+    assert table_counts(engine) == before
+
+    # the database back: the same process serves again, the refused upload is taken
+    r = client.post("/cameras/sky-1/frames", content=make_jpeg(seed=1, noise=5), headers=camera)
+    assert r.status_code == 201, r.text
+    assert client.get("/health").status_code == 200
+    assert client.post("/panels", json={"id": "p-1"}, headers=admin).status_code == 201
+    metrics = client.get("/metrics", headers=admin).text
+    assert 'vantage_frames_rejected_total{camera_id="sky-1",reason="database_unavailable"} 1.0' in (
+        metrics
+    )
+
+
+class _Driver(Exception):
+    def __init__(self, sqlstate: str | None) -> None:
+        super().__init__("driver error")
+        self.sqlstate = sqlstate
+
+
+@pytest.mark.parametrize(
+    ("error", "unavailable"),
+    [
+        # PostgreSQL: admin shutdown (a restart), cannot connect, too many connections,
+        # a serialization failure: the same request succeeds later
+        (OperationalError("SELECT 1", None, _Driver("57P01")), True),
+        (OperationalError("SELECT 1", None, _Driver("08006")), True),
+        (OperationalError("SELECT 1", None, _Driver("53300")), True),
+        (OperationalError("SELECT 1", None, _Driver("40001")), True),
+        # SQLite: "database is locked" past the busy timeout (no SQLSTATE)
+        (OperationalError("SELECT 1", None, _Driver(None)), True),
+        # a connection lost under any error class
+        (InterfaceError("SELECT 1", None, _Driver(None), connection_invalidated=True), True),
+        # a statement over a program limit fails again when retried; a conflict is no outage
+        (OperationalError("SELECT 1", None, _Driver("54000")), False),
+        (IntegrityError("INSERT", None, _Driver("23505")), False),
+        (InterfaceError("SELECT 1", None, _Driver(None)), False),
+    ],
+)
+def test_what_counts_as_an_outage(error: DBAPIError, unavailable: bool) -> None:
+    assert database_unavailable(error) is unavailable
+
+
+class _Proxy:
+    """A TCP relay to the database server that can be cut (every connection dropped, new ones
+    refused) and restored, as a failover or a restart looks to the service."""
+
+    def __init__(self, host: str, port: int) -> None:
+        self.target = (host, port)
+        self.port = free_port()
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.server: asyncio.Server | None = None
+        self.writers: list[asyncio.StreamWriter] = []
+
+    def _run(self, coro: Any) -> Any:
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(10)
+
+    async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            up_reader, up_writer = await asyncio.open_connection(*self.target)
+        except OSError:
+            writer.close()
+            return
+        if self.server is None or not self.server.is_serving():  # cut while connecting
+            writer.transport.abort()
+            up_writer.transport.abort()
+            return
+        self.writers += [writer, up_writer]
+
+        async def pipe(a: asyncio.StreamReader, b: asyncio.StreamWriter) -> None:
+            try:
+                while data := await a.read(65536):
+                    b.write(data)
+                    await b.drain()
+            except OSError:
+                pass
+            finally:
+                b.close()
+
+        await asyncio.gather(pipe(reader, up_writer), pipe(up_reader, writer))
+
+    async def _up(self) -> None:
+        self.server = await asyncio.start_server(self._relay, "127.0.0.1", self.port)
+
+    async def _down(self) -> None:
+        assert self.server is not None
+        self.server.close()
+        for w in self.writers:
+            w.transport.abort()
+        self.writers = []
+        await self.server.wait_closed()
+
+    def up(self) -> None:
+        self._run(self._up())
+
+    def down(self) -> None:
+        self._run(self._down())
+
+    def close(self) -> None:
+        if self.server is not None and self.server.is_serving():
+            self.down()
+        self._run(self._settle())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+    async def _settle(self) -> None:
+        relays = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        for t in relays:
+            t.cancel()
+        await asyncio.gather(*relays, return_exceptions=True)
+
+
+@pytest.mark.slow
+@pytest.mark.postgres
+@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
+def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
+    """A server process whose PostgreSQL goes away mid-stream and comes back: 16 cameras
+    uploading all along get 201 or 503, never a 500; every 201 is stored with its verdict;
+    uploads are taken again within a second of the database's return."""
+    _empty_tables(engine)
+    url = make_url(PG_URL)
+    proxy = _Proxy(url.host or "127.0.0.1", url.port or 5432)
+    proxy.up()
+    port = free_port()
+    proc = start_server(
+        server_env(
+            url.set(port=proxy.port).render_as_string(False),
+            tmp_path,
+            VANTAGE_LOG_LEVEL="ERROR",  # not a line for each of the outage's 503s
+        ),
+        port,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        r = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "sky"}, headers=ADMIN)
+        headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+        phase = ["before"]
+        answers: collections.Counter[tuple[str, int]] = collections.Counter()
+        acknowledged: list[str] = []
+        stop = threading.Event()
+
+        def camera(k: int) -> None:
+            n = 0
+            with httpx.Client(base_url=base, timeout=30) as c:
+                while not stop.is_set():
+                    n += 1
+                    body = make_jpeg(160, 120, noise=20, seed=k * 100_000 + n)
+                    r = c.post("/cameras/c/frames", content=body, headers=headers)
+                    answers[(phase[0], r.status_code)] += 1
+                    if r.status_code == 201:
+                        acknowledged.append(r.json()["frame_id"])
+
+        threads = [threading.Thread(target=camera, args=(k,)) for k in range(16)]
+        for t in threads:
+            t.start()
+        time.sleep(1.5)
+        proxy.down()
+        phase[0] = "down"
+        time.sleep(1.5)
+        proxy.up()
+        phase[0] = "returning"  # a second for the pool's dropped connections to be replaced
+        time.sleep(1.0)
+        phase[0] = "back"
+        time.sleep(1.5)
+        stop.set()
+        for t in threads:
+            t.join()
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        proxy.close()
+    assert {status for _, status in answers} <= {201, 503}, answers
+    assert answers[("before", 201)] > 0
+    assert answers[("down", 503)] > 0
+    assert answers[("down", 201)] <= 16  # at most what was in flight as the cut came
+    assert answers[("back", 201)] > 0
+    assert answers[("back", 503)] == 0, answers
+    with engine.connect() as conn:
+        frames = set(map(str, conn.execute(text("SELECT id FROM frames")).scalars()))
+        judged = set(map(str, conn.execute(text("SELECT frame_id FROM verdicts")).scalars()))
+    assert set(acknowledged) <= frames
+    assert frames == judged
