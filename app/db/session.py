@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import send_pending_first
@@ -42,7 +42,40 @@ def _engine(url: str) -> Engine:
             conn.exec_driver_sql("BEGIN IMMEDIATE")
 
         return engine
-    return create_engine(url, pool_size=10, max_overflow=20, pool_pre_ping=True)
+    return create_engine(
+        url,
+        pool_size=10,
+        max_overflow=20,
+        pool_pre_ping=True,
+        pool_timeout=PG_POOL_TIMEOUT_S,
+        connect_args=_pg_timeouts(url),
+    )
+
+
+PG_CONNECT_TIMEOUT_S = 5
+"""How long a new connection to PostgreSQL may take, its handshake included."""
+PG_POOL_TIMEOUT_S = 10
+"""How long a request waits for one of the pool's connections before its 503."""
+PG_TCP_USER_TIMEOUT_MS = 15_000
+"""How long sent data may go unacknowledged before the connection is dropped."""
+
+
+def _pg_timeouts(url: str) -> dict[str, Any]:
+    """libpq's bounds on waiting for a server that cannot be reached (a failover moving its
+    address, a network partition): without them a new connection waits for the kernel's SYN
+    retries (~130 s) and a connection whose server vanished waits for hours, each holding a
+    worker thread, so that requests hang instead of getting their 503. The database URL's own
+    parameters (``?connect_timeout=…``) take precedence."""
+    ours: dict[str, Any] = {
+        "connect_timeout": PG_CONNECT_TIMEOUT_S,
+        "tcp_user_timeout": PG_TCP_USER_TIMEOUT_MS,
+        "keepalives": 1,
+        "keepalives_idle": 30,
+        "keepalives_interval": 10,
+        "keepalives_count": 3,
+    }
+    given = make_url(url).query
+    return {k: v for k, v in ours.items() if k not in given}
 
 
 def make_read_engine(url: str, connections: int) -> Engine | None:

@@ -12,6 +12,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -147,11 +148,15 @@ class _Proxy:
         self.thread.start()
         self.server: asyncio.Server | None = None
         self.writers: list[asyncio.StreamWriter] = []
+        self.silent = False
 
     def _run(self, coro: Any) -> Any:
         return asyncio.run_coroutine_threadsafe(coro, self.loop).result(10)
 
     async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self.silent:  # accepted and never answered
+            self.writers.append(writer)
+            await asyncio.Event().wait()
         try:
             up_reader, up_writer = await asyncio.open_connection(*self.target)
         except OSError:
@@ -186,8 +191,23 @@ class _Proxy:
         self.writers = []
         await self.server.wait_closed()
 
+    async def _silence(self) -> None:
+        self.silent = True
+        for w in self.writers:
+            w.transport.abort()
+        self.writers = []
+
     def up(self) -> None:
         self._run(self._up())
+
+    def silence(self) -> None:
+        """Connections dropped, and new ones accepted but never answered: the database's
+        address taken by a host that does not answer (a failover under way) or a server
+        that hangs."""
+        self._run(self._silence())
+
+    def answer(self) -> None:
+        self.silent = False
 
     def down(self) -> None:
         self._run(self._down())
@@ -277,3 +297,68 @@ def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
         judged = set(map(str, conn.execute(text("SELECT frame_id FROM verdicts")).scalars()))
     assert set(acknowledged) <= frames
     assert frames == judged
+
+
+@pytest.mark.slow
+@pytest.mark.postgres
+@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
+def test_a_database_that_does_not_answer(engine: Engine, tmp_path: Path) -> None:
+    """The database's address accepts connections and never answers: every request gets its
+    503 within the connect timeout (5 s), well before a client's 30 s timeout; psycopg's own
+    default is 130 s, each wait holding a worker thread. Uploads are taken again as soon as the
+    database answers."""
+    _empty_tables(engine)
+    url = make_url(PG_URL)
+    proxy = _Proxy(url.host or "127.0.0.1", url.port or 5432)
+    proxy.up()
+    port = free_port()
+    proc = start_server(
+        server_env(
+            url.set(port=proxy.port).render_as_string(False), tmp_path, VANTAGE_LOG_LEVEL="ERROR"
+        ),
+        port,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        r = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "sky"}, headers=ADMIN)
+        headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+        requests = {
+            "upload": ("POST", "/cameras/c/frames", headers, make_jpeg(noise=5, seed=1)),
+            "registry": ("GET", "/cameras", ADMIN, None),
+            "dashboard": ("GET", "/air/latest", {}, None),
+            "health": ("GET", "/health", {}, None),
+        }
+        proxy.silence()
+
+        def send(method: str, path: str, h: dict[str, str], body: bytes | None) -> int:
+            with httpx.Client(base_url=base, timeout=30) as c:
+                return c.request(method, path, headers=h, content=body).status_code
+
+        with ThreadPoolExecutor(len(requests)) as pool:
+            answers = {k: pool.submit(send, *v) for k, v in requests.items()}
+            statuses = {k: f.result() for k, f in answers.items()}  # a hang: ReadTimeout
+        assert statuses == dict.fromkeys(requests, 503)
+        proxy.answer()
+        for _ in range(3):  # the pool's dropped connections replaced
+            r = httpx.post(
+                f"{base}/cameras/c/frames", content=make_jpeg(noise=5, seed=2), headers=headers
+            )
+            if r.status_code == 201:
+                break
+        assert r.status_code == 201, r.text
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        proxy.close()
+
+
+def test_the_database_urls_own_timeouts_win() -> None:
+    from app.db.session import _pg_timeouts
+
+    ours = _pg_timeouts("postgresql+psycopg://u@db/v")
+    assert ours["connect_timeout"] == 5
+    assert ours["tcp_user_timeout"] == 15_000
+    given = _pg_timeouts("postgresql+psycopg://u@db/v?connect_timeout=20&keepalives=0")
+    assert "connect_timeout" not in given  # the URL's 20 reaches the driver
+    assert "keepalives" not in given
+    assert given["tcp_user_timeout"] == 15_000
