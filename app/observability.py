@@ -14,6 +14,8 @@ from typing import Any
 from prometheus_client import Counter, Histogram
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.routes import route_of
+
 request_id_var: contextvars.ContextVar[str | None] = contextvars.ContextVar(
     "request_id", default=None
 )
@@ -31,6 +33,20 @@ INGEST_SECONDS = Histogram(
     "Frame ingest latency, body read to response [s].",
     buckets=(0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0),
 )
+
+HTTP_REQUESTS = Counter(
+    "vantage_http_requests_total",
+    "Requests answered, per method, route (its template) and status.",
+    ["method", "route", "status"],
+)
+HTTP_SECONDS = Histogram(
+    "vantage_http_request_seconds",
+    "Request latency, first byte in to the last out, per method and route [s].",
+    ["method", "route"],
+    buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0),
+)
+UNMATCHED = "unmatched"
+"""The route label of requests no route took (404s of any path): one series, not one each."""
 
 
 class JsonFormatter(logging.Formatter):
@@ -110,13 +126,20 @@ class RequestIdMiddleware:
         try:
             await self.app(scope, receive, send_with_id)
         finally:
+            seconds = time.perf_counter() - start
+            method = scope["method"]
+            route = getattr(scope.get("route"), "path", None)
+            if route is None and "app" in scope:
+                route = route_of(scope["app"], scope["path"])
+            HTTP_REQUESTS.labels(method, route or UNMATCHED, str(status)).inc()
+            HTTP_SECONDS.labels(method, route or UNMATCHED).observe(seconds)
             access_log.info(
                 "request",
                 extra={
-                    "method": scope["method"],
+                    "method": method,
                     "path": scope["path"],
                     "status": status,
-                    "duration_ms": round((time.perf_counter() - start) * 1000, 2),
+                    "duration_ms": round(seconds * 1000, 2),
                 },
             )
             request_id_var.reset(token)

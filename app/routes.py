@@ -20,3 +20,17 @@ def operations(document: dict[str, Any]) -> Iterator[tuple[re.Pattern[str], str,
         pattern = path_pattern(path)
         for method, operation in by_method.items():
             yield pattern, method.upper(), operation
+
+
+def route_of(app: Any, path: str) -> str | None:
+    """The OpenAPI path (``/cameras/{camera_id}``) serving ``path``, or None: for requests that
+    reached no route (answered before routing, as a refused query, or run as another method,
+    as HEAD). A literal segment wins over a parameter (``/panels/evaluate``)."""
+    templates: list[tuple[re.Pattern[str], str]] | None = getattr(
+        app.state, "route_templates", None
+    )
+    if templates is None:
+        paths = sorted(app.openapi().get("paths", {}), key=lambda p: p.count("{"))
+        templates = [(path_pattern(p), p) for p in paths]
+        app.state.route_templates = templates
+    return next((t for pattern, t in templates if pattern.match(path)), None)

@@ -150,6 +150,56 @@ def test_metrics_exposes_ingest_counters(client: TestClient, admin: dict[str, st
     assert "vantage_ingest_seconds_bucket" in text
 
 
+def _samples(client: TestClient, admin: dict[str, str]) -> dict[tuple[str, Any], float]:
+    from prometheus_client.parser import text_string_to_metric_families
+
+    text = client.get("/metrics", headers=admin).text
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+        if s.name.startswith("vantage_http_")
+    }
+
+
+def test_metrics_count_requests_per_route_and_status(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """Every answer is counted by method, route template and status, and timed: what an
+    operator alerts on (the 5xx and 503 rates, a dashboard's latency). Requests answered
+    before routing (a refused query), run as another method (HEAD) or refused by the route
+    (405) count under their route; paths no route serves share one series."""
+    before = _samples(client, admin)
+    client.get("/cameras/a", headers=admin)  # 404 of a route: its template
+    client.get("/cameras/b", headers=admin)
+    client.head("/health")
+    client.get("/air/readings", params={"camera": "x"})  # 422 before routing
+    client.delete("/cameras", headers=admin)
+    client.get("/no/such/path/1")
+    client.get("/no/such/path/2")
+    after = _samples(client, admin)
+
+    def delta(method: str, route: str, status: int) -> float:
+        key = (
+            "vantage_http_requests_total",
+            (("method", method), ("route", route), ("status", str(status))),
+        )
+        return after.get(key, 0.0) - before.get(key, 0.0)
+
+    assert delta("GET", "/cameras/{camera_id}", 404) == 2
+    assert delta("HEAD", "/health", 200) == 1
+    assert delta("GET", "/air/readings", 422) == 1
+    assert delta("DELETE", "/cameras", 405) == 1
+    assert delta("GET", "unmatched", 404) == 2
+    timed = (
+        "vantage_http_request_seconds_count",
+        (("method", "GET"), ("route", "/cameras/{camera_id}")),
+    )
+    assert after[timed] - before.get(timed, 0.0) == 2
+    routes = {dict(labels)["route"] for name, labels in after if name.endswith("_total")}
+    assert not any(r.startswith(("/cameras/a", "/no/")) for r in routes)  # no series per path
+
+
 def test_metrics_need_the_metrics_or_the_admin_token(
     settings: Settings, engine: Any, admin: dict[str, str]
 ) -> None:
