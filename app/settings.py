@@ -124,6 +124,14 @@ class Settings(BaseSettings):
         "so that a frame costs no lookup: a change made through another process (a new "
         "region, a new token) reaches this one within that time. 0: look up every frame.",
     )
+    upload_timeout_seconds: float = Field(
+        default=30.0,
+        gt=0,
+        le=600,
+        description="How long an upload may wait to be measured and stored (a database or "
+        "disk that hangs, a process overloaded): then 503 with Retry-After, and a frame not "
+        "yet being written is dropped, not stored later behind the camera's back.",
+    )
     rate_limit_per_minute: int = Field(
         default=600,
         ge=0,

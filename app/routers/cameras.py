@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from collections.abc import Callable
 from datetime import datetime, timedelta
 from functools import partial
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import cv2
 from fastapi import APIRouter, Header, Query, Request
@@ -202,7 +203,10 @@ async def post_frame(
     tokens: TokenCache = request.app.state.camera_tokens
     for _ in range(MEASURES):
         try:
-            done = await writer.submit_after(partial(prepare, target), credential=target.credential)
+            done = await _within(
+                settings.upload_timeout_seconds,
+                writer.submit_after(partial(prepare, target), credential=target.credential),
+            )
             break
         except Unauthorized:  # the token was replaced, or the camera retired, elsewhere
             tokens.forget(target.id)  # the next upload looks it up, refused before its body
@@ -481,3 +485,23 @@ def _outlined(data: bytes, region: list[Any] | None) -> bytes:
     ok, buf = cv2.imencode(".jpg", outlined, [cv2.IMWRITE_JPEG_QUALITY, 85])
     assert ok
     return bytes(buf.tobytes())
+
+
+T = TypeVar("T")
+
+
+async def _within(seconds: float, stored: asyncio.Future[T]) -> T:
+    """The upload's result, or 503 after ``seconds``: a database that hangs (its disk stalled)
+    held every upload and its body for as long, and cameras, timing out and sending again,
+    queued more. On the deadline the job is cancelled: the writer drops it unless its batch
+    is already being written (then the frame is stored, and the camera's retry of it is
+    answered as a replay when it carries ``captured_at`` or an ``Idempotency-Key``)."""
+    try:
+        return await asyncio.wait_for(stored, seconds)
+    except TimeoutError:
+        raise ServiceUnavailable(
+            f"the frame was not measured and stored within {seconds:g} s (the database or the "
+            "disk is not answering, or the service is overloaded): send it again",
+            headers={"Retry-After": "5"},
+            code="upload_timeout",
+        ) from None

@@ -208,19 +208,25 @@ class GroupCommitWriter:
         return future
 
     def _take_batch(self) -> list[_Job] | None:
-        first = self._queue.get()
-        if first is None:
-            return None
-        batch = [first]
-        while len(batch) < self._max_batch:
-            try:
-                job = self._queue.get_nowait()
-            except queue.Empty:
-                break
-            if job is None:
-                self._queue.put(None)  # stop after this batch
-                break
-            batch.append(job)
+        """The next jobs, at most ``max_batch``, leaving out those whose request gave up
+        waiting (its future cancelled: an upload past its deadline got its 503, and nothing
+        is stored behind its back). None once stopped."""
+        batch: list[_Job] = []
+        while not batch:
+            first = self._queue.get()
+            if first is None:
+                return None
+            batch = [first] if not first.future.cancelled() else []
+            while len(batch) < self._max_batch:
+                try:
+                    job = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if job is None:
+                    self._queue.put(None)  # stop after this batch
+                    break
+                if not job.future.cancelled():  # a read only, as in ``work``
+                    batch.append(job)
         return batch
 
     def _session(self) -> Session:

@@ -754,6 +754,70 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
         assert [u.result().status_code for u in uploads] == [201] * 50
 
 
+def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
+    settings: Any, engine: Engine, admin: dict[str, str]
+) -> None:
+    """A database that hangs (its disk stalled) held every upload for as long as it hung, and
+    the frames were stored whenever it came back, long after the cameras had given up and sent
+    them again. Now an upload gets 503 ``upload_timeout`` after ``upload_timeout_seconds``;
+    those not yet being written are dropped, and the cameras' retries store each frame once."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from app.main import create_app
+    from tests.conftest import _empty_tables
+
+    _empty_tables(engine)
+    app = create_app(settings.model_copy(update={"upload_timeout_seconds": 1.0}))
+    with TestClient(app, raise_server_exceptions=False) as client:
+        r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
+        headers = cam_headers(r.json())
+        writer = app.state.writer
+        write, stuck, release = writer._write, threading.Event(), threading.Event()
+        stalled: list[int] = []
+
+        def stalling(batch: Any) -> Any:
+            if not stuck.is_set():
+                stalled.append(len(batch))
+                stuck.set()
+                release.wait(30)
+            return write(batch)
+
+        writer._write = stalling
+
+        def upload(i: int) -> Any:
+            return client.post(
+                "/cameras/cam-1/frames",
+                content=make_jpeg(seed=i, noise=5),
+                headers=headers,
+                params={"captured_at": f"{DAY}T00:00:{i:02d}Z"},
+            )
+
+        try:
+            with ThreadPoolExecutor(8) as pool:
+                first = pool.submit(upload, 0)
+                assert stuck.wait(10)  # the first upload's batch hangs in the database
+                rest = [pool.submit(upload, i) for i in range(1, 8)]
+                answers = [first.result(), *(u.result() for u in rest)]
+        finally:
+            release.set()
+        assert [a.status_code for a in answers] == [503] * 8
+        assert {a.json()["code"] for a in answers} == {"upload_timeout"}
+        assert {a.headers["retry-after"] for a in answers} == {"5"}
+        writer._write = write
+        # the batch under way when the deadline came is stored; the 7 queued behind it are not
+        again = client.post(
+            "/cameras/cam-1/frames", content=make_jpeg(seed=99, noise=5), headers=headers
+        )
+        assert again.status_code == 201  # written after everything queued before it
+        assert table_counts(engine)["frames"] == stalled[0] + 1
+        # the cameras send them again: each frame stored once, the first answered as a replay
+        retried = [upload(i) for i in range(8)]
+        assert [r.status_code for r in retried] == [201] * 8
+        assert retried[0].headers.get("idempotent-replay") == "true"
+        assert table_counts(engine)["frames"] == 8 + 1
+
+
 def test_a_cameras_frames_page_by_cursor(
     client: TestClient, camera: dict[str, Any], admin: dict[str, str]
 ) -> None:
