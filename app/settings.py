@@ -124,6 +124,20 @@ class Settings(BaseSettings):
         "so that a frame costs no lookup: a change made through another process (a new "
         "region, a new token) reaches this one within that time. 0: look up every frame.",
     )
+    database_pool_size: int = Field(
+        default=10,
+        ge=1,
+        le=1000,
+        description="PostgreSQL connections a process keeps open (its frame writer keeps one).",
+    )
+    database_max_overflow: int = Field(
+        default=20,
+        ge=0,
+        le=1000,
+        description="PostgreSQL connections a process opens beyond the pool under load: each "
+        "process may hold pool size + overflow, which over all processes must stay under the "
+        "server's max_connections.",
+    )
     upload_timeout_seconds: float = Field(
         default=30.0,
         gt=0,

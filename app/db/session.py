@@ -10,14 +10,15 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.db.rows import send_pending_first
 
 
-def make_engine(url: str) -> Engine:
-    """An engine tuned for the backend: WAL and a busy timeout on SQLite, a pool on PostgreSQL."""
-    engine = _engine(url)
+def make_engine(url: str, *, pool_size: int = 10, max_overflow: int = 20) -> Engine:
+    """An engine tuned for the backend: WAL and a busy timeout on SQLite, a pool on PostgreSQL
+    of ``pool_size`` connections kept and ``max_overflow`` more under load."""
+    engine = _engine(url, pool_size, max_overflow)
     send_pending_first(engine)  # app.db.rows.deferred_inserts
     return engine
 
 
-def _engine(url: str) -> Engine:
+def _engine(url: str, pool_size: int, max_overflow: int) -> Engine:
     if url.startswith("sqlite"):
         # One connection per process: requests queue for it in Python (fair, no polling) rather
         # than in SQLite's busy handler, whose sleeps grow to 100 ms under contention. Every use
@@ -44,8 +45,8 @@ def _engine(url: str) -> Engine:
         return engine
     return create_engine(
         url,
-        pool_size=10,
-        max_overflow=20,
+        pool_size=pool_size,
+        max_overflow=max_overflow,
         pool_pre_ping=True,
         pool_timeout=PG_POOL_TIMEOUT_S,
         connect_args=_pg_timeouts(url),

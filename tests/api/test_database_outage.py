@@ -24,6 +24,7 @@ from sqlalchemy import Engine, make_url, text
 from sqlalchemy.exc import DBAPIError, IntegrityError, InterfaceError, OperationalError
 
 from app.errors import database_unavailable
+from app.main import create_app
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, table_counts
 from tests.servers import free_port, server_env, start_server
 
@@ -362,3 +363,14 @@ def test_the_database_urls_own_timeouts_win() -> None:
     assert "connect_timeout" not in given  # the URL's 20 reaches the driver
     assert "keepalives" not in given
     assert given["tcp_user_timeout"] == 15_000
+
+
+@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="a pool on PostgreSQL only")
+def test_the_pool_is_sized_by_the_settings(settings: Any, engine: Engine) -> None:
+    """Processes × (pool + overflow) must fit the server's max_connections: both are settings."""
+    app = create_app(
+        settings.model_copy(update={"database_pool_size": 3, "database_max_overflow": 2})
+    )
+    pool = app.state.engine.pool
+    assert (pool.size(), pool._max_overflow) == (3, 2)
+    app.state.engine.dispose()
