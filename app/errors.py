@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from http import HTTPStatus
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -119,6 +120,15 @@ def _count_rejected_frame(request: Request, status: int, code: str | None) -> No
     FRAMES_REJECTED.labels(camera or "unknown", code or str(status)).inc()
 
 
+def _title(status: int) -> str:
+    """The status's reason phrase as the problem's title, as the service's own errors have
+    (``Bad request`` for a body that is not JSON at all)."""
+    try:
+        return HTTPStatus(status).phrase.capitalize()
+    except ValueError:
+        return "Error"
+
+
 def _is_json(media_type: str) -> bool:
     return media_type == "application/json" or media_type.endswith("+json")
 
@@ -165,7 +175,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        title = {404: "Not found", 405: "Method not allowed"}.get(exc.status_code, "Error")
+        title = _title(exc.status_code)
         headers = dict(exc.headers) if exc.headers else None
         if exc.status_code == 405:
             allow = allowed_methods(request, (headers or {}).get("Allow"))

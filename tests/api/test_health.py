@@ -231,6 +231,26 @@ def test_unknown_route_is_problem_json(client: TestClient) -> None:
     assert r.json()["status"] == 404
 
 
+@pytest.mark.parametrize(
+    ("body", "status", "title"),
+    [
+        (b"[" * 100_000, 400, "Bad request"),  # nested past the parser's depth
+        ('{"id": "é"}'.encode("latin-1"), 400, "Bad request"),  # not UTF-8
+        (b'{"id": "x", "kind": ', 422, "Unprocessable content"),  # cut short
+    ],
+)
+def test_a_body_that_is_not_json_is_a_problem_with_a_title(
+    client: TestClient, admin: dict[str, str], body: bytes, status: int, title: str
+) -> None:
+    """The 400s FastAPI raises for a body it cannot parse are titled by their reason phrase,
+    as every other problem is (they had been titled "Error")."""
+    r = client.post("/cameras", content=body, headers={**admin, "Content-Type": "application/json"})
+    assert r.status_code == status
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["title"] == title
+    assert client.get("/cameras", headers=admin).json() == []  # nothing registered
+
+
 @pytest.mark.parametrize("warm", [True, False])
 def test_triangulation_warm_up_at_start_is_a_setting(
     settings: Settings, monkeypatch: pytest.MonkeyPatch, warm: bool
