@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 HOST   ?= 127.0.0.1
 PORT   ?= 8000
 
-.PHONY: run test lint check migrate bench clean
+.PHONY: run test lint check migrate bench backup clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
@@ -34,6 +34,11 @@ lint: $(VENV)/.installed
 check: $(VENV)/.installed
 	rm -rf .check-data && VANTAGE_DATA_DIR=.check-data $(BIN)/alembic upgrade head \
 	  && VANTAGE_DATA_DIR=.check-data $(BIN)/alembic check; status=$$?; rm -rf .check-data; exit $$status
+
+# a consistent copy of the running service's data: make backup DEST=/backups/vantage-$(date +%F)
+backup: $(VENV)/.installed
+	@test -n "$(DEST)" || { echo "usage: make backup DEST=<new directory>"; exit 1; }
+	$(BIN)/python -m app.backup "$(DEST)"
 
 bench: $(VENV)/.installed
 	$(BIN)/python bench/ingest.py

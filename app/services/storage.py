@@ -120,6 +120,14 @@ def pack_of(locator: str) -> str | None:
     return match.group(1) if match else None
 
 
+def extent_of(locator: str) -> tuple[str, int]:
+    """The file holding a stored frame (relative path), and the size it needs to hold it."""
+    match = _LOCATOR.fullmatch(locator)
+    if match is None:  # a file of its own
+        return locator, 1
+    return match.group(1), int(match.group(2)) + int(match.group(3))
+
+
 @dataclass(slots=True)
 class _Pack:
     """A pack this process appends to; closed once retired and no write is still using it."""
