@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -228,13 +229,17 @@ class _Proxy:
         await asyncio.gather(*relays, return_exceptions=True)
 
 
-@pytest.mark.slow
-@pytest.mark.postgres
-@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
-def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
-    """A server process whose PostgreSQL goes away mid-stream and comes back: 16 cameras
-    uploading all along get 201 or 503, never a 500; every 201 is stored with its verdict;
-    uploads are taken again within a second of the database's return."""
+@dataclass
+class Proxied:
+    proxy: _Proxy
+    base: str
+    camera: dict[str, str]
+    """Headers of an upload by camera ``c`` (a sky camera)."""
+
+
+@pytest.fixture
+def proxied(engine: Engine, tmp_path: Path) -> Iterator[Proxied]:
+    """A server process reaching PostgreSQL through a ``_Proxy``, with one camera."""
     _empty_tables(engine)
     url = make_url(PG_URL)
     proxy = _Proxy(url.host or "127.0.0.1", url.port or 5432)
@@ -244,7 +249,7 @@ def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
         server_env(
             url.set(port=proxy.port).render_as_string(False),
             tmp_path,
-            VANTAGE_LOG_LEVEL="ERROR",  # not a line for each of the outage's 503s
+            VANTAGE_LOG_LEVEL="ERROR",  # not a line for each of an outage's 503s
         ),
         port,
     )
@@ -252,41 +257,52 @@ def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
     try:
         r = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "sky"}, headers=ADMIN)
         headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
-        phase = ["before"]
-        answers: collections.Counter[tuple[str, int]] = collections.Counter()
-        acknowledged: list[str] = []
-        stop = threading.Event()
-
-        def camera(k: int) -> None:
-            n = 0
-            with httpx.Client(base_url=base, timeout=30) as c:
-                while not stop.is_set():
-                    n += 1
-                    body = make_jpeg(160, 120, noise=20, seed=k * 100_000 + n)
-                    r = c.post("/cameras/c/frames", content=body, headers=headers)
-                    answers[(phase[0], r.status_code)] += 1
-                    if r.status_code == 201:
-                        acknowledged.append(r.json()["frame_id"])
-
-        threads = [threading.Thread(target=camera, args=(k,)) for k in range(16)]
-        for t in threads:
-            t.start()
-        time.sleep(1.5)
-        proxy.down()
-        phase[0] = "down"
-        time.sleep(1.5)
-        proxy.up()
-        phase[0] = "returning"  # a second for the pool's dropped connections to be replaced
-        time.sleep(1.0)
-        phase[0] = "back"
-        time.sleep(1.5)
-        stop.set()
-        for t in threads:
-            t.join()
+        yield Proxied(proxy, base, headers)
     finally:
         proc.terminate()
         proc.wait(30)
         proxy.close()
+
+
+@pytest.mark.slow
+@pytest.mark.postgres
+@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
+def test_a_real_postgresql_outage(engine: Engine, proxied: Proxied) -> None:
+    """A server process whose PostgreSQL goes away mid-stream and comes back: 16 cameras
+    uploading all along get 201 or 503, never a 500; every 201 is stored with its verdict;
+    uploads are taken again within a second of the database's return."""
+    base, headers, proxy = proxied.base, proxied.camera, proxied.proxy
+    phase = ["before"]
+    answers: collections.Counter[tuple[str, int]] = collections.Counter()
+    acknowledged: list[str] = []
+    stop = threading.Event()
+
+    def camera(k: int) -> None:
+        n = 0
+        with httpx.Client(base_url=base, timeout=30) as c:
+            while not stop.is_set():
+                n += 1
+                body = make_jpeg(160, 120, noise=20, seed=k * 100_000 + n)
+                r = c.post("/cameras/c/frames", content=body, headers=headers)
+                answers[(phase[0], r.status_code)] += 1
+                if r.status_code == 201:
+                    acknowledged.append(r.json()["frame_id"])
+
+    threads = [threading.Thread(target=camera, args=(k,)) for k in range(16)]
+    for t in threads:
+        t.start()
+    time.sleep(1.5)
+    proxy.down()
+    phase[0] = "down"
+    time.sleep(1.5)
+    proxy.up()
+    phase[0] = "returning"  # a second for the pool's dropped connections to be replaced
+    time.sleep(1.0)
+    phase[0] = "back"
+    time.sleep(1.5)
+    stop.set()
+    for t in threads:
+        t.join()
     assert {status for _, status in answers} <= {201, 503}, answers
     assert answers[("before", 201)] > 0
     assert answers[("down", 503)] > 0
@@ -303,54 +319,36 @@ def test_a_real_postgresql_outage(engine: Engine, tmp_path: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.postgres
 @pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
-def test_a_database_that_does_not_answer(engine: Engine, tmp_path: Path) -> None:
+def test_a_database_that_does_not_answer(proxied: Proxied) -> None:
     """The database's address accepts connections and never answers: every request gets its
     503 within the connect timeout (5 s), well before a client's 30 s timeout; psycopg's own
     default is 130 s, each wait holding a worker thread. Uploads are taken again as soon as the
     database answers."""
-    _empty_tables(engine)
-    url = make_url(PG_URL)
-    proxy = _Proxy(url.host or "127.0.0.1", url.port or 5432)
-    proxy.up()
-    port = free_port()
-    proc = start_server(
-        server_env(
-            url.set(port=proxy.port).render_as_string(False), tmp_path, VANTAGE_LOG_LEVEL="ERROR"
-        ),
-        port,
-    )
-    base = f"http://127.0.0.1:{port}"
-    try:
-        r = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "sky"}, headers=ADMIN)
-        headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
-        requests = {
-            "upload": ("POST", "/cameras/c/frames", headers, make_jpeg(noise=5, seed=1)),
-            "registry": ("GET", "/cameras", ADMIN, None),
-            "dashboard": ("GET", "/air/latest", {}, None),
-            "health": ("GET", "/health", {}, None),
-        }
-        proxy.silence()
+    base, headers, proxy = proxied.base, proxied.camera, proxied.proxy
+    requests = {
+        "upload": ("POST", "/cameras/c/frames", headers, make_jpeg(noise=5, seed=1)),
+        "registry": ("GET", "/cameras", ADMIN, None),
+        "dashboard": ("GET", "/air/latest", {}, None),
+        "health": ("GET", "/health", {}, None),
+    }
+    proxy.silence()
 
-        def send(method: str, path: str, h: dict[str, str], body: bytes | None) -> int:
-            with httpx.Client(base_url=base, timeout=30) as c:
-                return c.request(method, path, headers=h, content=body).status_code
+    def send(method: str, path: str, h: dict[str, str], body: bytes | None) -> int:
+        with httpx.Client(base_url=base, timeout=30) as c:
+            return c.request(method, path, headers=h, content=body).status_code
 
-        with ThreadPoolExecutor(len(requests)) as pool:
-            answers = {k: pool.submit(send, *v) for k, v in requests.items()}
-            statuses = {k: f.result() for k, f in answers.items()}  # a hang: ReadTimeout
-        assert statuses == dict.fromkeys(requests, 503)
-        proxy.answer()
-        for _ in range(3):  # the pool's dropped connections replaced
-            r = httpx.post(
-                f"{base}/cameras/c/frames", content=make_jpeg(noise=5, seed=2), headers=headers
-            )
-            if r.status_code == 201:
-                break
-        assert r.status_code == 201, r.text
-    finally:
-        proc.terminate()
-        proc.wait(30)
-        proxy.close()
+    with ThreadPoolExecutor(len(requests)) as pool:
+        answers = {k: pool.submit(send, *v) for k, v in requests.items()}
+        statuses = {k: f.result() for k, f in answers.items()}  # a hang: ReadTimeout
+    assert statuses == dict.fromkeys(requests, 503)
+    proxy.answer()
+    for _ in range(3):  # the pool's dropped connections replaced
+        r = httpx.post(
+            f"{base}/cameras/c/frames", content=make_jpeg(noise=5, seed=2), headers=headers
+        )
+        if r.status_code == 201:
+            break
+    assert r.status_code == 201, r.text
 
 
 def test_the_database_urls_own_timeouts_win() -> None:
