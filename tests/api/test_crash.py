@@ -109,3 +109,62 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+@pytest.mark.slow
+def test_sigterm_while_posting_finishes_what_it_took(
+    database_url: str, engine: Engine, tmp_path: Path
+) -> None:
+    """A rolling restart sends SIGTERM while frames are posted: the process stops taking
+    connections, answers every upload it had begun (201, none 5xx), stores each with its
+    verdict, and exits. An upload sent on a kept-alive connection as the process closed it
+    gets no answer (HTTP/1.1's race; the camera sends it again) and must not be stored: a
+    frame stored is a frame answered."""
+    _empty_tables(engine)
+    port = free_port()
+    proc = start_server(server_env(database_url, tmp_path), port)
+    base = f"http://127.0.0.1:{port}"
+    token = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN).json()[
+        "token"
+    ]
+    statuses: list[int] = []
+    acknowledged: list[str] = []
+    cut: list[str] = []
+
+    def client(k: int) -> None:
+        n = 0
+        with httpx.Client(timeout=30) as c:
+            while True:
+                n += 1
+                body = make_jpeg(320, 240, noise=20, seed=k * 100_000 + n)
+                try:
+                    r = c.post(
+                        f"{base}/cameras/c/frames",
+                        content=body,
+                        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+                    )
+                except httpx.ConnectError:
+                    return  # the process no longer takes connections
+                except httpx.TransportError as exc:  # closed as the request went out
+                    cut.append(type(exc).__name__)
+                    return
+                statuses.append(r.status_code)
+                if r.status_code == 201:
+                    acknowledged.append(r.json()["frame_id"])
+
+    threads = [threading.Thread(target=client, args=(k,)) for k in range(8)]
+    for t in threads:
+        t.start()
+    while len(acknowledged) < 100:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(30)
+    for t in threads:
+        t.join()
+    assert set(statuses) == {201}
+    with engine.connect() as conn:
+        frames = set(map(str, conn.execute(text("SELECT id FROM frames")).scalars()))
+        judged = set(map(str, conn.execute(text("SELECT frame_id FROM verdicts")).scalars()))
+    assert frames == set(map(str, acknowledged))  # the cut ones not stored
+    assert set(cut) <= {"ReadError", "RemoteProtocolError"}
+    assert frames == judged
