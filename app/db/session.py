@@ -63,10 +63,10 @@ PG_TCP_USER_TIMEOUT_MS = 15_000
 
 def _pg_timeouts(url: str) -> dict[str, Any]:
     """libpq's bounds on waiting for a server that cannot be reached (a failover moving its
-    address, a network partition): without them a new connection waits for the kernel's SYN
-    retries (~130 s) and a connection whose server vanished waits for hours, each holding a
-    worker thread, so that requests hang instead of getting their 503. The database URL's own
-    parameters (``?connect_timeout=…``) take precedence."""
+    address, a network partition): without them a new connection waits psycopg's default of
+    130 s, and a query sent to a server that vanished waits for the kernel's retransmissions
+    (~15 minutes), each holding a worker thread, so that requests hang instead of getting
+    their 503. The database URL's own parameters (``?connect_timeout=…``) take precedence."""
     ours: dict[str, Any] = {
         "connect_timeout": PG_CONNECT_TIMEOUT_S,
         "tcp_user_timeout": PG_TCP_USER_TIMEOUT_MS,
