@@ -211,15 +211,36 @@ def install_error_handlers(app: FastAPI) -> None:
 DATABASE_RETRY_AFTER = "5"
 
 
+SQLITE_OUTAGES = frozenset(
+    {
+        "SQLITE_BUSY",  # locked past the busy timeout
+        "SQLITE_LOCKED",
+        "SQLITE_NOMEM",
+        "SQLITE_IOERR",  # the disk failing
+        "SQLITE_FULL",
+        "SQLITE_CANTOPEN",  # the file or its directory gone
+        "SQLITE_PROTOCOL",
+    }
+)
+"""SQLite's primary result codes of a database that cannot serve now. Its OperationalError
+also stands for "no such table" or "no such column" (SQLITE_ERROR): a schema this code does
+not match, which a retry does not mend."""
+
+
 def database_unavailable(exc: DBAPIError) -> bool:
     """Whether the database could not serve at all (down, restarting, its connection lost,
     out of connections or disk, locked past the busy timeout, a serialization conflict)
-    rather than failed on this request: PostgreSQL's and SQLite's OperationalError, except
-    PostgreSQL's class 54 (a statement over a program limit, which a retry repeats)."""
+    rather than failed on this request: PostgreSQL's OperationalError, except its class 54 (a
+    statement over a program limit, which a retry repeats), and SQLite's of ``SQLITE_OUTAGES``."""
     if exc.connection_invalidated:
         return True
+    if not isinstance(exc, OperationalError):
+        return False
+    name = getattr(exc.orig, "sqlite_errorname", None)
+    if name is not None:  # extended codes (SQLITE_IOERR_WRITE) by their primary code
+        return any(name == c or name.startswith(c + "_") for c in SQLITE_OUTAGES)
     sqlstate = getattr(exc.orig, "sqlstate", None) or ""
-    return isinstance(exc, OperationalError) and not sqlstate.startswith("54")
+    return not sqlstate.startswith("54")
 
 
 def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:

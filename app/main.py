@@ -12,13 +12,15 @@ from datetime import timedelta
 from functools import partial
 
 from fastapi import FastAPI
+from sqlalchemy.exc import DBAPIError
 
 from app import __version__
 from app.compression import CompressedReads
 from app.core import triangulation
 from app.cors import PublicReadCors
+from app.db import schema
 from app.db.session import make_engine, make_read_engine, make_sessionmaker
-from app.errors import install_error_handlers
+from app.errors import database_unavailable, install_error_handlers
 from app.head import HeadAsGet
 from app.observability import RequestIdMiddleware, configure_logging
 from app.query import CheckedQuery
@@ -55,6 +57,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
+        try:
+            await asyncio.to_thread(schema.check, engine)
+        except schema.SchemaBehind as exc:
+            log.error("not starting: %s", exc)
+            raise
+        except DBAPIError as exc:
+            if not database_unavailable(exc):
+                raise
+            # serve anyway, as without the frame store: /health says so, requests get 503
+            log.error("schema not checked, database unreachable: %s", str(exc).splitlines()[0])
         # files a killed process wrote without committing their rows
         try:
             await asyncio.to_thread(

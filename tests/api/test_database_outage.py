@@ -43,8 +43,16 @@ def database_down(app: Any) -> Iterator[None]:
         dialect = engine.dialect
         error = dialect.loaded_dbapi.OperationalError
 
-        def fail(*_: Any, error: type[Exception] = error, **__: Any) -> None:
-            raise error("database is locked / server closed the connection unexpectedly")
+        def fail(
+            *_: Any,
+            error: type[Exception] = error,
+            sqlite: bool = dialect.name == "sqlite",
+            **__: Any,
+        ) -> None:
+            exc = error("database is locked / server closed the connection unexpectedly")
+            if sqlite:  # as sqlite3 names a lock held past the busy timeout
+                exc.sqlite_errorname = "SQLITE_BUSY"  # type: ignore[attr-defined]
+            raise exc
 
         for name in ("do_execute", "do_executemany", "do_execute_no_params"):
             patched.append((dialect, name))
@@ -372,3 +380,22 @@ def test_the_pool_is_sized_by_the_settings(settings: Any, engine: Engine) -> Non
     pool = app.state.engine.pool
     assert (pool.size(), pool._max_overflow) == (3, 2)
     app.state.engine.dispose()
+
+
+def test_sqlite_errors_by_their_code(tmp_path: Path) -> None:
+    """SQLite raises OperationalError for a lock held past the busy timeout (an outage: 503)
+    and for a missing table or column (a schema this code does not match: a retry does not
+    mend it, 500)."""
+    import sqlite3
+
+    with pytest.raises(sqlite3.OperationalError) as schema:
+        sqlite3.connect(":memory:").execute("SELECT nope FROM nowhere")
+    path = tmp_path / "locked.db"
+    holder = sqlite3.connect(path, isolation_level=None)
+    holder.execute("CREATE TABLE t (x)")
+    holder.execute("BEGIN EXCLUSIVE")
+    with pytest.raises(sqlite3.OperationalError) as locked:
+        sqlite3.connect(path, timeout=0).execute("INSERT INTO t VALUES (1)")
+    holder.close()
+    assert database_unavailable(OperationalError("INSERT", None, locked.value))
+    assert not database_unavailable(OperationalError("SELECT", None, schema.value))
