@@ -36,6 +36,7 @@ from app.routers import (
     robots,
     vision,
 )
+from app.routers.responses import DATABASE_UNAVAILABLE
 from app.security import admin_token_hash, hash_token
 from app.services import rate_limit, registry, retention, webhooks
 from app.services.camera_info import TokenCache
@@ -137,6 +138,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         summary="Cameras as measuring instruments.",
         lifespan=lifespan,
+        responses=DATABASE_UNAVAILABLE,
     )
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(

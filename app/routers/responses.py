@@ -47,10 +47,19 @@ BODY_ERRORS: Responses = {
     413: _problem("Body over the size limit"),
     415: _problem("Not a media type the endpoint takes"),
 }
+DATABASE_UNAVAILABLE: Responses = {
+    503: _problem(
+        "The database cannot be reached or is busy (code `database_unavailable`): try again "
+        "after Retry-After"
+    )
+}
+"""Every operation's: declared once, for the whole application."""
 CAMERA_CHANGING: Responses = {
     503: _problem(
-        "The camera was changed again and again while the frame was measured: send it again "
-        "(Retry-After)"
+        "Send the frame again after Retry-After: the database cannot be reached or is busy "
+        "(code `database_unavailable`), the frame was not stored within the upload timeout "
+        "(`upload_timeout`), or the camera was changed again and again while the frame was "
+        "measured (`camera_changing`)"
     )
 }
 UPLOAD_ERRORS: Responses = {

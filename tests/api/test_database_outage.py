@@ -399,3 +399,12 @@ def test_sqlite_errors_by_their_code(tmp_path: Path) -> None:
     holder.close()
     assert database_unavailable(OperationalError("INSERT", None, locked.value))
     assert not database_unavailable(OperationalError("SELECT", None, schema.value))
+
+
+def test_every_operation_documents_its_503(client: TestClient) -> None:
+    """Clients generated from the OpenAPI document learn that any operation may answer 503
+    to be retried (the database unavailable), not only the upload."""
+    document = client.get("/openapi.json").json()
+    operations = [(p, m, op) for p, ops in document["paths"].items() for m, op in ops.items()]
+    assert len(operations) > 40
+    assert [(p, m) for p, m, op in operations if "503" not in op["responses"]] == []
