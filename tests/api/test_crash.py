@@ -21,6 +21,17 @@ from tests.servers import free_port, server_env, start_server
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
+def _upload(
+    c: httpx.Client, base: str, token: str, size: tuple[int, int], *, seed: int
+) -> httpx.Response:
+    """Camera ``c`` posts a frame of its own (noise seeded by ``seed``)."""
+    return c.post(
+        f"{base}/cameras/c/frames",
+        content=make_jpeg(*size, noise=20, seed=seed),
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+
+
 @pytest.mark.slow
 def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path) -> None:
     _empty_tables(engine)
@@ -39,13 +50,8 @@ def test_kill_9_while_posting(database_url: str, engine: Engine, tmp_path: Path)
         with httpx.Client(timeout=10) as c:
             while not stop.is_set():
                 n += 1
-                body = make_jpeg(160, 120, noise=20, seed=k * 100_000 + n)
                 try:
-                    r = c.post(
-                        f"{base}/cameras/c/frames",
-                        content=body,
-                        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
-                    )
+                    r = _upload(c, base, token, (160, 120), seed=k * 100_000 + n)
                 except httpx.TransportError:
                     return
                 if r.status_code == 201:
@@ -136,13 +142,8 @@ def test_sigterm_while_posting_finishes_what_it_took(
         with httpx.Client(timeout=30) as c:
             while True:
                 n += 1
-                body = make_jpeg(320, 240, noise=20, seed=k * 100_000 + n)
                 try:
-                    r = c.post(
-                        f"{base}/cameras/c/frames",
-                        content=body,
-                        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
-                    )
+                    r = _upload(c, base, token, (320, 240), seed=k * 100_000 + n)
                 except httpx.ConnectError:
                     return  # the process no longer takes connections
                 except httpx.TransportError as exc:  # closed as the request went out
