@@ -26,6 +26,7 @@ from sqlalchemy.exc import DBAPIError, IntegrityError, InterfaceError, Operation
 
 from app.errors import database_unavailable
 from app.main import create_app
+from app.settings import Settings
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, table_counts
 from tests.servers import free_port, server_env, start_server
 
@@ -33,12 +34,20 @@ PG_URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 
 
+@dataclass
+class Refused:
+    """How many statements ``database_down`` refused."""
+
+    statements: int = 0
+
+
 @contextmanager
-def database_down(app: Any) -> Iterator[None]:
+def database_down(app: Any) -> Iterator[Refused]:
     """Every statement of the app's engines fails as the driver fails when its server is
     gone (PostgreSQL) or its file locked (SQLite): the driver's own OperationalError."""
     engines = {id(e): e for e in (app.state.engine, app.state.read_sessionmaker.kw["bind"])}
     patched = []
+    refused = Refused()
     for engine in engines.values():
         dialect = engine.dialect
         error = dialect.loaded_dbapi.OperationalError
@@ -49,6 +58,7 @@ def database_down(app: Any) -> Iterator[None]:
             sqlite: bool = dialect.name == "sqlite",
             **__: Any,
         ) -> None:
+            refused.statements += 1
             exc = error("database is locked / server closed the connection unexpectedly")
             if sqlite:  # as sqlite3 names a lock held past the busy timeout
                 exc.sqlite_errorname = "SQLITE_BUSY"  # type: ignore[attr-defined]
@@ -58,7 +68,7 @@ def database_down(app: Any) -> Iterator[None]:
             patched.append((dialect, name))
             setattr(dialect, name, fail)
     try:
-        yield
+        yield refused
     finally:
         for dialect, name in patched:
             delattr(dialect, name)  # the class's method again
@@ -408,3 +418,51 @@ def test_every_operation_documents_its_503(client: TestClient) -> None:
     operations = [(p, m, op) for p, ops in document["paths"].items() for m, op in ops.items()]
     assert len(operations) > 40
     assert [(p, m) for p, m, op in operations if "503" not in op["responses"]] == []
+
+
+def test_a_batch_meeting_an_outage_fails_at_once(
+    settings: Settings, engine: Engine, admin: dict[str, str]
+) -> None:
+    """A batch of uploads that meets the database down fails whole: one attempt, not one more
+    for each upload. (The writer tried each job alone to isolate a bad one; against a database
+    that does not answer, each try waits the connect timeout, 5 s: a batch of 64 held the writer
+    for five minutes after the database was back.)"""
+    from concurrent.futures import ThreadPoolExecutor
+
+    _empty_tables(engine)
+    app = create_app(settings)
+    with TestClient(app, raise_server_exceptions=False) as client:
+        r = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin)
+        headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+        writer = app.state.writer
+        write, stuck, release = writer._write, threading.Event(), threading.Event()
+        batches: list[int] = []
+
+        def stalling(batch: Any, **kw: Any) -> Any:
+            batches.append(len(batch))
+            if not stuck.is_set():
+                stuck.set()
+                release.wait(30)
+            return write(batch, **kw)
+
+        writer._write = stalling
+
+        def upload(seed: int) -> Any:
+            body = make_jpeg(seed=seed, noise=5)
+            return client.post("/cameras/c/frames", content=body, headers=headers)
+
+        with ThreadPoolExecutor(9) as pool:
+            first = pool.submit(upload, 0)
+            assert stuck.wait(10)
+            rest = [pool.submit(upload, seed) for seed in range(1, 9)]
+            for _ in range(100):  # the 8 queued behind the stalled batch
+                if writer._queue.qsize() == 8:
+                    break
+                time.sleep(0.05)
+            with database_down(app) as refused:
+                release.set()
+                answers = [first.result(), *(u.result() for u in rest)]
+        writer._write = write
+    assert [a.status_code for a in answers] == [503] * 9
+    assert batches[:2] == [1, 8]
+    assert refused.statements <= 2 * 2  # each batch once, and once more on a fresh connection
