@@ -219,6 +219,7 @@ SQLITE_OUTAGES = frozenset(
         "SQLITE_IOERR",  # the disk failing
         "SQLITE_FULL",
         "SQLITE_CANTOPEN",  # the file or its directory gone
+        "SQLITE_READONLY",  # the disk remounted read-only after errors
         "SQLITE_PROTOCOL",
     }
 )

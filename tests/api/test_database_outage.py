@@ -393,9 +393,9 @@ def test_the_pool_is_sized_by_the_settings(settings: Any, engine: Engine) -> Non
 
 
 def test_sqlite_errors_by_their_code(tmp_path: Path) -> None:
-    """SQLite raises OperationalError for a lock held past the busy timeout (an outage: 503)
-    and for a missing table or column (a schema this code does not match: a retry does not
-    mend it, 500)."""
+    """SQLite raises OperationalError for a lock held past the busy timeout or a disk gone
+    read-only (an outage: 503) and for a missing table or column (a schema this code does not
+    match: a retry does not mend it, 500)."""
     import sqlite3
 
     with pytest.raises(sqlite3.OperationalError) as schema:
@@ -407,7 +407,11 @@ def test_sqlite_errors_by_their_code(tmp_path: Path) -> None:
     with pytest.raises(sqlite3.OperationalError) as locked:
         sqlite3.connect(path, timeout=0).execute("INSERT INTO t VALUES (1)")
     holder.close()
+    with pytest.raises(sqlite3.OperationalError) as read_only:
+        sqlite3.connect(f"file:{path}?mode=ro", uri=True).execute("INSERT INTO t VALUES (1)")
+    assert read_only.value.sqlite_errorname == "SQLITE_READONLY"
     assert database_unavailable(OperationalError("INSERT", None, locked.value))
+    assert database_unavailable(OperationalError("INSERT", None, read_only.value))
     assert not database_unavailable(OperationalError("SELECT", None, schema.value))
 
 
