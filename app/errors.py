@@ -228,11 +228,16 @@ also stands for "no such table" or "no such column" (SQLITE_ERROR): a schema thi
 not match, which a retry does not mend."""
 
 
-def database_unavailable(exc: DBAPIError) -> bool:
+def database_unavailable(exc: BaseException) -> bool:
     """Whether the database could not serve at all (down, restarting, its connection lost,
-    out of connections or disk, locked past the busy timeout, a serialization conflict)
-    rather than failed on this request: PostgreSQL's OperationalError, except its class 54 (a
-    statement over a program limit, which a retry repeats), and SQLite's of ``SQLITE_OUTAGES``."""
+    out of connections or disk, locked past the busy timeout, a serialization conflict, the
+    pool's connections all taken) rather than failed on this request: PostgreSQL's
+    OperationalError, except its class 54 (a statement over a program limit, which a retry
+    repeats), and SQLite's of ``SQLITE_OUTAGES``."""
+    if isinstance(exc, PoolTimeout):
+        return True
+    if not isinstance(exc, DBAPIError):
+        return False
     if exc.connection_invalidated:
         return True
     if not isinstance(exc, OperationalError):

@@ -12,7 +12,6 @@ from datetime import timedelta
 from functools import partial
 
 from fastapi import FastAPI
-from sqlalchemy.exc import DBAPIError
 
 from app import __version__
 from app.compression import CompressedReads
@@ -63,7 +62,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         except schema.SchemaBehind as exc:
             log.error("not starting: %s", exc)
             raise
-        except DBAPIError as exc:
+        except Exception as exc:
             if not database_unavailable(exc):
                 raise
             # serve anyway, as without the frame store: /health says so, requests get 503

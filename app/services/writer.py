@@ -24,7 +24,6 @@ from typing import Any, Literal, TypeVar
 
 from sqlalchemy import Connection, Engine
 from sqlalchemy.exc import DBAPIError, IntegrityError
-from sqlalchemy.exc import TimeoutError as PoolTimeout
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import deferred_inserts
@@ -74,12 +73,6 @@ def _refused(refusal: Refusal) -> BaseException:
     if refusal == "revoked":
         return Unauthorized("unknown token: it was replaced, or its camera retired")
     return CameraChanged()
-
-
-def _outage(exc: Exception) -> bool:
-    return isinstance(exc, PoolTimeout) or (
-        isinstance(exc, DBAPIError) and database_unavailable(exc)
-    )
 
 
 def _settle(future: Future[Any] | asyncio.Future[Any], outcome: Outcome) -> None:
@@ -319,7 +312,7 @@ class GroupCommitWriter:
                 # another process stored the same frame meanwhile: once more, the job now sees
                 # it (an idempotent replay) or fails for good
                 return [self._once(batch[0], exc)]
-            if len(batch) == 1 or _outage(exc):
+            if len(batch) == 1 or database_unavailable(exc):
                 # the database down fails every job alike: trying each alone would wait out
                 # the connect timeout once per job (64 × 5 s) before the next batch
                 return [(None, exc)] * len(batch)

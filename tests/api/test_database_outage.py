@@ -22,7 +22,8 @@ import httpx2 as httpx
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, make_url, text
-from sqlalchemy.exc import DBAPIError, IntegrityError, InterfaceError, OperationalError
+from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 
 from app.errors import database_unavailable
 from app.main import create_app
@@ -150,9 +151,12 @@ class _Driver(Exception):
         (OperationalError("SELECT 1", None, _Driver("54000")), False),
         (IntegrityError("INSERT", None, _Driver("23505")), False),
         (InterfaceError("SELECT 1", None, _Driver(None)), False),
+        # the pool's connections all taken for its timeout
+        (PoolTimeout("QueuePool limit of size 10 overflow 20 reached"), True),
+        (ValueError("not the database's"), False),
     ],
 )
-def test_what_counts_as_an_outage(error: DBAPIError, unavailable: bool) -> None:
+def test_what_counts_as_an_outage(error: Exception, unavailable: bool) -> None:
     assert database_unavailable(error) is unavailable
 
 
