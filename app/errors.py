@@ -14,7 +14,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.observability import FRAMES_REJECTED
-from app.routes import operations
+from app.routes import operations_of
 
 log = logging.getLogger("vantage.errors")
 
@@ -140,7 +140,7 @@ def allowed_methods(request: Request, first: str | None) -> str:
     the others come from the OpenAPI document. HEAD is answered wherever GET is
     (``app.head``)."""
     path = request.url.path
-    methods = {m for pattern, m, _ in operations(request.app.openapi()) if pattern.match(path)}
+    methods = {m for pattern, _, m in operations_of(request.app) if pattern.match(path)}
     methods |= {m.strip() for m in (first or "").split(",") if m.strip()}
     if "GET" in methods:
         methods.add("HEAD")

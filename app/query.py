@@ -58,7 +58,7 @@ def _takes_many(schema: dict[str, Any]) -> bool:
 def rules(document: dict[str, Any]) -> dict[str, list[Rule]]:
     """Per HTTP method, each path of the OpenAPI ``document`` with its query parameters."""
     out: dict[str, list[Rule]] = {}
-    for pattern, method, operation in operations(document):
+    for pattern, _, method, operation in operations(document):
         query = [p for p in operation.get("parameters", ()) if p.get("in") == "query"]
         known = frozenset(p["name"] for p in query)
         single = frozenset(p["name"] for p in query if not _takes_many(p.get("schema", {})))
