@@ -8,7 +8,10 @@ empty tables.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -126,3 +129,34 @@ def table_counts(engine: Engine) -> dict[str, int]:
     names = inspect(engine).get_table_names()
     with engine.connect() as conn:
         return {n: conn.execute(text(f"SELECT count(*) FROM {n}")).scalar_one() for n in names}
+
+
+@dataclass
+class Stall:
+    stuck: threading.Event = field(default_factory=threading.Event)
+    """Set once the first batch is held."""
+    release: threading.Event = field(default_factory=threading.Event)
+    batches: list[int] = field(default_factory=list)
+    """The size of every batch written meanwhile, the held one first."""
+
+
+@contextmanager
+def stalled_writer(writer: Any) -> Iterator[Stall]:
+    """The frame writer's next batch waits, as on a database that does not commit, until
+    ``release`` is set (30 s at most: never hang the suite); released and restored on exit."""
+    write = writer._write
+
+    def stalling(batch: Any, **kw: Any) -> Any:
+        stall.batches.append(len(batch))
+        if not stall.stuck.is_set():
+            stall.stuck.set()
+            stall.release.wait(30)
+        return write(batch, **kw)
+
+    stall = Stall()
+    writer._write = stalling
+    try:
+        yield stall
+    finally:
+        stall.release.set()
+        writer._write = write

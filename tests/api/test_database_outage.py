@@ -28,7 +28,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from app.errors import database_unavailable
 from app.main import create_app
 from app.settings import Settings
-from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, table_counts
+from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, stalled_writer, table_counts
 from tests.servers import free_port, server_env, start_server
 
 PG_URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
@@ -449,34 +449,22 @@ def test_a_batch_meeting_an_outage_fails_at_once(
         r = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin)
         headers = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
         writer = app.state.writer
-        write, stuck, release = writer._write, threading.Event(), threading.Event()
-        batches: list[int] = []
-
-        def stalling(batch: Any, **kw: Any) -> Any:
-            batches.append(len(batch))
-            if not stuck.is_set():
-                stuck.set()
-                release.wait(30)
-            return write(batch, **kw)
-
-        writer._write = stalling
 
         def upload(seed: int) -> Any:
             body = make_jpeg(seed=seed, noise=5)
             return client.post("/cameras/c/frames", content=body, headers=headers)
 
-        with ThreadPoolExecutor(9) as pool:
+        with stalled_writer(writer) as stall, ThreadPoolExecutor(9) as pool:
             first = pool.submit(upload, 0)
-            assert stuck.wait(10)
+            assert stall.stuck.wait(10)
             rest = [pool.submit(upload, seed) for seed in range(1, 9)]
             for _ in range(100):  # the 8 queued behind the stalled batch
                 if writer._queue.qsize() == 8:
                     break
                 time.sleep(0.05)
             with database_down(app) as refused:
-                release.set()
+                stall.release.set()
                 answers = [first.result(), *(u.result() for u in rest)]
-        writer._write = write
     assert [a.status_code for a in answers] == [503] * 9
-    assert batches[:2] == [1, 8]
+    assert stall.batches[:2] == [1, 8]
     assert refused.statements <= 2 * 2  # each batch once, and once more on a fresh connection

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from app.services.storage import PACK_HEADER
-from tests.conftest import make_jpeg, table_counts
+from tests.conftest import make_jpeg, stalled_writer, table_counts
 
 DAY = (datetime.now(UTC) - timedelta(days=2)).date().isoformat()
 """A recent day: frames taken before the history the service keeps are refused."""
@@ -709,23 +709,8 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
     from concurrent.futures import ThreadPoolExecutor
 
     writer = app.state.writer
-    stuck, release = threading.Event(), threading.Event()
-    write = writer._write
-
-    stalled_jobs: list[int] = []
-
-    def stalled(batch: Any) -> Any:
-        if not stuck.is_set():
-            stalled_jobs.append(len(batch))
-            stuck.set()
-            release.wait(30)
-        return write(batch)
-
-    writer._write = stalled
     body = make_jpeg(seed=4, noise=5)
-    deadline = threading.Timer(20, release.set)  # never hang the suite
-    deadline.start()
-    with ThreadPoolExecutor(50) as pool:
+    with stalled_writer(writer) as stall, ThreadPoolExecutor(50) as pool:
         uploads = [
             pool.submit(
                 client.post,
@@ -738,19 +723,18 @@ def test_a_stalled_database_does_not_starve_the_other_endpoints(
         ]
         try:
             # the first batch stalls; the other uploads are decoded and queued behind it
-            assert stuck.wait(10)
+            assert stall.stuck.wait(10)
             for _ in range(100):
-                if stalled_jobs[0] + writer._queue.qsize() == 50:
+                if stall.batches[0] + writer._queue.qsize() == 50:
                     break
                 threading.Event().wait(0.1)
-            assert stalled_jobs[0] + writer._queue.qsize() == 50
+            assert stall.batches[0] + writer._queue.qsize() == 50
             assert not any(u.done() for u in uploads)
             r = client.get("/cameras/cam-1", headers=admin)  # a sync endpoint: a pool thread
             assert r.status_code == 200
-            assert not release.is_set(), "answered only after the stall ended"
+            assert not stall.release.is_set(), "answered only after the stall ended"
         finally:
-            release.set()
-            deadline.cancel()
+            stall.release.set()
         assert [u.result().status_code for u in uploads] == [201] * 50
 
 
@@ -761,7 +745,6 @@ def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
     the frames were stored whenever it came back, long after the cameras had given up and sent
     them again. Now an upload gets 503 ``upload_timeout`` after ``upload_timeout_seconds``;
     those not yet being written are dropped, and the cameras' retries store each frame once."""
-    import threading
     from concurrent.futures import ThreadPoolExecutor
 
     from app.main import create_app
@@ -772,18 +755,6 @@ def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
     with TestClient(app, raise_server_exceptions=False) as client:
         r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
         headers = cam_headers(r.json())
-        writer = app.state.writer
-        write, stuck, release = writer._write, threading.Event(), threading.Event()
-        stalled: list[int] = []
-
-        def stalling(batch: Any) -> Any:
-            if not stuck.is_set():
-                stalled.append(len(batch))
-                stuck.set()
-                release.wait(30)
-            return write(batch)
-
-        writer._write = stalling
 
         def upload(i: int) -> Any:
             return client.post(
@@ -793,24 +764,20 @@ def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
                 params={"captured_at": f"{DAY}T00:00:{i:02d}Z"},
             )
 
-        try:
-            with ThreadPoolExecutor(8) as pool:
-                first = pool.submit(upload, 0)
-                assert stuck.wait(10)  # the first upload's batch hangs in the database
-                rest = [pool.submit(upload, i) for i in range(1, 8)]
-                answers = [first.result(), *(u.result() for u in rest)]
-        finally:
-            release.set()
+        with stalled_writer(app.state.writer) as stall, ThreadPoolExecutor(8) as pool:
+            first = pool.submit(upload, 0)
+            assert stall.stuck.wait(10)  # the first upload's batch hangs in the database
+            rest = [pool.submit(upload, i) for i in range(1, 8)]
+            answers = [first.result(), *(u.result() for u in rest)]
         assert [a.status_code for a in answers] == [503] * 8
         assert {a.json()["code"] for a in answers} == {"upload_timeout"}
         assert {a.headers["retry-after"] for a in answers} == {"5"}
-        writer._write = write
         # the batch under way when the deadline came is stored; the 7 queued behind it are not
         again = client.post(
             "/cameras/cam-1/frames", content=make_jpeg(seed=99, noise=5), headers=headers
         )
         assert again.status_code == 201  # written after everything queued before it
-        assert table_counts(engine)["frames"] == stalled[0] + 1
+        assert table_counts(engine)["frames"] == stall.batches[0] + 1
         # the cameras send them again: each frame stored once, the first answered as a replay
         retried = [upload(i) for i in range(8)]
         assert [r.status_code for r in retried] == [201] * 8
