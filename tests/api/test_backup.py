@@ -15,8 +15,9 @@ from sqlalchemy import Engine
 
 from app.backup import BackupError, backup, main
 from app.main import create_app
+from app.security import ADMIN_TOKEN_FILE, admin_token_hash
 from app.settings import Settings
-from tests.conftest import ADMIN_TOKEN, make_jpeg, table_counts
+from tests.conftest import make_jpeg, table_counts
 
 ON_SQLITE = not os.environ.get("VANTAGE_TEST_DATABASE_URL", "").startswith("postgresql")
 
@@ -40,6 +41,9 @@ def test_a_backup_taken_during_uploads_restores(
     client: TestClient, settings: Settings, engine: Engine, admin: dict[str, str], tmp_path: Path
 ) -> None:
     headers = _camera(client, admin)
+    # a generated admin token, as a service started without VANTAGE_ADMIN_TOKEN keeps one
+    admin_token_hash(settings.model_copy(update={"admin_token": None}))
+    generated = (settings.data_dir / ADMIN_TOKEN_FILE).read_text().strip()
     before = [_post(client, headers, seed) for seed in range(5)]
     during: list[str] = []
     stop = threading.Event()
@@ -66,19 +70,17 @@ def test_a_backup_taken_during_uploads_restores(
     assert report.bytes > 0
     assert report.frames >= len(before) + 3
     assert report.frames <= len(before) + len(during)
-    assert (tmp_path / "backup" / "admin_token").exists() == (
-        settings.data_dir / "admin_token"
-    ).exists()
     assert backup(settings, tmp_path / "verified", verify=True).missing == []
 
-    # restored: a service on the copy serves every frame of the snapshot, byte for byte
+    # restored: a service on the copy, its admin token the copied one, serves every frame of
+    # the snapshot, byte for byte
     restored = Settings(
         env="test",
         data_dir=tmp_path / "backup",
         database_url=f"sqlite:///{tmp_path / 'backup' / 'vantage.db'}",
-        admin_token=ADMIN_TOKEN,  # type: ignore[arg-type]
         rate_limit_per_minute=0,
     )
+    admin = {"Authorization": f"Bearer {generated}"}
     with TestClient(create_app(restored), raise_server_exceptions=False) as copy:
         listed = copy.get("/cameras/cam-1/frames", headers=admin, params={"limit": 1000}).json()
         ids = {f["frame_id"] for f in listed}

@@ -13,16 +13,7 @@ from sqlalchemy import create_engine, text
 from app.db.schema import SchemaBehind, _scripts
 from app.main import create_app
 from app.settings import Settings
-from tests.conftest import ADMIN_TOKEN, migrate
-
-
-def _settings(tmp_path: Path, url: str) -> Settings:
-    return Settings(
-        env="test",
-        data_dir=tmp_path / "data",
-        database_url=url,
-        admin_token=ADMIN_TOKEN,  # type: ignore[arg-type]
-    )
+from tests.conftest import migrate
 
 
 def _previous_revision() -> str:
@@ -34,7 +25,7 @@ def _previous_revision() -> str:
     return down
 
 
-def test_a_schema_behind_the_code_is_refused_at_start(tmp_path: Path) -> None:
+def test_a_schema_behind_the_code_is_refused_at_start(settings: Settings, tmp_path: Path) -> None:
     """One migration short: /health had said "ok" and the rigs' endpoints failed (their
     newest column missing) with 500s."""
     url = f"sqlite:///{tmp_path / 'behind.db'}"
@@ -42,25 +33,25 @@ def test_a_schema_behind_the_code_is_refused_at_start(tmp_path: Path) -> None:
     migrate(url, previous)
     with (
         pytest.raises(SchemaBehind, match=rf"at {previous}.*alembic upgrade head"),
-        TestClient(create_app(_settings(tmp_path, url))),
+        TestClient(create_app(settings.model_copy(update={"database_url": url}))),
     ):
         pass
     migrate(url)  # what the message says to do
-    with TestClient(create_app(_settings(tmp_path, url))) as client:
+    with TestClient(create_app(settings.model_copy(update={"database_url": url}))) as client:
         assert client.get("/health").status_code == 200
 
 
-def test_an_empty_database_is_refused_at_start(tmp_path: Path) -> None:
+def test_an_empty_database_is_refused_at_start(settings: Settings, tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'empty.db'}"
     with (
         pytest.raises(SchemaBehind, match="no revision"),
-        TestClient(create_app(_settings(tmp_path, url))),
+        TestClient(create_app(settings.model_copy(update={"database_url": url}))),
     ):
         pass
 
 
 def test_a_schema_past_the_code_is_served_with_a_warning(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    settings: Settings, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     url = f"sqlite:///{tmp_path / 'ahead.db'}"
     migrate(url)
@@ -68,7 +59,9 @@ def test_a_schema_past_the_code_is_served_with_a_warning(
     with engine.begin() as conn:  # as the next version's migration leaves it
         conn.execute(text("UPDATE alembic_version SET version_num = 'a0a0a0a0a0a0'"))
     engine.dispose()
-    app = create_app(_settings(tmp_path, url))  # its logging replaces the logger's handlers
+    app = create_app(
+        settings.model_copy(update={"database_url": url})
+    )  # its logging replaces the logger's handlers
     service = logging.getLogger("vantage")
     service.addHandler(caplog.handler)
     try:
