@@ -9,9 +9,9 @@ to 6.22 and is not used). The statistics are ``app.core.soiling``'s: the same Th
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import cv2
@@ -173,23 +173,57 @@ FRESH = timedelta(hours=3)
 three hours); a camera's latest reading older than this is not today's air."""
 
 
-def nowcast(times: list[datetime], levels: list[float], now: datetime) -> float | None:
+def nowcast(times: Sequence[datetime], levels: Sequence[float], now: datetime) -> float | None:
     """A NowCast-style smoothed level: hourly means of the last 12 hours weighted wᵏ for the
     hour k ago, w = max(min/max of the hourly means, 0.5) — steady air weighs history, changing
     air weighs the latest hours (as the official NowCast for PM2.5). None without a reading in
     the last 3 hours (the official rule wants two of the last three)."""
-    hourly: dict[int, list[float]] = {}
-    for t, v in zip(times, levels, strict=True):
-        k = int((now - t) / timedelta(hours=1))
-        if 0 <= k < NOWCAST_HOURS:
-            hourly.setdefault(k, []).append(v)
-    if not any(k < FRESH / timedelta(hours=1) for k in hourly):
-        return None
-    means = {k: float(np.mean(v)) for k, v in hourly.items()}
-    lo, hi = min(means.values()), max(means.values())
-    w = max(lo / hi if hi > 0 else 1.0, 0.5)
-    weights = {k: w**k for k in means}
-    return sum(weights[k] * means[k] for k in means) / sum(weights.values())
+    return nowcasts(times, levels, [now])[0]
+
+
+_MICROSECOND = timedelta(microseconds=1)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+
+def _microseconds(times: Iterable[datetime]) -> NDArray[np.int64]:
+    """Exact integers, so that a reading exactly k hours old falls in hour k as it does in
+    datetime arithmetic (float seconds round at the microseconds of today's epochs)."""
+    return np.array([(t - _EPOCH) // _MICROSECOND for t in times], dtype=np.int64)
+
+
+def nowcasts(
+    times: Sequence[datetime], levels: Sequence[float], at: Sequence[datetime]
+) -> list[float | None]:
+    """``nowcast`` at each of ``at`` from the readings taken up to it, all at once: a reading
+    taken late re-smooths the readings after it. The hour k before ``a`` holds the readings
+    taken in (a − (k+1) h, a − k h], so each hour's count and sum are differences of the
+    sorted readings' running count and sum at 13 boundaries: O((m + n) log n) for m times and
+    n readings, not m × n."""
+    if len(times) != len(levels):
+        raise ValueError(f"{len(times)} times but {len(levels)} levels")
+    if not at:
+        return []
+    t = _microseconds(times)
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    v = np.asarray(levels, dtype=np.float64)[order]
+    running = np.concatenate(([0.0], np.cumsum(v)))
+    hour = timedelta(hours=1) // _MICROSECOND
+    bounds = _microseconds(at)[:, None] - hour * np.arange(NOWCAST_HOURS + 1)  # m × 13
+    upto = np.searchsorted(t, bounds, side="right")  # readings taken at or before each bound
+    counts = upto[:, :-1] - upto[:, 1:]  # m × 12: hour k is (bound k+1, bound k]
+    sums = running[upto[:, :-1]] - running[upto[:, 1:]]
+    fresh = counts[:, : int(FRESH / timedelta(hours=1))].any(axis=1)
+    out: list[float | None] = [None] * len(at)
+    powers = np.arange(NOWCAST_HOURS)
+    for i in np.flatnonzero(fresh):
+        present = counts[i] > 0
+        means = sums[i, present] / counts[i, present]
+        lo, hi = means.min(), means.max()
+        w = max(lo / hi if hi > 0 else 1.0, 0.5)
+        weights = w ** powers[present]
+        out[i] = float(weights @ means / weights.sum())
+    return out
 
 
 SKY_FEATURES = (

@@ -12,7 +12,7 @@ from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import ColumnElement, Select, and_, func, literal_column, or_, select
+from sqlalchemy import ColumnElement, Select, and_, func, literal_column, or_, select, update
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.core import airquality, soiling
@@ -333,27 +333,50 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         if g.level is not None:
             verdict.level = g.level
             verdict.category = airquality.category(g.level)
-    # the camera's readings up to this frame's capture: a frame uploaded late (a backlog) is
-    # smoothed with the hours before it was taken, not with the readings taken since
-    since = frame.captured_at - timedelta(hours=airquality.NOWCAST_HOURS)
-    graded = (
-        select(Frame.captured_at, SkyVerdict.level, SkyVerdict.smoothed_level)
+    # the camera's readings of the 12 hours before this frame and the 12 after: those up to
+    # its capture smooth it (a frame uploaded late, a backlog, is smoothed with the hours
+    # before it was taken, not with the readings taken since); those after it, smoothed
+    # before it arrived, are smoothed again with it
+    # (an ungraded reading has a smoothed level too: the camera's, from the readings before)
+    readings = (
+        select(Frame.id, Frame.captured_at, SkyVerdict.level, SkyVerdict.smoothed_level)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == camera.id, SkyVerdict.level.is_not(None))
+        .where(Frame.camera_id == camera.id)
     )
-    history = session.execute(
-        graded.where(Frame.captured_at >= since, Frame.captured_at <= frame.captured_at).order_by(
-            Frame.captured_at.desc(), Frame.received_at.desc()
-        )
+    graded = readings.where(SkyVerdict.level.is_not(None))
+    hours = timedelta(hours=airquality.NOWCAST_HOURS)
+    around = session.execute(
+        readings.where(
+            Frame.captured_at > frame.captured_at - hours,
+            Frame.captured_at < frame.captured_at + hours,
+        ).order_by(Frame.captured_at.desc(), Frame.received_at.desc())
     ).all()
-    times = [r[0] for r in history]
-    levels = [float(r[1]) for r in history if r[1] is not None]
+    times = [r.captured_at for r in around if r.level is not None]
+    levels = [float(r.level) for r in around if r.level is not None]
+    later = []
     if verdict.level is not None:
+        later = [r for r in around if r.captured_at >= frame.captured_at]
         times.append(frame.captured_at)
         levels.append(float(verdict.level))
-    smoothed = airquality.nowcast(times, levels, frame.captured_at)
+    smoothed, *again = airquality.nowcasts(
+        times, levels, [frame.captured_at, *(r.captured_at for r in later)]
+    )
     verdict.smoothed_level = smoothed
-    earlier = (float(r[2]) for r in history if r[2] is not None)  # newest first
+    changed = [
+        {"frame_id": r.id, "smoothed_level": s}
+        for r, s in zip(later, again, strict=True)
+        if (s is None) != (r.smoothed_level is None)
+        or (s is not None and not math.isclose(s, r.smoothed_level, rel_tol=1e-12))
+    ]
+    if changed:  # no alert: the readings were judged when they arrived (README)
+        session.execute(update(SkyVerdict), changed)
+    earlier = (  # newest first
+        float(r.smoothed_level)
+        for r in around
+        if r.captured_at <= frame.captured_at
+        and r.level is not None
+        and r.smoothed_level is not None
+    )
     if smoothed is None:
         return verdict
     kind, alert = "raised", airquality.alert_category(smoothed, earlier)

@@ -366,7 +366,8 @@ def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
 ) -> None:
     """sky1 reports clean air for three hours, then uploads its backlog: four frames of haze
     taken six hours ago. They are graded and smoothed with the hours before they were taken
-    (Very Poor then), but they raise no alert now and the camera's latest stays clean."""
+    (Very Poor then), but they raise no alert now and the camera's latest stays clean; its
+    smoothed level now counts them, five and six hours back."""
     assert calibrate(client, admin).status_code == 201
     for hour in range(3):
         city["clock"].advance(hours=1)
@@ -385,11 +386,61 @@ def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
     assert client.get("/air/alerts").json() == []
     latest = client.get("/air/cameras/sky1/latest").json()
     assert latest["level"] == 10
-    assert latest["smoothed_level"] == pytest.approx(10)
     readings = client.get("/air/readings", params={"camera_id": "sky1"}).json()
     late = [r for r in readings if r["level"] in (1, 2)]
     assert len(late) == 4
     assert all(r["smoothed_level"] <= 2 for r in late)  # the hours before them had no reading
+    # NowCast at the latest: hours 0, 1, 2 ago at 10, hour 5 the three later hazy frames, hour
+    # 6 the first; w = max(min/max of the hourly means, 0.5) = 0.5
+    five, six = np.mean([r["level"] for r in late[:3]]), late[3]["level"]
+    expected = (10 * (1 + 0.5 + 0.25) + five * 0.5**5 + six * 0.5**6) / (1.75 + 0.5**5 + 0.5**6)
+    assert latest["smoothed_level"] == pytest.approx(expected, rel=1e-9)
+    assert latest["category"] == "Very Good"
+
+
+def test_a_backlog_uploaded_newest_first_is_smoothed_as_if_uploaded_in_order(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Cameras that buffer frames while offline may send the newest first. Each reading's
+    smoothed level is the NowCast of the readings up to it, whatever order they came in:
+    sky2 uploads four hours of changing air in order, sky3 the same frames newest first.
+    Ungraded readings (a night frame; one sky outside calibration) keep the camera's smoothed
+    level of their time too."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=5)
+    frames = [
+        (start + timedelta(minutes=20 * k), sky_jpeg(level, seed=k))
+        for k, level in enumerate([10, 10, 7, 7, 5, 5, 3, 3, 5, 7, 7, 10])
+    ]
+    ok, night = cv2.imencode(".jpg", np.full((100, 160, 3), 3, np.uint8))
+    assert ok
+    frames.insert(4, (start + timedelta(minutes=70), night.tobytes()))
+    for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
+        for taken, jpeg in order:
+            r = client.post(
+                f"/cameras/{camera}/frames",
+                content=jpeg,
+                headers={
+                    "Authorization": f"Bearer {city['tokens'][camera][0]}",
+                    "Content-Type": "image/jpeg",
+                },
+                params={"captured_at": taken.isoformat()},
+            )
+            assert r.status_code == 201, r.text
+    in_order, newest_first = (
+        client.get("/air/readings", params={"camera_id": c}).json() for c in ("sky2", "sky3")
+    )
+    assert len(in_order) == len(newest_first) == len(frames)
+    assert [r["level"] for r in newest_first] == [r["level"] for r in in_order]
+    assert len({r["level"] for r in in_order}) >= 3  # the air changed
+    ungraded = [r for r in in_order if r["level"] is None]
+    assert len(ungraded) == 2
+    assert all(r["smoothed_level"] is not None for r in ungraded)
+    smoothed = [r["smoothed_level"] for r in in_order]
+    assert [r["smoothed_level"] for r in newest_first] == pytest.approx(smoothed, rel=1e-9)
+    assert smoothed != pytest.approx([r["level"] for r in in_order])  # smoothing did something
+    latest = client.get("/air/cameras/sky3/latest").json()
+    assert latest["smoothed_level"] == pytest.approx(smoothed[0], rel=1e-9)
 
 
 class TestBadInput:

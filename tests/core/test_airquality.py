@@ -123,6 +123,45 @@ class TestNowcast:
         now = datetime(2026, 6, 1, 12, tzinfo=UTC)
         assert airquality.nowcast([now - timedelta(hours=5)], [5.0], now) is None
 
+    def test_at_many_times_as_defined_reading_by_reading(self) -> None:
+        """``nowcasts`` (running sums at hour boundaries) against the definition written out
+        reading by reading: each reading 0 ≤ age < 12 h in hour ⌊age⌋, weights wᵏ. Seeded
+        random times, a third of them on whole minutes so that readings exactly k hours
+        before a time occur, in random order."""
+        rng = np.random.default_rng(7)
+        t0 = datetime(2026, 6, 1, tzinfo=UTC)
+        minutes, seconds = rng.integers(0, 1440, 300), rng.random(300) * 86400
+        times = [
+            t0 + timedelta(minutes=int(minutes[k]))
+            if k % 3 == 0
+            else t0 + timedelta(seconds=float(seconds[k]))
+            for k in range(300)
+        ]
+        levels = [float(x) for x in rng.integers(1, 11, 300)]
+        at = times[:100] + [t0 + timedelta(hours=h) for h in range(25)]
+
+        def defined(now: datetime) -> float | None:
+            hourly: dict[int, list[float]] = {}
+            for t, v in zip(times, levels, strict=True):
+                age = now - t
+                if timedelta(0) <= age < timedelta(hours=12):
+                    hourly.setdefault(age // timedelta(hours=1), []).append(v)
+            if not any(k < 3 for k in hourly):
+                return None
+            means = {k: float(np.mean(v)) for k, v in hourly.items()}
+            w = max(min(means.values()) / max(means.values()), 0.5)
+            return sum(w**k * m for k, m in means.items()) / sum(w**k for k in means)
+
+        expected = [defined(a) for a in at]
+        got = airquality.nowcasts(times, levels, at)
+        assert sum(e is None for e in expected) >= 1  # t0 itself: nothing before it
+        assert [g is None for g in got] == [e is None for e in expected]
+        assert [g for g in got if g is not None] == pytest.approx(
+            [e for e in expected if e is not None], rel=1e-12
+        )
+        on_the_hour = [a for a in at if any(a - t == timedelta(hours=2) for t in times)]
+        assert on_the_hour  # the boundary case occurs
+
 
 def smooth_field(n: int = 60, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cameras over ~20 km sampling a level that rises from west (1) to east (10)."""
