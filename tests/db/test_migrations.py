@@ -1,13 +1,24 @@
-"""Migrations that carry data over: rows written before them read as intended after."""
+"""Migrations that carry data over (rows written before them read as intended after), and
+the history walked down and up again with data in the tables."""
 
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
-from sqlalchemy import create_engine, text
+import pytest
+from alembic import command
+from alembic.script import ScriptDirectory
+from fastapi.testclient import TestClient
+from sqlalchemy import create_engine, make_url, text
 
-from tests.conftest import migrate
+from app.main import create_app
+from app.settings import Settings
+from tests.api import test_air, test_calibrations, test_solar
+from tests.conftest import ADMIN_TOKEN, alembic_config, migrate, table_counts
 
 
 def test_verdicts_baselines_and_calibrations_take_their_cameras_region(tmp_path: Path) -> None:
@@ -155,3 +166,97 @@ def test_verdicts_the_quality_gate_refused_are_marked_unusable(tmp_path: Path) -
         "waiting": True,
         "judged": True,
     }
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def empty_database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """A database of its own: a SQLite file, or a new database beside the PostgreSQL the
+    tests use (``VANTAGE_TEST_DATABASE_URL``), dropped afterwards."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'vantage.db'}"
+        return
+    test_url = os.environ.get("VANTAGE_TEST_DATABASE_URL")
+    if not test_url:
+        pytest.skip("VANTAGE_TEST_DATABASE_URL is not set")
+    server = make_url(test_url)
+    name = f"vantage_rollback_{os.getpid()}"
+    admin = create_engine(server, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(text(f"DROP DATABASE IF EXISTS {name}"))
+        conn.execute(text(f"CREATE DATABASE {name}"))
+    try:
+        yield server.set(database=name).render_as_string(hide_password=False)
+    finally:
+        with admin.connect() as conn:
+            conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
+        admin.dispose()
+
+
+def test_a_deploy_rolled_back_step_by_step_with_data_and_upgraded_again(
+    tmp_path: Path, empty_database: str
+) -> None:
+    """An operator rolling back a release runs ``alembic downgrade`` on a database in use. A
+    database the service filled through its API (a panel with a baseline, frames and a
+    cleaning task claimed by a robot; a sky camera calibrated, graded and alerting; a cross
+    rig; a camera calibration) goes down one revision at a time to the first, then up again
+    to head, and the service starts on it and serves."""
+    url = empty_database
+    migrate(url)
+    settings = Settings(
+        env="test",
+        data_dir=tmp_path / "data",
+        database_url=url,
+        admin_token=ADMIN_TOKEN,  # type: ignore[arg-type]
+        rate_limit_per_minute=0,
+    )
+    admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    app = create_app(settings)
+    clock = test_solar.Clock()
+    app.state.policy = replace(app.state.policy, clock=clock)
+    with TestClient(app) as client:
+        assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
+        camera = {"id": "c1", "kind": "panel", "panel_id": "p1"}
+        token = client.post("/cameras", json=camera, headers=admin).json()["token"]
+        robot = client.post("/robots", json={"id": "r1"}, headers=admin).json()["token"]
+        farm = {"camera": token, "clock": clock}
+        test_solar.dirty_with_a_task(client, admin, farm)
+        claimed = client.post("/cleaning/claim", headers=test_solar.bearer(robot))
+        assert claimed.status_code == 200, claimed.text
+
+        sky = {"id": "sky0", "kind": "sky", "lat": 45.4, "lon": 9.1, "roi": [0, 0, 160, 55]}
+        sky_token = client.post("/cameras", json=sky, headers=admin).json()["token"]
+        assert test_air.calibrate(client, admin).status_code == 201
+        city = {"tokens": {"sky0": (sky_token, sky["lon"])}, "clock": clock}
+        for k, level in enumerate((10, 1, 1, 1)):
+            clock.advance(minutes=20)
+            test_air.post(client, city, "sky0", level, seed=k)
+        assert client.get("/air/alerts").json()
+
+        rig = {"id": "cell-1", "kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2}
+        assert client.post("/rigs", json=rig, headers=admin).status_code == 201
+        views = test_calibrations.rendered_views(4)
+        status, _ = test_calibrations.upload(
+            client, admin, [(f"{i}.jpg", v) for i, v in enumerate(views)]
+        )
+        assert status == 201
+    engine = create_engine(url)
+    filled = table_counts(engine)
+    for table in ("frames", "baselines", "cleaning_tasks", "air_alerts", "rigs", "calibrations"):
+        assert filled[table] > 0, table
+
+    config = alembic_config(url)
+    revisions = len(list(ScriptDirectory.from_config(config).walk_revisions()))
+    version = text("SELECT version_num FROM alembic_version")
+    with engine.connect() as conn:
+        head = conn.scalar(version)
+    for _ in range(revisions):
+        command.downgrade(config, "-1")
+    with engine.connect() as conn:
+        assert conn.scalar(version) is None  # at the start of the history
+    migrate(url)
+    with engine.connect() as conn:
+        assert conn.scalar(version) == head
+    engine.dispose()
+    with TestClient(create_app(settings)) as client:
+        assert client.get("/health").json()["status"] == "ok"
+        assert client.post("/panels", json={"id": "p2"}, headers=admin).status_code == 201
