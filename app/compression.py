@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import gzip
 
-from starlette.datastructures import Headers
+from starlette.datastructures import Headers, MutableHeaders
 from starlette.middleware.gzip import GZipMiddleware
-from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 MINIMUM_BYTES = 1024
 """Smaller bodies go as they are: a few hundred bytes saved at most."""
@@ -53,4 +53,20 @@ class CompressedReads:
         if scope["type"] != "http" or scope["method"] != "GET":
             await self.app(scope, receive, send)
             return
-        await self.gzip(scope, receive, send)
+        await self.gzip(scope, receive, _weak_etag_when_gzipped(send))
+
+
+def _weak_etag_when_gzipped(send: Send) -> Send:
+    """A strong ETag names one byte sequence, so the gzipped body, another one, goes with it
+    made weak (RFC 9110 §8.8.1): the docs pages' static files carry Starlette's strong ETags.
+    ``If-None-Match`` compares weakly, so the client's next request still gets its 304."""
+
+    async def wrapped(message: Message) -> None:
+        if message["type"] == "http.response.start":
+            headers = MutableHeaders(scope=message)
+            etag = headers.get("etag")
+            if headers.get("content-encoding") == "gzip" and etag and not etag.startswith("W/"):
+                headers["etag"] = f"W/{etag}"
+        await send(message)
+
+    return wrapped

@@ -12,6 +12,7 @@ from datetime import timedelta
 from functools import partial
 
 from fastapi import FastAPI
+from fastapi_offline import FastAPIOffline
 
 from app import __version__
 from app.compression import CompressedReads
@@ -132,7 +133,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if read_engine is not None:
             read_engine.dispose()
 
-    app = FastAPI(
+    # the docs pages' scripts and styles served by the service itself, not from a CDN: the
+    # networks of street cameras and robot cells are often closed to the internet, where
+    # FastAPI's /docs was a blank page
+    app = FastAPIOffline(
         title="Vantage",
         version=__version__,
         summary="Cameras as measuring instruments.",
