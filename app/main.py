@@ -148,6 +148,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         settings.effective_database_url,
         pool_size=settings.database_pool_size,
         max_overflow=settings.database_max_overflow,
+        statement_timeout_s=settings.database_statement_timeout_seconds,
     )
     app.state.settings = settings
     app.state.engine = engine

@@ -130,6 +130,13 @@ class Settings(BaseSettings):
         le=1000,
         description="PostgreSQL connections a process keeps open (its frame writer keeps one).",
     )
+    database_statement_timeout_seconds: float = Field(
+        default=30.0,
+        ge=0,
+        le=86400,
+        description="How long a statement may run or wait for a lock on PostgreSQL "
+        "(statement_timeout); then the request gets 503 database_unavailable. 0: no bound.",
+    )
     database_max_overflow: int = Field(
         default=20,
         ge=0,

@@ -9,16 +9,32 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import send_pending_first
 
+PG_STATEMENT_TIMEOUT_S = 30.0
+"""How long a statement may run or wait for a lock on PostgreSQL (``statement_timeout``)."""
+PG_CONNECT_TIMEOUT_S = 5
+"""How long a new connection to PostgreSQL may take, its handshake included."""
+PG_POOL_TIMEOUT_S = 10
+"""How long a request waits for one of the pool's connections before its 503."""
+PG_TCP_USER_TIMEOUT_MS = 15_000
+"""How long sent data may go unacknowledged before the connection is dropped."""
 
-def make_engine(url: str, *, pool_size: int = 10, max_overflow: int = 20) -> Engine:
+
+def make_engine(
+    url: str,
+    *,
+    pool_size: int = 10,
+    max_overflow: int = 20,
+    statement_timeout_s: float = PG_STATEMENT_TIMEOUT_S,
+) -> Engine:
     """An engine tuned for the backend: WAL and a busy timeout on SQLite, a pool on PostgreSQL
-    of ``pool_size`` connections kept and ``max_overflow`` more under load."""
-    engine = _engine(url, pool_size, max_overflow)
+    of ``pool_size`` connections kept and ``max_overflow`` more under load, whose statements
+    may take ``statement_timeout_s`` at most (0: no bound)."""
+    engine = _engine(url, pool_size, max_overflow, statement_timeout_s)
     send_pending_first(engine)  # app.db.rows.deferred_inserts
     return engine
 
 
-def _engine(url: str, pool_size: int, max_overflow: int) -> Engine:
+def _engine(url: str, pool_size: int, max_overflow: int, statement_timeout_s: float) -> Engine:
     if url.startswith("sqlite"):
         # One connection per process: requests queue for it in Python (fair, no polling) rather
         # than in SQLite's busy handler, whose sleeps grow to 100 ms under contention. Every use
@@ -49,24 +65,20 @@ def _engine(url: str, pool_size: int, max_overflow: int) -> Engine:
         max_overflow=max_overflow,
         pool_pre_ping=True,
         pool_timeout=PG_POOL_TIMEOUT_S,
-        connect_args=_pg_timeouts(url),
+        connect_args=_pg_timeouts(url, statement_timeout_s),
     )
 
 
-PG_CONNECT_TIMEOUT_S = 5
-"""How long a new connection to PostgreSQL may take, its handshake included."""
-PG_POOL_TIMEOUT_S = 10
-"""How long a request waits for one of the pool's connections before its 503."""
-PG_TCP_USER_TIMEOUT_MS = 15_000
-"""How long sent data may go unacknowledged before the connection is dropped."""
-
-
-def _pg_timeouts(url: str) -> dict[str, Any]:
+def _pg_timeouts(url: str, statement_timeout_s: float = PG_STATEMENT_TIMEOUT_S) -> dict[str, Any]:
     """libpq's bounds on waiting for a server that cannot be reached (a failover moving its
     address, a network partition): without them a new connection waits psycopg's default of
     130 s, and a query sent to a server that vanished waits for the kernel's retransmissions
     (~15 minutes), each holding a worker thread, so that requests hang instead of getting
-    their 503. The database URL's own parameters (``?connect_timeout=…``) take precedence."""
+    their 503. And the server's own bound on a statement, ``statement_timeout``: a server
+    that answers but whose tables are locked (``VACUUM FULL``, an ``ALTER TABLE``, a
+    migration waiting for its lock, which queues every reader behind it) held every request
+    on them for as long, with ``/health`` "ok". The database URL's own parameters
+    (``?connect_timeout=…``, ``?options=…``) take precedence."""
     ours: dict[str, Any] = {
         "connect_timeout": PG_CONNECT_TIMEOUT_S,
         "tcp_user_timeout": PG_TCP_USER_TIMEOUT_MS,
@@ -75,6 +87,8 @@ def _pg_timeouts(url: str) -> dict[str, Any]:
         "keepalives_interval": 10,
         "keepalives_count": 3,
     }
+    if statement_timeout_s > 0:
+        ours["options"] = f"-c statement_timeout={round(statement_timeout_s * 1000)}"
     given = make_url(url).query
     return {k: v for k, v in ours.items() if k not in given}
 

@@ -373,16 +373,80 @@ def test_a_database_that_does_not_answer(proxied: Proxied) -> None:
     assert r.status_code == 201, r.text
 
 
+@pytest.mark.slow
+@pytest.mark.postgres
+@pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="needs PostgreSQL")
+def test_tables_locked_past_the_statement_timeout(engine: Engine, tmp_path: Path) -> None:
+    """PostgreSQL answers but the frames table is locked (``VACUUM FULL``, an ``ALTER
+    TABLE``, a migration queued for its lock): each request on it gets its 503 after the
+    statement timeout (1 s here, 30 s by default) instead of waiting for the lock with no
+    bound (measured: every one still waiting after 12 s, /health "ok"); as soon as the
+    lock goes, they are served again."""
+    _empty_tables(engine)
+    port = free_port()
+    env = server_env(
+        PG_URL,
+        tmp_path,
+        VANTAGE_LOG_LEVEL="ERROR",
+        VANTAGE_DATABASE_STATEMENT_TIMEOUT_SECONDS="1",
+    )
+    proc = start_server(env, port)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        r = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "sky"}, headers=ADMIN)
+        camera = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+        requests = {
+            "upload": ("POST", "/cameras/c/frames", camera, make_jpeg(noise=5, seed=1)),
+            "registry": ("GET", "/cameras", ADMIN, None),
+            "dashboard": ("GET", "/air/latest", {}, None),
+            "readings": ("GET", "/air/readings", {}, None),
+        }
+
+        def send(method: str, path: str, h: dict[str, str], body: bytes | None) -> Any:
+            with httpx.Client(base_url=base, timeout=20) as c:
+                began = time.monotonic()
+                r = c.request(method, path, headers=h, content=body)
+                return r.status_code, time.monotonic() - began, r.headers.get("retry-after")
+
+        with engine.connect() as locker:
+            lock = locker.begin()
+            locker.execute(text("LOCK TABLE frames IN ACCESS EXCLUSIVE MODE"))
+            with ThreadPoolExecutor(len(requests)) as pool:
+                answers = {k: pool.submit(send, *v) for k, v in requests.items()}
+                got = {k: f.result() for k, f in answers.items()}  # a hang: ReadTimeout
+            assert httpx.get(f"{base}/health").status_code == 200  # SELECT 1 is not locked
+            lock.rollback()
+        assert {k: (status, retry) for k, (status, _, retry) in got.items()} == dict.fromkeys(
+            requests, (503, "5")
+        )
+        assert max(seconds for _, seconds, _ in got.values()) < 10
+        assert {k: send(*v)[0] for k, v in requests.items()} == {
+            "upload": 201,
+            "registry": 200,
+            "dashboard": 200,
+            "readings": 200,
+        }
+    finally:
+        proc.terminate()
+        proc.wait(30)
+
+
 def test_the_database_urls_own_timeouts_win() -> None:
     from app.db.session import _pg_timeouts
 
     ours = _pg_timeouts("postgresql+psycopg://u@db/v")
     assert ours["connect_timeout"] == 5
     assert ours["tcp_user_timeout"] == 15_000
-    given = _pg_timeouts("postgresql+psycopg://u@db/v?connect_timeout=20&keepalives=0")
+    assert ours["options"] == "-c statement_timeout=30000"
+    given = _pg_timeouts(
+        "postgresql+psycopg://u@db/v?connect_timeout=20&keepalives=0&options=-c%20work_mem%3D64MB"
+    )
     assert "connect_timeout" not in given  # the URL's 20 reaches the driver
     assert "keepalives" not in given
+    assert "options" not in given  # the URL's options replace ours: a bound is theirs to set
     assert given["tcp_user_timeout"] == 15_000
+    assert "options" not in _pg_timeouts("postgresql+psycopg://u@db/v", 0)  # no bound
+    assert _pg_timeouts("postgresql+psycopg://u@db/v", 2.5)["options"].endswith("=2500")
 
 
 @pytest.mark.skipif(not PG_URL.startswith("postgresql"), reason="a pool on PostgreSQL only")
