@@ -81,9 +81,17 @@ class TooManyRequests(VantageError):
         super().__init__(detail, headers={"Retry-After": str(retry_after)}, **extra)
 
 
+RETRY_AFTER_SECONDS = 5
+"""What a 503 asks its client to wait: the database or the frame store unavailable, an upload
+not stored in time."""
+
+
 class ServiceUnavailable(VantageError):
     status = 503
     title = "Service unavailable"
+
+    def __init__(self, detail: str, *, retry_after: int = RETRY_AFTER_SECONDS, **extra: Any):
+        super().__init__(detail, headers={"Retry-After": str(retry_after)}, **extra)
 
 
 def problem(
@@ -208,9 +216,6 @@ def install_error_handlers(app: FastAPI) -> None:
         return problem(500, "Internal server error", "the service failed; see its logs")
 
 
-DATABASE_RETRY_AFTER = "5"
-
-
 SQLITE_OUTAGES = frozenset(
     {
         "SQLITE_BUSY",  # locked past the busy timeout
@@ -258,6 +263,6 @@ def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
         503,
         "Service unavailable",
         "the database cannot be reached or is busy: try again shortly",
-        headers={"Retry-After": DATABASE_RETRY_AFTER},
+        headers={"Retry-After": str(RETRY_AFTER_SECONDS)},
         code="database_unavailable",
     )

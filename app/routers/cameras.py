@@ -218,7 +218,7 @@ async def post_frame(
         raise ServiceUnavailable(
             f"camera {target.id} was changed {MEASURES} times while this frame was measured; "
             "send it again",
-            headers={"Retry-After": "1"},
+            retry_after=1,
             code="camera_changing",
         )
     if not done.replay:
@@ -502,6 +502,5 @@ async def _within(seconds: float, stored: asyncio.Future[T]) -> T:
         raise ServiceUnavailable(
             f"the frame was not measured and stored within {seconds:g} s (the database or the "
             "disk is not answering, or the service is overloaded): send it again",
-            headers={"Retry-After": "5"},
             code="upload_timeout",
         ) from None

@@ -33,7 +33,7 @@ class StoreUnavailable(ServiceUnavailable):
     """The frame store cannot be reached or written: 503, try again shortly."""
 
     def __init__(self, detail: str) -> None:
-        super().__init__(detail, headers={"Retry-After": "5"}, code="store_unavailable")
+        super().__init__(detail, code="store_unavailable")
 
 
 def digest(data: bytes) -> str:
