@@ -455,17 +455,31 @@ class AirLatest(Out):
     name: str | None = None
     lat: float | None = None
     lon: float | None = None
-    level: int | None
-    category: str | None
-    message: str | None
-    captured_at: datetime | None
-    smoothed_level: float | None = Field(description="NowCast-style weighted recent level.")
+    level: int | None = Field(
+        description="The camera's public level: its smoothed level (NowCast-style weighted "
+        "average of the last 12 hours, as the map and the alerts use it) rounded, not the "
+        "latest frame's alone (frame_level). Null without a graded reading in the 3 hours "
+        "before the latest one."
+    )
+    category: str | None = Field(description="The category of the public level.")
+    message: str | None = Field(
+        description="Today's Air Quality is <category>: null when the latest reading is not "
+        "current."
+    )
+    captured_at: datetime | None = Field(description="When the latest reading was taken.")
+    smoothed_level: float | None = Field(
+        description="The public level unrounded; null when the latest reading is not current."
+    )
     smoothed_category: str | None
+    frame_level: int | None = Field(
+        description="The latest frame's own grade (null when it could not be graded: reason)."
+    )
+    frame_category: str | None
     reason: str | None
     current: bool = Field(
         description="The latest reading was taken in the last 3 hours. When not, the level and"
-        " category are that reading's (see captured_at), and message and the smoothed level are"
-        " null: they would speak of today's air."
+        " category are those of that reading's time (see captured_at), and message and the"
+        " smoothed level are null: they would speak of today's air."
     )
 
 

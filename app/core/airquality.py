@@ -34,12 +34,16 @@ MIN_CLUSTER = 5
 """A level needs this many images for its own cluster (F(3, n − 3) with n − 3 ≥ 2)."""
 
 
-def category(level: float) -> str:
-    """The category of a level 1–10 (fractional levels are rounded first)."""
+def rounded(level: float) -> int:
+    """A fractional level (a smoothed one) as the level 1–10 it is reported as: halves up."""
     if not np.isfinite(level) or not 0.5 <= level < 10.5:
         raise ValueError(f"level must lie in 1–10; got {level}")
-    rounded = int(np.floor(level + 0.5))
-    return next(name for lowest, name in CATEGORIES if rounded >= lowest)
+    return int(np.floor(level + 0.5))
+
+
+def category(level: float) -> str:
+    """The category of a level 1–10 (fractional levels are rounded first)."""
+    return next(name for lowest, name in CATEGORIES if rounded(level) >= lowest)
 
 
 ALERT_CATEGORIES = ("Poor", "Very Poor")

@@ -322,24 +322,33 @@ def _latest_out(
             captured_at=None,
             smoothed_level=None,
             smoothed_category=None,
+            frame_level=None,
+            frame_category=None,
             reason="no frames yet",
             current=False,
         )
     frame, v = found
     age = now - frame.captured_at
     current = age < airquality.FRESH  # else a camera gone quiet: not today's air
-    smoothed = v.smoothed_level if current else None
+    # the public level is the smoothed one (the map's and the alerts'), not the latest
+    # frame's: one hazy frame said "Today's Air Quality is Poor" while the map, from the
+    # same readings, drew the camera Fair
+    public = v.smoothed_level
+    level = airquality.rounded(public) if public is not None else None
+    category = airquality.category(public) if public is not None else None
     return AirLatest(
         camera_id=place.camera_id,
         name=place.name,
         lat=place.lat,
         lon=place.lon,
-        level=v.level,
-        category=v.category,
-        message=airquality.message(v.category) if current and v.category else None,
+        level=level,
+        category=category,
+        message=airquality.message(category) if current and category else None,
         captured_at=frame.captured_at,
-        smoothed_level=smoothed,
-        smoothed_category=airquality.category(smoothed) if smoothed is not None else None,
+        smoothed_level=public if current else None,
+        smoothed_category=category if current else None,
+        frame_level=v.level,
+        frame_category=v.category,
         reason=v.reason
         if current
         else f"no reading in the last 3 hours: the latest was taken "

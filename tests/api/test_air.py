@@ -3,6 +3,7 @@ isopleths (GeoJSON and PNG)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime, timedelta
@@ -827,6 +828,46 @@ def test_window_excludes_old_readings(
     fc = client.get("/air/isopleths", params={"window": 3600}).json()
     assert fc["cameras"] == []
     city["clock"].now -= timedelta(hours=3)
+
+
+def test_the_public_level_is_the_smoothed_one_not_one_frames(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Three hours of clean air, then one hazy frame: the camera's public level, category and
+    message are those of its smoothed level (which the map draws and alerts follow), the
+    frame's own grade is ``frame_level``. Before, one frame said "Today's Air Quality is
+    Very Poor" while the map drew the camera Very Good. A night frame after them keeps the
+    public level, and says why it has no grade of its own."""
+    assert calibrate(client, admin).status_code == 201
+    for k in range(9):
+        city["clock"].advance(minutes=20)
+        post(client, city, "sky2", 10, seed=k)
+    city["clock"].advance(minutes=20)
+    assert post(client, city, "sky2", 1, seed=50)["level"] in (1, 2)
+    latest = client.get("/air/cameras/sky2/latest").json()
+    assert latest["frame_level"] in (1, 2)
+    assert latest["frame_category"] == "Very Poor"
+    smoothed = latest["smoothed_level"]
+    assert 7 <= smoothed < 10  # the haze weighs, the clean hours more
+    assert latest["level"] == math.floor(smoothed + 0.5)
+    assert latest["category"] == latest["smoothed_category"] != "Very Poor"
+    assert latest["message"] == f"Today's Air Quality is {latest['category']}"
+    every = {c["camera_id"]: c for c in client.get("/air/latest").json()}
+    assert every["sky2"] == latest
+    on_the_map = next(
+        c for c in client.get("/air/isopleths").json()["cameras"] if c["camera_id"] == "sky2"
+    )
+    assert on_the_map["level"] == pytest.approx(smoothed)
+
+    city["clock"].advance(minutes=20)
+    ok, night = cv2.imencode(".jpg", np.full((100, 160, 3), 3, np.uint8))
+    assert ok
+    assert post_bytes(client, city, "sky2", night.tobytes())["level"] is None
+    dark = client.get("/air/cameras/sky2/latest").json()
+    assert dark["frame_level"] is None
+    assert dark["reason"]
+    assert dark["level"] == math.floor(dark["smoothed_level"] + 0.5)
+    assert dark["message"] == f"Today's Air Quality is {dark['category']}"
 
 
 def test_a_camera_gone_quiet_does_not_speak_of_today(
