@@ -326,7 +326,7 @@ def _filled(f: Field, z: NDArray[np.float64], edges: Sequence[float]) -> list[tu
     Polygon or MultiPolygon) for each band present, valid, exteriors counter-clockwise (RFC
     7946 right-hand rule)."""
     import contourpy
-    from shapely import MultiPolygon, Polygon, make_valid, unary_union
+    from shapely import MultiPolygon, Polygon, make_valid, simplify, unary_union
     from shapely.geometry.polygon import orient
 
     if np.isnan(z).all():
@@ -348,8 +348,14 @@ def _filled(f: Field, z: NDArray[np.float64], edges: Sequence[float]) -> list[tu
         if not polygons:
             continue
         geom = make_valid(unary_union(polygons))
+        # without the vertices lying on a straight line between their neighbours (tolerance
+        # 0: the same area, point for point): contourpy gives one at every cell along the
+        # grid's edges and straight runs, and one camera's map of a single band was 509
+        # vertices, 40 kB, for a rectangle
         parts = [
-            g for g in getattr(geom, "geoms", [geom]) if isinstance(g, Polygon) and not g.is_empty
+            simplify(g, 0.0)
+            for g in getattr(geom, "geoms", [geom])
+            if isinstance(g, Polygon) and not g.is_empty
         ]
         if not parts:
             continue

@@ -204,6 +204,39 @@ class TestIsopleths:
                 inside += 1
         assert inside > 30
 
+    def test_no_vertex_lies_on_a_straight_line(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Every vertex of a band is a corner: one camera's map, a single band over the whole
+        grid, is the grid's rectangle in 5 points (contourpy gave 509, a point per cell along
+        its edges); a city's bands are contourpy's, point for point, less the points on a
+        straight line, and no three consecutive points of any ring are collinear."""
+        one = interpolate(
+            np.array([9.2073]), np.array([45.4746]), np.array([5.3]),
+            bbox=(9.1973, 45.4646, 9.2173, 45.4846), resolution=128,
+        )  # fmt: skip
+        (feature,) = bands(one)
+        assert len(feature["geometry"]["coordinates"][0]) == 5
+        assert shape(feature["geometry"]).area == pytest.approx(0.02 * 0.02, rel=1e-9)
+
+        lon, lat, level = smooth_field()
+        f = interpolate(
+            lon, lat, level, bbox=default_bbox(lon, lat), resolution=96, max_distance=8000
+        )
+        ours = [shape(ft["geometry"]) for ft in bands(f)]
+        monkeypatch.setattr("shapely.simplify", lambda g, _tolerance: g)
+        contourpys = [shape(ft["geometry"]) for ft in bands(f)]
+        assert len(ours) == len(contourpys) == 5
+
+        def rings(g: Any) -> list[Any]:
+            return [r for p in getattr(g, "geoms", [g]) for r in (p.exterior, *p.interiors)]
+
+        for a, b in zip(ours, contourpys, strict=True):
+            assert a.symmetric_difference(b).area < 1e-12 * b.area
+            assert sum(len(r.coords) for r in rings(a)) < sum(len(r.coords) for r in rings(b))
+            for r in rings(a):
+                xy = np.asarray(r.coords)[:-1]
+                u, v = np.roll(xy, -1, axis=0) - xy, np.roll(xy, -2, axis=0) - np.roll(xy, -1, 0)
+                assert np.all(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0] != 0)
+
     def test_far_cells_are_masked(self) -> None:
         lon, lat, level = smooth_field()
         f = interpolate(
