@@ -254,15 +254,29 @@ def database_unavailable(exc: BaseException) -> bool:
     return not sqlstate.startswith("54")
 
 
+def database_disk_full(exc: BaseException) -> bool:
+    """Whether the database failed for want of disk space (SQLITE_FULL, PostgreSQL's 53100)."""
+    orig = getattr(exc, "orig", None)
+    name = getattr(orig, "sqlite_errorname", None)
+    if name is not None:
+        return bool(name == "SQLITE_FULL")
+    return getattr(orig, "sqlstate", None) == "53100"
+
+
 def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     # An outage: a 503 the client retries (cameras, robots, dashboards), not a 500 "the
     # service failed", and one line in the log per request, not a traceback.
     log.warning("database unavailable: %s", str(exc).splitlines()[0])
     _count_rejected_frame(request, 503, "database_unavailable")
+    detail = (
+        "the database's disk is full: try again when space has been freed"
+        if database_disk_full(exc)
+        else "the database cannot be reached or is busy: try again shortly"
+    )
     return problem(
         503,
         "Service unavailable",
-        "the database cannot be reached or is busy: try again shortly",
+        detail,
         headers={"Retry-After": str(RETRY_AFTER_SECONDS)},
         code="database_unavailable",
     )

@@ -273,8 +273,9 @@ class FrameOut(Out):
 class Health(Out):
     status: Literal["ok", "degraded"]
     database: Literal["ok", "unreachable"]
-    frame_store: Literal["ok", "unreachable"]
-    """The frame store (a directory or an S3 bucket) answers and, for a directory, is writable."""
+    frame_store: Literal["ok", "unreachable", "full"]
+    """The frame store (a directory or an S3 bucket) answers and, for a directory, is writable
+    and has more than the space kept free for the database (``full`` otherwise)."""
     version: str
 
 

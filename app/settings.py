@@ -73,6 +73,13 @@ class Settings(BaseSettings):
         "than this [s] (younger ones may belong to another process's upload in flight).",
     )
     store_frames: bool = Field(default=True, description="Keep the JPEG bytes.")
+    keep_free_disk_mb: float = Field(
+        default=256.0,
+        ge=0,
+        description="Space kept free on the frame store's disk (a directory) for the database: "
+        "below it, uploads are refused (503 disk_full) and /health says the store is full. "
+        "0: frames may fill the disk.",
+    )
     frame_store: Literal["disk", "s3"] = Field(
         default="disk",
         description="Where frames go: 'disk' (data_dir/frames, a shared volume for several "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+from typing import Literal
 
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
@@ -15,7 +16,7 @@ from app import __version__
 from app.deps import Admin, MetricsReader, get_sessionmaker
 from app.schemas import Health
 from app.services import retention
-from app.services.storage import StoreUnavailable
+from app.services.storage import DiskFull, StoreUnavailable
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger("vantage.health")
@@ -31,9 +32,13 @@ def health(request: Request) -> JSONResponse:
     except SQLAlchemyError as exc:
         log.warning("database unreachable: %s", exc)
         database = "unreachable"
+    store: Literal["ok", "unreachable", "full"]
     try:
         request.app.state.frame_store.check()
         store = "ok"
+    except DiskFull as exc:
+        log.warning("frame store full: %s", exc)
+        store = "full"
     except StoreUnavailable as exc:
         log.warning("frame store unreachable: %s", exc)
         store = "unreachable"

@@ -36,6 +36,20 @@ class StoreUnavailable(ServiceUnavailable):
         super().__init__(detail, code="store_unavailable")
 
 
+DISK_FULL_RETRY_AFTER = 60
+"""A full disk is not freed in seconds: cameras need not ask again every 5."""
+
+
+class DiskFull(StoreUnavailable):
+    """The frame store's disk is down to the space kept free for the database: 503, try again
+    when retention (or an operator) has freed some."""
+
+    def __init__(self, detail: str) -> None:
+        ServiceUnavailable.__init__(
+            self, detail, retry_after=DISK_FULL_RETRY_AFTER, code="disk_full"
+        )
+
+
 def digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
@@ -162,11 +176,43 @@ class DiskFrameStore:
     still read, swept when orphaned and deleted by retention.
     """
 
-    def __init__(self, root: Path, *, fsync: bool = False) -> None:
+    def __init__(
+        self,
+        root: Path,
+        *,
+        fsync: bool = False,
+        keep_free_bytes: int = 0,
+        largest_frame_bytes: int = 0,
+    ) -> None:
         self.root = root
         self.fsync = fsync
+        self.largest_frame_bytes = largest_frame_bytes
+        """``check`` fails when a frame this large would be refused."""
+        self.keep_free_bytes = keep_free_bytes
+        """Frames are refused (``DiskFull``) rather than take the disk's last bytes: the
+        database beside them (SQLite in the same directory, by default) keeps room to record
+        a robot's claim, an alert, a retention sweep. Frames filled a disk to its last byte,
+        and then every write failed (measured: uploads, registering a robot or a panel), with
+        /health "ok"."""
         self._lock = threading.Lock()
         self._pack: _Pack | None = None
+
+    def free_bytes(self) -> int:
+        """Bytes free on the store's disk for this process (statvfs: ~0.6 µs)."""
+        st = os.statvfs(self.root)
+        return st.f_bavail * st.f_frsize
+
+    def _make_room(self, size: int) -> None:
+        if not self.keep_free_bytes:
+            return
+        free = self.free_bytes()
+        if free - size < self.keep_free_bytes:
+            raise DiskFull(
+                f"{self.root}: {free / 2**20:.1f} MiB free, and "
+                f"{self.keep_free_bytes / 2**20:.1f} MiB are kept for the database "
+                "(VANTAGE_KEEP_FREE_DISK_MB): frames are refused until space is freed "
+                "(retention, VANTAGE_FRAME_RETENTION_DAYS, or a larger disk)"
+            )
 
     def path(self, relative: str) -> Path:
         return self.root / relative
@@ -179,6 +225,7 @@ class DiskFrameStore:
         """
         record = PACK_HEADER.pack(PACK_MAGIC, bytes.fromhex(sha256), len(data)) + data
         try:
+            self._make_room(len(record))
             pack, offset = self._reserve(bucket_of(received_at), len(record))
         except OSError as exc:
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
@@ -369,6 +416,10 @@ class DiskFrameStore:
     def check(self) -> None:
         if not (self.root.is_dir() and os.access(self.root, os.W_OK)):
             raise StoreUnavailable(f"{self.root} is missing or not writable")
+        try:
+            self._make_room(self.largest_frame_bytes)
+        except OSError as exc:
+            raise StoreUnavailable(f"{self.root}: {exc}") from exc
 
 
 def _bucket_end_of(name: str) -> datetime | None:
@@ -497,4 +548,9 @@ def frame_store(settings: Settings) -> DiskFrameStore | S3FrameStore:
             endpoint_url=settings.s3_endpoint_url,
             region=settings.s3_region,
         )
-    return DiskFrameStore(settings.data_dir, fsync=settings.fsync_frames)
+    return DiskFrameStore(
+        settings.data_dir,
+        fsync=settings.fsync_frames,
+        keep_free_bytes=round(settings.keep_free_disk_mb * 2**20),
+        largest_frame_bytes=settings.max_body_bytes,
+    )

@@ -22,7 +22,7 @@ import httpx2 as httpx
 import pytest
 from fastapi.testclient import TestClient
 from moto.server import ThreadedMotoServer
-from sqlalchemy import Engine
+from sqlalchemy import Engine, event
 
 from app.main import create_app
 from app.services import retention
@@ -264,6 +264,83 @@ def test_disk_that_cannot_take_the_frame_is_503_and_nothing_is_stored(
     r = client.post("/cameras/c/frames", content=body, headers=headers)
     assert r.status_code == 201
     assert client.get(f"/frames/{r.json()['frame_id']}/image", headers=admin).content == body
+
+
+def test_a_disk_down_to_the_space_kept_for_the_database_refuses_frames(
+    client: TestClient,
+    admin: dict[str, str],
+    app: Any,
+    engine: Engine,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Frames stop at VANTAGE_KEEP_FREE_DISK_MB (256) free: 503 ``disk_full`` with a
+    Retry-After of a minute, nothing stored, /health "full"; the rest of the service goes on
+    writing (measured on a 3 MiB disk without the reserve: the frames took its last byte,
+    then every write failed, registering a robot or a panel as an upload, and /health said
+    "ok")."""
+    headers = rig_camera(client, admin)
+    body = panel_jpeg(CLEAN_RGB, seed=5)
+    store = app.state.frame_store
+    assert store.keep_free_bytes == 256 * 2**20
+    free = [store.keep_free_bytes + 20 * 2**20]  # what the disk has left
+    monkeypatch.setattr(store, "free_bytes", lambda: free[0])
+    assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+    assert client.get("/health").json()["frame_store"] == "ok"
+
+    free[0] = store.keep_free_bytes + len(body)  # a frame's header more would cross it
+    before = table_counts(engine)
+    packs = sorted((app.state.settings.data_dir / "packs").rglob("*.pack"))
+    sizes = [p.stat().st_size for p in packs]
+    r = client.post("/cameras/c/frames", content=body, headers=headers)
+    assert r.status_code == 503, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.headers["retry-after"] == "60"
+    assert r.json()["code"] == "disk_full"
+    assert "VANTAGE_KEEP_FREE_DISK_MB" in r.json()["detail"]
+    assert table_counts(engine) == before
+    assert [p.stat().st_size for p in packs] == sizes
+    health = client.get("/health")
+    assert health.status_code == 503
+    assert health.json() | {"version": None} == {
+        "status": "degraded",
+        "database": "ok",
+        "frame_store": "full",
+        "version": None,
+    }
+    assert client.post("/robots", json={"id": "r1"}, headers=admin).status_code == 201
+
+    free[0] = store.keep_free_bytes + store.largest_frame_bytes + 1  # retention freed some
+    assert client.get("/health").status_code == 200
+    assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+
+
+def test_a_database_whose_disk_is_full_says_so(
+    client: TestClient, admin: dict[str, str], app: Any, engine: Engine
+) -> None:
+    """SQLite refusing to grow (SQLITE_FULL, here its page count capped where it stands) is
+    a 503 that names the full disk, not "cannot be reached or is busy"."""
+    if engine.dialect.name != "sqlite":
+        pytest.skip("SQLite's page cap")
+    headers = rig_camera(client, admin)
+
+    @event.listens_for(app.state.engine, "begin")
+    def _cap(conn: Any) -> None:
+        pages = conn.exec_driver_sql("PRAGMA page_count").scalar()
+        conn.exec_driver_sql(f"PRAGMA max_page_count = {pages}")
+
+    app.state.engine.dispose()
+    statuses = []
+    for k in range(200):  # until the pages' free room is used up
+        r = client.post(
+            "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=100 + k), headers=headers
+        )
+        statuses.append(r.status_code)
+        if r.status_code != 201:
+            break
+    assert r.status_code == 503, statuses
+    assert r.json()["code"] == "database_unavailable"
+    assert r.json()["detail"].startswith("the database's disk is full")
+    event.remove(app.state.engine, "begin", _cap)
 
 
 def test_two_machines_share_one_bucket(
