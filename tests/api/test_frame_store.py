@@ -29,7 +29,7 @@ from app.services import retention
 from app.services.storage import S3FrameStore, digest
 from app.settings import Settings
 from tests.api.test_solar import CLEAN_RGB, Clock, panel_jpeg
-from tests.conftest import ADMIN_TOKEN, _empty_tables, table_counts
+from tests.conftest import ADMIN_TOKEN, _empty_tables, migrate, table_counts
 from tests.servers import free_port, server_env, start_server
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
@@ -314,33 +314,32 @@ def test_a_disk_down_to_the_space_kept_for_the_database_refuses_frames(
     assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
 
 
-def test_a_database_whose_disk_is_full_says_so(
-    client: TestClient, admin: dict[str, str], app: Any, engine: Engine
-) -> None:
-    """SQLite refusing to grow (SQLITE_FULL, here its page count capped where it stands) is
+def test_a_database_whose_disk_is_full_says_so(settings: Settings, tmp_path: Path) -> None:
+    """SQLite refusing to grow (SQLITE_FULL, here its page count capped where it stands, in
+    a database of its own: the tests' shared one has the free pages of every test before) is
     a 503 that names the full disk, not "cannot be reached or is busy"."""
-    if engine.dialect.name != "sqlite":
-        pytest.skip("SQLite's page cap")
-    headers = rig_camera(client, admin)
+    url = f"sqlite:///{tmp_path / 'full.db'}"
+    migrate(url)
+    app = create_app(settings.model_copy(update={"database_url": url}))
 
     @event.listens_for(app.state.engine, "begin")
     def _cap(conn: Any) -> None:
         pages = conn.exec_driver_sql("PRAGMA page_count").scalar()
         conn.exec_driver_sql(f"PRAGMA max_page_count = {pages}")
 
-    app.state.engine.dispose()
-    statuses = []
-    for k in range(200):  # until the pages' free room is used up
-        r = client.post(
-            "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=100 + k), headers=headers
-        )
-        statuses.append(r.status_code)
-        if r.status_code != 201:
-            break
-    assert r.status_code == 503, statuses
-    assert r.json()["code"] == "database_unavailable"
-    assert r.json()["detail"].startswith("the database's disk is full")
-    event.remove(app.state.engine, "begin", _cap)
+    with TestClient(app) as client:
+        headers = rig_camera(client, {"Authorization": f"Bearer {ADMIN_TOKEN}"})
+        statuses = []
+        for k in range(200):  # until the pages' free room is used up
+            r = client.post(
+                "/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=100 + k), headers=headers
+            )
+            statuses.append(r.status_code)
+            if r.status_code != 201:
+                break
+        assert r.status_code == 503, statuses
+        assert r.json()["code"] == "database_unavailable"
+        assert r.json()["detail"].startswith("the database's disk is full")
 
 
 def test_two_machines_share_one_bucket(
