@@ -368,8 +368,21 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         if (s is None) != (r.smoothed_level is None)
         or (s is not None and not math.isclose(s, r.smoothed_level, rel_tol=1e-12))
     ]
-    if changed:  # no alert: the readings were judged when they arrived (README)
+    if changed:
         session.execute(update(SkyVerdict), changed)
+        newest = later[0]
+        public = next((c["smoothed_level"] for c in changed if c["frame_id"] == newest.id), None)
+        if (
+            public is not None
+            # the camera's newest reading: none after the 12 hours this frame smooths
+            and session.execute(
+                readings.where(Frame.captured_at >= frame.captured_at + hours).limit(1)
+            ).first()
+            is None
+        ):
+            session.add_all(
+                _public_level_changed(session, camera.id, newest.id, public, frame.received_at)
+            )
     earlier = (  # newest first
         float(r.smoothed_level)
         for r in around
@@ -402,6 +415,48 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
             )
         )
     return verdict
+
+
+def _public_level_changed(
+    session: Session, camera_id: str, reading_id: str, level: float, at: datetime
+) -> list[AirAlert]:
+    """The alert called for when a camera's public level (its newest reading's smoothed level)
+    becomes ``level`` through a reading taken before it that arrived after it (a backlog sent
+    newest first): raised when the level is in an alert category that no open episode has
+    raised yet (as bad or worse), cleared when it is back to ``CLEAR_LEVEL`` in an open one.
+    The late reading's own hours are history and raise nothing; without this, a backlog sent
+    newest first whose newest frame alone read Fair, the hours before it Poor, left the camera
+    public Poor with no alert ever raised."""
+    name = airquality.category(level)
+    last = session.execute(
+        select(AirAlert.kind, AirAlert.category)
+        .where(AirAlert.camera_id == camera_id)
+        .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
+        .limit(1)
+    ).first()
+    open_episode = last is not None and last.kind == "raised"
+    severity = airquality.ALERT_CATEGORIES.index
+    if name in airquality.ALERT_CATEGORIES:
+        if last is not None and open_episode and severity(last.category) >= severity(name):
+            return []
+        kind = "raised"
+    elif open_episode and level >= airquality.CLEAR_LEVEL:
+        kind = "cleared"
+    else:
+        return []
+    return [
+        AirAlert(
+            id=str(uuid.uuid4()),
+            camera_id=camera_id,
+            frame_id=reading_id,
+            created_at=at,
+            kind=kind,
+            smoothed_level=level,
+            category=name,
+            delivered=False,
+            attempts=0,
+        )
+    ]
 
 
 def _in_episode(session: Session, frame: Frame) -> bool:

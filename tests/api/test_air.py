@@ -444,6 +444,91 @@ def test_a_backlog_uploaded_newest_first_is_smoothed_as_if_uploaded_in_order(
     assert latest["smoothed_level"] == pytest.approx(smoothed[0], rel=1e-9)
 
 
+def test_a_backlog_sent_newest_first_raises_the_alert_its_public_level_calls_for(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Four hours of Poor air and a last frame of Fair sent newest first: the newest alone
+    smooths to Fair (no alert); the older frames are history (no alert of their own) but
+    smooth it again to Poor, the camera's public level, which then raises the alert, once,
+    on the newest frame. Sent in order, the same frames raise one Poor alert too. Before,
+    the newest-first camera's backlog raised none."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=4)
+    levels = [3] * 11 + [7]
+    frames = [
+        (start + timedelta(minutes=20 * k), sky_jpeg(level, seed=k))
+        for k, level in enumerate(levels)
+    ]
+    newest_alone = None
+    for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
+        for taken, jpeg in order:
+            r = client.post(
+                f"/cameras/{camera}/frames",
+                content=jpeg,
+                headers={
+                    "Authorization": f"Bearer {city['tokens'][camera][0]}",
+                    "Content-Type": "image/jpeg",
+                },
+                params={"captured_at": taken.isoformat()},
+            )
+            assert r.status_code == 201, r.text
+            if camera == "sky3" and newest_alone is None:
+                newest_alone = client.get("/air/cameras/sky3/latest").json()
+    assert newest_alone is not None
+    assert newest_alone["category"] not in ("Poor", "Very Poor")
+    alerts = client.get("/air/alerts").json()
+    by_camera = {c: [a for a in alerts if a["camera_id"] == c] for c in ("sky2", "sky3")}
+    assert [(a["kind"], a["category"]) for a in by_camera["sky2"]] == [("raised", "Poor")]
+    assert [(a["kind"], a["category"]) for a in by_camera["sky3"]] == [("raised", "Poor")]
+    latest = client.get("/air/cameras/sky3/latest").json()
+    assert latest["category"] == "Poor"
+    newest = client.get("/air/readings", params={"camera_id": "sky3"}).json()[0]
+    assert newest["captured_at"] == latest["captured_at"]
+    assert by_camera["sky3"][0]["frame_id"] == newest["frame_id"]
+
+
+def test_a_backlog_sent_newest_first_clears_the_episode_its_public_level_ends(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """An hour of Poor air raises its alert; the camera's backlog of the next two hours, clean
+    air then a last Poor frame, comes newest first. That frame smooths to Poor with the hour
+    before it (still the episode: nothing); the clean frames, history, smooth it again past
+    5.0: the camera's public level has left the episode, which is cleared, once."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=4)
+    token = city["tokens"]["sky2"][0]
+
+    def send(minutes: int, level: int) -> Any:
+        city["clock"].advance(seconds=1)  # received one after another
+        r = client.post(
+            "/cameras/sky2/frames",
+            content=sky_jpeg(level, seed=minutes),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+            params={"captured_at": (start + timedelta(minutes=minutes)).isoformat()},
+        )
+        assert r.status_code == 201, r.text
+        return r.json()["verdict"]
+
+    for minutes in (0, 20, 40):
+        send(minutes, 3)
+    assert [(a["kind"], a["category"]) for a in client.get("/air/alerts").json()] == [
+        ("raised", "Poor")
+    ]
+    assert send(180, 3)["level"] in (3, 4)
+    assert client.get("/air/cameras/sky2/latest").json()["category"] == "Poor"
+    assert len(client.get("/air/alerts").json()) == 1
+    for minutes in (160, 140, 120, 100, 80, 60):
+        send(minutes, 10)
+    latest = client.get("/air/cameras/sky2/latest").json()
+    assert latest["smoothed_level"] >= 5.0
+    alerts = client.get("/air/alerts").json()  # newest first
+    assert [(a["kind"], a["category"]) for a in alerts][1:] == [("raised", "Poor")]
+    assert alerts[0]["kind"] == "cleared"
+    assert alerts[0]["category"] in ("Fair", "Good", "Very Good")
+    newest = client.get("/air/readings", params={"camera_id": "sky2"}).json()[0]
+    assert alerts[0]["frame_id"] == newest["frame_id"]
+
+
 class TestBadInput:
     def test_empty_city_is_an_empty_collection(self, client: TestClient) -> None:
         fc = client.get("/air/isopleths").json()
