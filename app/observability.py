@@ -34,6 +34,13 @@ INGEST_SECONDS = Histogram(
     buckets=(0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0),
 )
 
+ALERT_DELIVERIES = Counter(
+    "vantage_alert_deliveries_total",
+    "Air-quality alerts POSTed to the webhook, per outcome (delivered, failed: each failed "
+    "attempt, retried with backoff until VANTAGE_ALERT_RETRY_HOURS).",
+    ["outcome"],
+)
+
 HTTP_REQUESTS = Counter(
     "vantage_http_requests_total",
     "Requests answered, per method, route (its template) and status.",

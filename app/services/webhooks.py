@@ -43,6 +43,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.core import airquality
 from app.db.models import AirAlert, Camera, Frame
+from app.observability import ALERT_DELIVERIES
 from app.services.background import in_thread
 from app.services.policy import Policy
 
@@ -220,11 +221,14 @@ def sweep(
                 log.warning(
                     "alert %s not delivered (attempt %d): %s", alert.id, alert.attempts, exc
                 )
+                outcome = "failed"
             else:
                 alert.delivered = True
                 alert.last_error = None
                 delivered += 1
+                outcome = "delivered"
             session.commit()
+            ALERT_DELIVERIES.labels(outcome).inc()  # counted once recorded
     return delivered
 
 

@@ -986,6 +986,19 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
     assert nothing["reason"] == "no frames yet"
 
 
+def deliveries(client: TestClient, admin: dict[str, str]) -> dict[str, float]:
+    """``vantage_alert_deliveries_total`` by outcome, as /metrics gives it."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    text = client.get("/metrics", headers=admin).text
+    return {
+        s.labels["outcome"]: s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+        if s.name == "vantage_alert_deliveries_total"
+    }
+
+
 def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> None:
     """The first POST fails (HTTP 500); the retry after the backoff is delivered, signed with
     the configured secret (checked with the Standard Webhooks reference library)."""
@@ -1028,6 +1041,7 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
     admin = {"Authorization": f"Bearer {settings.admin_token.get_secret_value()}"}
     try:
         with TestClient(app) as client:
+            before = deliveries(client, admin)
             token = client.post(
                 "/cameras", json={"id": "s", "kind": "sky", "roi": [0, 0, 160, 55]}, headers=admin
             ).json()["token"]
@@ -1048,6 +1062,12 @@ def test_alert_webhook_retries_until_delivered(settings: Any, engine: Any) -> No
             assert alerts[0]["attempts"] == 2
             assert alerts[0]["delivery"] == "delivered"
             assert alerts[0]["last_error"] is None
+            # what an operator alerts on: the receiver failing (a counter per outcome)
+            after = deliveries(client, admin)
+            assert {k: after[k] - before.get(k, 0.0) for k in after} == {
+                "failed": 1.0,
+                "delivered": 1.0,
+            }
     finally:
         server.shutdown()
         server.server_close()
