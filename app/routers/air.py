@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -357,10 +359,28 @@ def _latest_out(
     )
 
 
+CSV_CONTENT = {
+    "text/csv": {
+        "schema": {"type": "string"},
+        "example": "camera_id,frame_id,captured_at,level,category,smoothed_level,reason\r\n",
+    }
+}
+
+
+def _csv(rows: list[AirReading] | list[AirAggregate], fields: list[str]) -> str:
+    """``rows`` as CSV with a header of ``fields``, each value as in the JSON answer (RFC 3339
+    times in UTC; an empty cell for null)."""
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(r.model_dump(mode="json") for r in rows)
+    return out.getvalue()
+
+
 @router.get(
     "/readings",
     response_model=list[AirReading] | list[AirAggregate],
-    responses={**NOT_FOUND, **UNPROCESSABLE},
+    responses={200: {"content": CSV_CONTENT}, **NOT_FOUND, **UNPROCESSABLE},
 )
 async def readings(
     request: Request,
@@ -386,7 +406,14 @@ async def readings(
         ),
     ] = 0,
     cursor: FrameCursor = None,
-) -> list[AirReading] | list[AirAggregate]:
+    format: Annotated[
+        Literal["json", "csv"],
+        Query(
+            description="csv: the same rows as a CSV table with a header (for a spreadsheet: "
+            "Google Sheets' IMPORTDATA, Excel's From Web), paged alike."
+        ),
+    ] = "json",
+) -> list[AirReading] | list[AirAggregate] | Response:
     """Readings newest first, paginated; or their hourly or daily means, over every reading
     in the range, in the time zone ``tz`` (its local hours and days; UTC by default).
 
@@ -411,7 +438,7 @@ async def readings(
             )
         )
         link_next(request, response, rows, limit)
-        return [
+        out = [
             AirReading(
                 camera_id=r.camera_id,
                 frame_id=r.id,
@@ -423,6 +450,9 @@ async def readings(
             )
             for r in rows
         ]
+        if format == "csv":
+            return _csv_response(out, list(AirReading.model_fields), response)
+        return out
     buckets = await public_work(  # every reading of the range: seconds for a city's month
         request,
         air.aggregate,
@@ -432,7 +462,17 @@ async def readings(
         bucket=aggregate,
         tz=zone,
     )
-    return [AirAggregate(**b) for b in buckets[offset : offset + limit]]
+    means = [AirAggregate(**b) for b in buckets[offset : offset + limit]]
+    if format == "csv":
+        return _csv_response(means, list(AirAggregate.model_fields), response)
+    return means
+
+
+def _csv_response(
+    rows: list[AirReading] | list[AirAggregate], fields: list[str], response: Response
+) -> Response:
+    link = {"Link": response.headers["link"]} if "link" in response.headers else {}
+    return Response(_csv(rows, fields), media_type="text/csv; charset=utf-8", headers=link)
 
 
 def _zone(name: str) -> ZoneInfo:

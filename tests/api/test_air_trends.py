@@ -4,6 +4,8 @@ the readings one by one."""
 
 from __future__ import annotations
 
+import csv
+import io
 from collections import defaultdict
 from datetime import UTC, datetime, timedelta, timezone
 from typing import Any
@@ -329,3 +331,45 @@ def test_a_parameter_that_takes_one_value_given_twice_is_422(
     assert r.status_code == 422, r.text
     assert r.headers["content-type"] == "application/problem+json"
     assert r.json()["code"] == "repeated_parameter"
+
+
+def test_readings_and_their_means_as_csv(client: TestClient, engine: Engine) -> None:
+    """``format=csv``: the same rows as the JSON answer, a header and one line each (empty
+    cells for nulls), paged alike (the Link header to the next page keeps the format), the
+    means too: what a spreadsheet imports from a URL."""
+    t0 = datetime(2026, 5, 1, tzinfo=UTC)
+    readings: list[Reading] = [
+        ("sky-a", t0 + timedelta(minutes=10 * k), None if k == 2 else 1 + k) for k in range(7)
+    ]
+    store(engine, readings)
+
+    def table(r: Any) -> list[dict[str, str]]:
+        assert r.status_code == 200, r.text
+        assert r.headers["content-type"] == "text/csv; charset=utf-8"
+        return list(csv.DictReader(io.StringIO(r.text)))
+
+    def cells(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
+        return [{k: "" if v is None else str(v) for k, v in row.items()} for row in rows]
+
+    params = {"limit": 4, "since": "2026-05-01T00:00:00Z"}
+    first = client.get("/air/readings", params={**params, "format": "csv"})
+    first_json = client.get("/air/readings", params=params)
+    rows = table(first)
+    assert list(rows[0]) == [
+        "camera_id", "frame_id", "captured_at", "level", "category", "smoothed_level", "reason"
+    ]  # fmt: skip
+    assert rows == cells(first_json.json())
+    assert [r["frame_id"] for r in rows] == ["f0000006", "f0000005", "f0000004", "f0000003"]
+    next_csv = first.headers["link"].split(";")[0].strip("<>")
+    assert "format=csv" in next_csv
+    rest = table(client.get(next_csv))
+    rest_json = client.get(first_json.headers["link"].split(";")[0].strip("<>")).json()
+    assert rest == cells(rest_json)
+    assert [(r["frame_id"], r["level"]) for r in rest] == [
+        ("f0000002", ""), ("f0000001", "2"), ("f0000000", "1")
+    ]  # fmt: skip
+
+    daily = {"aggregate": "daily", "since": "2026-05-01T00:00:00Z"}
+    means = table(client.get("/air/readings", params={**daily, "format": "csv"}))
+    assert means == cells(client.get("/air/readings", params=daily).json())
+    assert [(m["n"], m["min_level"], m["max_level"]) for m in means] == [("6", "1.0", "7.0")]
