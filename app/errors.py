@@ -268,11 +268,15 @@ def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     # service failed", and one line in the log per request, not a traceback.
     log.warning("database unavailable: %s", str(exc).splitlines()[0])
     _count_rejected_frame(request, 503, "database_unavailable")
-    detail = (
-        "the database's disk is full: try again when space has been freed"
-        if database_disk_full(exc)
-        else "the database cannot be reached or is busy: try again shortly"
-    )
+    if database_disk_full(exc):
+        detail = "the database's disk is full: try again when space has been freed"
+    elif getattr(getattr(exc, "orig", None), "sqlstate", None) == "25006":
+        detail = (
+            "the database is read-only (a standby after a failover, or maintenance): "
+            "try again shortly"
+        )
+    else:
+        detail = "the database cannot be reached or is busy: try again shortly"
     return problem(
         503,
         "Service unavailable",

@@ -272,7 +272,8 @@ class FrameOut(Out):
 
 class Health(Out):
     status: Literal["ok", "degraded"]
-    database: Literal["ok", "unreachable"]
+    database: Literal["ok", "unreachable", "read_only"]
+    """``read_only``: PostgreSQL answers but refuses writes (a standby, or set read-only)."""
     frame_store: Literal["ok", "unreachable", "full"]
     """The frame store (a directory or an S3 bucket) answers and, for a directory, is writable
     and has more than the space kept free for the database (``full`` otherwise)."""

@@ -21,7 +21,7 @@ import pytest
 from alembic import command
 from alembic.config import Config
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine, create_engine, inspect, text
+from sqlalchemy import Engine, create_engine, inspect, make_url, text
 
 from app.db.base import Base
 from app.main import create_app
@@ -41,6 +41,28 @@ def alembic_config(url: str) -> Config:
 
 def migrate(url: str, revision: str = "head") -> None:
     command.upgrade(alembic_config(url), revision)
+
+
+@contextmanager
+def postgres_database(purpose: str) -> Iterator[str]:
+    """A new database beside the PostgreSQL the tests use (``VANTAGE_TEST_DATABASE_URL``),
+    dropped afterwards: for a test that must not share the tests' one (its schema walked
+    down, the database set read-only). Skips without that PostgreSQL."""
+    test_url = os.environ.get("VANTAGE_TEST_DATABASE_URL")
+    if not test_url or not test_url.startswith("postgresql"):
+        pytest.skip("needs the PostgreSQL of VANTAGE_TEST_DATABASE_URL")
+    server = make_url(test_url)
+    name = f"vantage_{purpose}_{os.getpid()}"
+    admin = create_engine(server, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
+        conn.execute(text(f"CREATE DATABASE {name}"))
+    try:
+        yield server.set(database=name).render_as_string(hide_password=False)
+    finally:
+        with admin.connect() as conn:
+            conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
+        admin.dispose()
 
 
 @pytest.fixture(scope="session")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event, make_url
+from sqlalchemy.engine import ExceptionContext
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import send_pending_first
@@ -59,7 +60,7 @@ def _engine(url: str, pool_size: int, max_overflow: int, statement_timeout_s: fl
             conn.exec_driver_sql("BEGIN IMMEDIATE")
 
         return engine
-    return create_engine(
+    engine = create_engine(
         url,
         pool_size=pool_size,
         max_overflow=max_overflow,
@@ -67,6 +68,21 @@ def _engine(url: str, pool_size: int, max_overflow: int, statement_timeout_s: fl
         pool_timeout=PG_POOL_TIMEOUT_S,
         connect_args=_pg_timeouts(url, statement_timeout_s),
     )
+
+    @event.listens_for(engine, "handle_error")
+    def _read_only_server(ctx: ExceptionContext) -> None:
+        # A write refused as read-only (25006): the server this pool reached is no primary
+        # now (a failover left it a standby, its address now the new primary's), or an
+        # operator has set it read-only. Taken as a connection lost, the pool's connections
+        # are replaced, so that writes reach the primary as soon as its address does, and
+        # the request gets a 503 to retry rather than a 500.
+        if getattr(ctx.original_exception, "sqlstate", None) == READ_ONLY_SQL_TRANSACTION:
+            ctx.is_disconnect = True
+
+    return engine
+
+
+READ_ONLY_SQL_TRANSACTION = "25006"
 
 
 def _pg_timeouts(url: str, statement_timeout_s: float = PG_STATEMENT_TIMEOUT_S) -> dict[str, Any]:

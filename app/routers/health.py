@@ -25,13 +25,22 @@ log = logging.getLogger("vantage.health")
 @router.get("/health", response_model=Health, responses={503: {"model": Health}})
 def health(request: Request) -> JSONResponse:
     """Whether the service, its database and its frame store answer; the version."""
+    database: Literal["ok", "unreachable", "read_only"]
     try:
         with get_sessionmaker(request)() as session:
-            session.execute(text("SELECT 1"))
-        database = "ok"
+            if session.get_bind().dialect.name == "postgresql":
+                # a standby (a failover left this address on one) or a server set read-only
+                # answers SELECT 1 while every write fails
+                read_only = session.execute(text("SHOW transaction_read_only")).scalar()
+                database = "read_only" if read_only == "on" else "ok"
+            else:
+                session.execute(text("SELECT 1"))
+                database = "ok"
     except SQLAlchemyError as exc:
         log.warning("database unreachable: %s", exc)
         database = "unreachable"
+    if database == "read_only":
+        log.warning("database read-only: writes are refused")
     store: Literal["ok", "unreachable", "full"]
     try:
         request.app.state.frame_store.check()

@@ -21,14 +21,22 @@ from typing import Any
 import httpx2 as httpx
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine, make_url, text
+from sqlalchemy import Engine, create_engine, make_url, text
 from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
 from app.errors import database_unavailable
 from app.main import create_app
 from app.settings import Settings
-from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg, stalled_writer, table_counts
+from tests.conftest import (
+    ADMIN_TOKEN,
+    _empty_tables,
+    make_jpeg,
+    migrate,
+    postgres_database,
+    stalled_writer,
+    table_counts,
+)
 from tests.servers import free_port, server_env, start_server
 
 PG_URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")
@@ -532,3 +540,65 @@ def test_a_batch_meeting_an_outage_fails_at_once(
     assert [a.status_code for a in answers] == [503] * 9
     assert stall.batches[:2] == [1, 8]
     assert refused.statements <= 2 * 2  # each batch once, and once more on a fresh connection
+
+
+@pytest.mark.postgres
+def test_a_read_only_database_is_a_503_and_health_says_so(settings: Settings) -> None:
+    """PostgreSQL answering but refusing writes (a failover left the service's address on a
+    standby, or an operator set it read-only, 25006): writes get 503 to retry, not 500 "the
+    service failed" (measured before: uploads and registrations 500, /health "ok"); reads are
+    served; /health says ``read_only``; and once writes are taken again the pool's
+    connections, replaced, take them at the next try."""
+    with postgres_database("read_only") as url:
+        name = make_url(url).database
+        migrate(url)
+        app = create_app(settings.model_copy(update={"database_url": url}))
+
+        def read_only(on: bool) -> None:
+            """Every session of the database read-only (or not) from now: as after a
+            failover, the sessions open are cut, and those that follow are of the new kind."""
+            server = create_engine(PG_URL, isolation_level="AUTOCOMMIT")
+            with server.connect() as conn:
+                conn.execute(
+                    text(f"ALTER DATABASE {name} SET default_transaction_read_only = {on}")
+                )
+                conn.execute(
+                    text(
+                        "SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
+                        "WHERE datname = :name AND pid <> pg_backend_pid()"
+                    ),
+                    {"name": name},
+                )
+            server.dispose()
+
+        with TestClient(app) as client:
+            token = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN)
+            headers = {
+                "Authorization": f"Bearer {token.json()['token']}",
+                "Content-Type": "image/jpeg",
+            }
+            read_only(True)
+            for _ in range(2):  # the writer's connection, cut, replaced by a read-only one
+                r = client.post("/cameras/c/frames", content=make_jpeg(seed=1), headers=headers)
+                assert r.status_code == 503, r.text
+            assert r.json()["code"] == "database_unavailable"
+            assert "read-only" in r.json()["detail"]
+            assert r.headers["retry-after"] == "5"
+            robot = client.post("/robots", json={"id": "r1"}, headers=ADMIN)
+            assert robot.status_code == 503, robot.text
+            assert client.get("/cameras", headers=ADMIN).status_code == 200
+            health = client.get("/health")
+            assert health.status_code == 503
+            assert health.json()["database"] == "read_only"
+
+            read_only(False)
+            statuses = []
+            for k in range(2):  # a connection opened while read-only fails once, then goes
+                body = make_jpeg(seed=2 + k)
+                r = client.post("/cameras/c/frames", content=body, headers=headers)
+                statuses.append(r.status_code)
+                if r.status_code == 201:
+                    break
+            assert statuses in ([201], [503, 201]), statuses
+            assert client.get("/health").json()["database"] == "ok"
+        app.state.engine.dispose()

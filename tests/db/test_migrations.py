@@ -4,7 +4,6 @@ the history walked down and up again with data in the tables."""
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -13,12 +12,12 @@ import pytest
 from alembic import command
 from alembic.script import ScriptDirectory
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine, make_url, text
+from sqlalchemy import create_engine, text
 
 from app.main import create_app
 from app.settings import Settings
 from tests.api import test_air, test_calibrations, test_solar
-from tests.conftest import ADMIN_TOKEN, alembic_config, migrate, table_counts
+from tests.conftest import ADMIN_TOKEN, alembic_config, migrate, postgres_database, table_counts
 
 
 def test_verdicts_baselines_and_calibrations_take_their_cameras_region(tmp_path: Path) -> None:
@@ -170,26 +169,12 @@ def test_verdicts_the_quality_gate_refused_are_marked_unusable(tmp_path: Path) -
 
 @pytest.fixture(params=["sqlite", "postgresql"])
 def empty_database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """A database of its own: a SQLite file, or a new database beside the PostgreSQL the
-    tests use (``VANTAGE_TEST_DATABASE_URL``), dropped afterwards."""
+    """A database of its own: a SQLite file, or a new database beside the tests' PostgreSQL."""
     if request.param == "sqlite":
         yield f"sqlite:///{tmp_path / 'vantage.db'}"
         return
-    test_url = os.environ.get("VANTAGE_TEST_DATABASE_URL")
-    if not test_url:
-        pytest.skip("VANTAGE_TEST_DATABASE_URL is not set")
-    server = make_url(test_url)
-    name = f"vantage_rollback_{os.getpid()}"
-    admin = create_engine(server, isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f"DROP DATABASE IF EXISTS {name}"))
-        conn.execute(text(f"CREATE DATABASE {name}"))
-    try:
-        yield server.set(database=name).render_as_string(hide_password=False)
-    finally:
-        with admin.connect() as conn:
-            conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
-        admin.dispose()
+    with postgres_database("rollback") as url:
+        yield url
 
 
 def test_a_deploy_rolled_back_step_by_step_with_data_and_upgraded_again(
