@@ -401,20 +401,24 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         and session.execute(graded.where(Frame.captured_at > frame.captured_at).limit(1)).first()
         is None
     ):
-        session.add(
-            AirAlert(
-                id=str(uuid.uuid4()),
-                camera_id=camera.id,
-                frame_id=frame.id,
-                created_at=frame.received_at,
-                kind=kind,
-                smoothed_level=smoothed,
-                category=alert,
-                delivered=False,
-                attempts=0,
-            )
-        )
+        session.add(_alert(camera.id, frame.id, frame.received_at, kind, smoothed, alert))
     return verdict
+
+
+def _alert(
+    camera_id: str, frame_id: str, at: datetime, kind: str, level: float, category: str
+) -> AirAlert:
+    return AirAlert(
+        id=str(uuid.uuid4()),
+        camera_id=camera_id,
+        frame_id=frame_id,
+        created_at=at,
+        kind=kind,
+        smoothed_level=level,
+        category=category,
+        delivered=False,
+        attempts=0,
+    )
 
 
 def _public_level_changed(
@@ -444,19 +448,7 @@ def _public_level_changed(
         kind = "cleared"
     else:
         return []
-    return [
-        AirAlert(
-            id=str(uuid.uuid4()),
-            camera_id=camera_id,
-            frame_id=reading_id,
-            created_at=at,
-            kind=kind,
-            smoothed_level=level,
-            category=name,
-            delivered=False,
-            attempts=0,
-        )
-    ]
+    return [_alert(camera_id, reading_id, at, kind, level, name)]
 
 
 def _in_episode(session: Session, frame: Frame) -> bool:

@@ -100,6 +100,23 @@ def post_bytes(client: TestClient, city: dict[str, Any], camera: str, jpeg: byte
     return r.json()["verdict"]
 
 
+def post_taken(
+    client: TestClient, city: dict[str, Any], camera: str, jpeg: bytes, taken: datetime
+) -> Any:
+    """Post ``jpeg`` for ``camera`` as taken at ``taken`` (a backlog's frame); its verdict."""
+    r = client.post(
+        f"/cameras/{camera}/frames",
+        content=jpeg,
+        headers={
+            "Authorization": f"Bearer {city['tokens'][camera][0]}",
+            "Content-Type": "image/jpeg",
+        },
+        params={"captured_at": taken.isoformat()},
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]
+
+
 def labelled_frames(
     client: TestClient, city: dict[str, Any], image: Callable[[int, int], bytes]
 ) -> tuple[list[str], list[int]]:
@@ -418,16 +435,7 @@ def test_a_backlog_uploaded_newest_first_is_smoothed_as_if_uploaded_in_order(
     frames.insert(4, (start + timedelta(minutes=70), night.tobytes()))
     for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
         for taken, jpeg in order:
-            r = client.post(
-                f"/cameras/{camera}/frames",
-                content=jpeg,
-                headers={
-                    "Authorization": f"Bearer {city['tokens'][camera][0]}",
-                    "Content-Type": "image/jpeg",
-                },
-                params={"captured_at": taken.isoformat()},
-            )
-            assert r.status_code == 201, r.text
+            post_taken(client, city, camera, jpeg, taken)
     in_order, newest_first = (
         client.get("/air/readings", params={"camera_id": c}).json() for c in ("sky2", "sky3")
     )
@@ -462,16 +470,7 @@ def test_a_backlog_sent_newest_first_raises_the_alert_its_public_level_calls_for
     newest_alone = None
     for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
         for taken, jpeg in order:
-            r = client.post(
-                f"/cameras/{camera}/frames",
-                content=jpeg,
-                headers={
-                    "Authorization": f"Bearer {city['tokens'][camera][0]}",
-                    "Content-Type": "image/jpeg",
-                },
-                params={"captured_at": taken.isoformat()},
-            )
-            assert r.status_code == 201, r.text
+            post_taken(client, city, camera, jpeg, taken)
             if camera == "sky3" and newest_alone is None:
                 newest_alone = client.get("/air/cameras/sky3/latest").json()
     assert newest_alone is not None
@@ -496,18 +495,11 @@ def test_a_backlog_sent_newest_first_clears_the_episode_its_public_level_ends(
     5.0: the camera's public level has left the episode, which is cleared, once."""
     assert calibrate(client, admin).status_code == 201
     start = city["clock"].now - timedelta(hours=4)
-    token = city["tokens"]["sky2"][0]
 
     def send(minutes: int, level: int) -> Any:
         city["clock"].advance(seconds=1)  # received one after another
-        r = client.post(
-            "/cameras/sky2/frames",
-            content=sky_jpeg(level, seed=minutes),
-            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
-            params={"captured_at": (start + timedelta(minutes=minutes)).isoformat()},
-        )
-        assert r.status_code == 201, r.text
-        return r.json()["verdict"]
+        taken = start + timedelta(minutes=minutes)
+        return post_taken(client, city, "sky2", sky_jpeg(level, seed=minutes), taken)
 
     for minutes in (0, 20, 40):
         send(minutes, 3)
