@@ -430,6 +430,19 @@ def _bucket_end_of(name: str) -> datetime | None:
         return None
 
 
+@dataclass(frozen=True)
+class S3Timeouts:
+    """How long a request to the bucket may wait to connect and for each answer [s], and how
+    many times it is tried. botocore's defaults (60 s, 60 s, 3 tries) made a store that
+    accepted connections and never answered cost 3 minutes a frame, each holding an ingest
+    thread long after its upload had got its 503, and 3 minutes a /health; at most
+    2 × (3 + 10) s = 26 s now, within the upload's 30 s deadline."""
+
+    connect: float = 3.0
+    read: float = 10.0
+    attempts: int = 2
+
+
 class S3FrameStore:
     """Frames as objects ``<prefix>frames/ab/<sha256>.jpg`` in one bucket of an S3-compatible
     store. An S3 PUT is atomic (the object appears whole or not at all), so no temporary object
@@ -444,6 +457,7 @@ class S3FrameStore:
         endpoint_url: str | None = None,
         region: str | None = None,
         client: Any = None,
+        timeouts: S3Timeouts | None = None,
     ) -> None:
         self.bucket = bucket
         self.prefix = prefix
@@ -451,12 +465,18 @@ class S3FrameStore:
             import boto3  # only deployments that use S3 need it (the `s3` extra)
             from botocore.config import Config
 
+            t = timeouts or S3Timeouts()
             client = boto3.client(
                 "s3",
                 endpoint_url=endpoint_url,
                 region_name=region,
                 # one client serves every worker thread (boto3 clients are thread-safe)
-                config=Config(max_pool_connections=50, retries={"mode": "standard"}),
+                config=Config(
+                    max_pool_connections=50,
+                    connect_timeout=t.connect,
+                    read_timeout=t.read,
+                    retries={"mode": "standard", "total_max_attempts": t.attempts},
+                ),
             )
         self._s3 = client
 

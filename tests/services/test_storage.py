@@ -8,6 +8,7 @@ import random
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import suppress
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -199,3 +200,52 @@ def test_without_file_locks_frames_are_stored_and_no_pack_is_idle(
     assert store.read(locator) == b"x"
     store.close()
     assert store.idle_packs(0) == []
+
+
+def test_a_bucket_that_never_answers_fails_in_bounded_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An S3 endpoint that takes connections and never answers: a frame's PUT, and the health
+    check, fail with StoreUnavailable after the tries' read timeouts (here 2 × 0.5 s), not
+    botocore's 3 × 60 s (measured against such an endpoint: 180 s for the check, 183 for a
+    PUT; 20 and 22 s with the store's defaults, 2 tries of 10 s)."""
+    import socket
+    import threading
+    import time
+
+    from app.services.storage import S3FrameStore, S3Timeouts
+
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "test")
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "test")
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(16)
+    held: list[socket.socket] = []
+
+    def accept() -> None:
+        with suppress(OSError):
+            while True:
+                held.append(silent.accept()[0])  # read nothing, answer nothing
+
+    threading.Thread(target=accept, daemon=True).start()
+    endpoint = f"http://127.0.0.1:{silent.getsockname()[1]}"
+    try:
+        defaults = S3FrameStore("frames", endpoint_url=endpoint, region="us-east-1")
+        config = defaults._s3.meta.config
+        assert (config.connect_timeout, config.read_timeout) == (3.0, 10.0)
+        assert config.retries == {"mode": "standard", "total_max_attempts": 2}
+        store = S3FrameStore(
+            "frames",
+            endpoint_url=endpoint,
+            region="us-east-1",
+            timeouts=S3Timeouts(connect=0.5, read=0.5, attempts=2),
+        )
+        for attempt in (store.check, lambda: store.put(b"x", digest(b"x"), T0)):
+            began = time.monotonic()
+            with pytest.raises(StoreUnavailable, match="timeout"):
+                attempt()
+            assert 0.9 < time.monotonic() - began < 5
+    finally:
+        silent.close()
+        for c in held:
+            c.close()
