@@ -350,8 +350,8 @@ def _filled(f: Field, z: NDArray[np.float64], edges: Sequence[float]) -> list[tu
         geom = make_valid(unary_union(polygons))
         # without the vertices lying on a straight line between their neighbours (tolerance
         # 0: the same area, point for point): contourpy gives one at every cell along the
-        # grid's edges and straight runs, and one camera's map of a single band was 509
-        # vertices, 40 kB, for a rectangle
+        # grid's edges and straight runs, and one camera's map of a single band (128 cells)
+        # was 509 vertices, 20 kB, for a rectangle
         parts = [
             simplify(g, 0.0)
             for g in getattr(geom, "geoms", [geom])
