@@ -13,6 +13,7 @@ from sqlalchemy.exc import DataError, DBAPIError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from app.db.session import READ_ONLY_SQL_TRANSACTION
 from app.observability import FRAMES_REJECTED
 from app.routes import operations_of
 
@@ -254,13 +255,22 @@ def database_unavailable(exc: BaseException) -> bool:
     return not sqlstate.startswith("54")
 
 
-def database_disk_full(exc: BaseException) -> bool:
-    """Whether the database failed for want of disk space (SQLITE_FULL, PostgreSQL's 53100)."""
+DISK_FULL = "53100"
+"""PostgreSQL's sqlstate of a statement refused for want of disk space."""
+
+
+def _why_unavailable(exc: BaseException) -> str:
+    """The 503's detail: what the driver's error says of the database."""
     orig = getattr(exc, "orig", None)
-    name = getattr(orig, "sqlite_errorname", None)
-    if name is not None:
-        return bool(name == "SQLITE_FULL")
-    return getattr(orig, "sqlstate", None) == "53100"
+    code = getattr(orig, "sqlite_errorname", None) or getattr(orig, "sqlstate", None)
+    if code in ("SQLITE_FULL", DISK_FULL):
+        return "the database's disk is full: try again when space has been freed"
+    if code == READ_ONLY_SQL_TRANSACTION:
+        return (
+            "the database is read-only (a standby after a failover, or maintenance): "
+            "try again shortly"
+        )
+    return "the database cannot be reached or is busy: try again shortly"
 
 
 def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
@@ -268,15 +278,7 @@ def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     # service failed", and one line in the log per request, not a traceback.
     log.warning("database unavailable: %s", str(exc).splitlines()[0])
     _count_rejected_frame(request, 503, "database_unavailable")
-    if database_disk_full(exc):
-        detail = "the database's disk is full: try again when space has been freed"
-    elif getattr(getattr(exc, "orig", None), "sqlstate", None) == "25006":
-        detail = (
-            "the database is read-only (a standby after a failover, or maintenance): "
-            "try again shortly"
-        )
-    else:
-        detail = "the database cannot be reached or is busy: try again shortly"
+    detail = _why_unavailable(exc)
     return problem(
         503,
         "Service unavailable",

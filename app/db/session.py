@@ -10,6 +10,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import send_pending_first
 
+READ_ONLY_SQL_TRANSACTION = "25006"
+"""PostgreSQL's sqlstate of a write refused by a read-only server or transaction."""
 PG_STATEMENT_TIMEOUT_S = 30.0
 """How long a statement may run or wait for a lock on PostgreSQL (``statement_timeout``)."""
 PG_CONNECT_TIMEOUT_S = 5
@@ -80,9 +82,6 @@ def _engine(url: str, pool_size: int, max_overflow: int, statement_timeout_s: fl
             ctx.is_disconnect = True
 
     return engine
-
-
-READ_ONLY_SQL_TRANSACTION = "25006"
 
 
 def _pg_timeouts(url: str, statement_timeout_s: float = PG_STATEMENT_TIMEOUT_S) -> dict[str, Any]:

@@ -41,12 +41,12 @@ from app.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
-    CAMERA_CHANGING,
     CAMERA_RETIRED,
     CONFLICT,
     NOT_FOUND,
     UNPROCESSABLE,
     UPLOAD_ERRORS,
+    UPLOAD_UNAVAILABLE,
     frame_out,
     not_modified,
 )
@@ -148,7 +148,7 @@ def _form_captured_at(
         **NOT_FOUND,
         **CAMERA_RETIRED,
         **UPLOAD_ERRORS,
-        **CAMERA_CHANGING,
+        **UPLOAD_UNAVAILABLE,
     },
     openapi_extra=_JPEG_BODY,
 )

@@ -33,14 +33,14 @@ def health(request: Request) -> JSONResponse:
                 # answers SELECT 1 while every write fails
                 read_only = session.execute(text("SHOW transaction_read_only")).scalar()
                 database = "read_only" if read_only == "on" else "ok"
+                if read_only == "on":
+                    log.warning("database read-only: writes are refused")
             else:
                 session.execute(text("SELECT 1"))
                 database = "ok"
     except SQLAlchemyError as exc:
         log.warning("database unreachable: %s", exc)
         database = "unreachable"
-    if database == "read_only":
-        log.warning("database read-only: writes are refused")
     store: Literal["ok", "unreachable", "full"]
     try:
         request.app.state.frame_store.check()

@@ -49,17 +49,18 @@ BODY_ERRORS: Responses = {
 }
 DATABASE_UNAVAILABLE: Responses = {
     503: _problem(
-        "The database cannot be reached or is busy (code `database_unavailable`): try again "
-        "after Retry-After"
+        "The database cannot be reached, is busy, read-only or out of disk (code "
+        "`database_unavailable`): try again after Retry-After"
     )
 }
 """Every operation's: declared once, for the whole application."""
-CAMERA_CHANGING: Responses = {
+UPLOAD_UNAVAILABLE: Responses = {
     503: _problem(
-        "Send the frame again after Retry-After: the database cannot be reached or is busy "
-        "(code `database_unavailable`), the frame was not stored within the upload timeout "
-        "(`upload_timeout`), or the camera was changed again and again while the frame was "
-        "measured (`camera_changing`)"
+        "Send the frame again after Retry-After: the database cannot take it (code "
+        "`database_unavailable`), the frame store cannot (`store_unavailable`) or its disk is "
+        "down to the space kept for the database (`disk_full`), the frame was not stored "
+        "within the upload timeout (`upload_timeout`), or the camera was changed again and "
+        "again while the frame was measured (`camera_changing`)"
     )
 }
 UPLOAD_ERRORS: Responses = {

@@ -12,7 +12,17 @@ from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import ColumnElement, Select, and_, func, literal_column, or_, select, update
+from sqlalchemy import (
+    ColumnElement,
+    Row,
+    Select,
+    and_,
+    func,
+    literal_column,
+    or_,
+    select,
+    update,
+)
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.core import airquality, soiling
@@ -432,23 +442,29 @@ def _public_level_changed(
     newest first whose newest frame alone read Fair, the hours before it Poor, left the camera
     public Poor with no alert ever raised."""
     name = airquality.category(level)
-    last = session.execute(
-        select(AirAlert.kind, AirAlert.category)
-        .where(AirAlert.camera_id == camera_id)
-        .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
-        .limit(1)
-    ).first()
-    open_episode = last is not None and last.kind == "raised"
+    last = _last_alert(session, camera_id)
+    episode = last if last is not None and last.kind == "raised" else None  # still open
     severity = airquality.ALERT_CATEGORIES.index
     if name in airquality.ALERT_CATEGORIES:
-        if last is not None and open_episode and severity(last.category) >= severity(name):
+        if episode is not None and severity(episode.category) >= severity(name):
             return []
         kind = "raised"
-    elif open_episode and level >= airquality.CLEAR_LEVEL:
+    elif episode is not None and level >= airquality.CLEAR_LEVEL:
         kind = "cleared"
     else:
         return []
     return [_alert(camera_id, reading_id, at, kind, level, name)]
+
+
+def _last_alert(session: Session, camera_id: str) -> Row[str, str, datetime] | None:
+    """The camera's last alert: its kind, category and when its frame was taken."""
+    return session.execute(
+        select(AirAlert.kind, AirAlert.category, Frame.captured_at)
+        .join(Frame, Frame.id == AirAlert.frame_id)
+        .where(AirAlert.camera_id == camera_id)
+        .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
+        .limit(1)
+    ).first()
 
 
 def _in_episode(session: Session, frame: Frame) -> bool:
@@ -456,13 +472,7 @@ def _in_episode(session: Session, frame: Frame) -> bool:
     taken since (before ``frame``): an episode of bad air not yet cleared. (Without the
     second test, alerts raised before cleared ones existed would each be cleared by the next
     clean frame, months after their air had cleared.)"""
-    last = session.execute(
-        select(AirAlert.kind, Frame.captured_at)
-        .join(Frame, Frame.id == AirAlert.frame_id)
-        .where(AirAlert.camera_id == frame.camera_id)
-        .order_by(AirAlert.created_at.desc(), AirAlert.id.desc())
-        .limit(1)
-    ).first()
+    last = _last_alert(session, frame.camera_id)
     if last is None or last.kind != "raised":
         return False
     clear_since = session.scalar(
