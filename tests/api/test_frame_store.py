@@ -290,6 +290,7 @@ def test_a_disk_down_to_the_space_kept_for_the_database_refuses_frames(
     free[0] = store.keep_free_bytes + len(body)  # a frame's header more would cross it
     before = table_counts(engine)
     packs = sorted((app.state.settings.data_dir / "packs").rglob("*.pack"))
+    assert packs  # the first frame's
     sizes = [p.stat().st_size for p in packs]
     r = client.post("/cameras/c/frames", content=body, headers=headers)
     assert r.status_code == 503, r.text
