@@ -177,14 +177,6 @@ FRESH = timedelta(hours=3)
 three hours); a camera's latest reading older than this is not today's air."""
 
 
-def nowcast(times: Sequence[datetime], levels: Sequence[float], now: datetime) -> float | None:
-    """A NowCast-style smoothed level: hourly means of the last 12 hours weighted wᵏ for the
-    hour k ago, w = max(min/max of the hourly means, 0.5) — steady air weighs history, changing
-    air weighs the latest hours (as the official NowCast for PM2.5). None without a reading in
-    the last 3 hours (the official rule wants two of the last three)."""
-    return nowcasts(times, levels, [now])[0]
-
-
 _MICROSECOND = timedelta(microseconds=1)
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
@@ -198,8 +190,14 @@ def _microseconds(times: Iterable[datetime]) -> NDArray[np.int64]:
 def nowcasts(
     times: Sequence[datetime], levels: Sequence[float], at: Sequence[datetime]
 ) -> list[float | None]:
-    """``nowcast`` at each of ``at`` from the readings taken up to it, all at once: a reading
-    taken late re-smooths the readings after it. The hour k before ``a`` holds the readings
+    """A NowCast-style smoothed level at each of ``at`` from the readings (``times``,
+    ``levels``) taken up to it: hourly means of the 12 hours before weighted wᵏ for the hour k
+    ago, w = max(min/max of the hourly means, 0.5) — steady air weighs history, changing air
+    weighs the latest hours (as the official NowCast for PM2.5). None without a reading in the
+    3 hours before (the official rule wants two of the last three).
+
+    All at once, so that a reading taken late re-smooths the readings after it: the hour k
+    before ``a`` holds the readings
     taken in (a − (k+1) h, a − k h], so each hour's count and sum are differences of the
     sorted readings' running count and sum at 13 boundaries: O((m + n) log n) for m times and
     n readings, not m × n."""

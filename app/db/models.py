@@ -286,7 +286,7 @@ class SkyVerdict(Verdict):
     p_value: Mapped[float | None] = mapped_column(Float)
     calibration_id: Mapped[str | None] = mapped_column(ForeignKey("air_calibrations.id"))
     smoothed_level: Mapped[float | None] = mapped_column(Float)
-    """The camera's NowCast-style level after this frame (``airquality.nowcast``)."""
+    """The camera's NowCast-style level after this frame (``airquality.nowcasts``)."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.sky, "polymorphic_load": "inline"}
 

@@ -108,20 +108,20 @@ class TestNowcast:
     def test_steady_air_is_the_plain_mean(self) -> None:
         now = datetime(2026, 6, 1, 12, tzinfo=UTC)
         times = [now - timedelta(hours=h) for h in range(6)]
-        assert airquality.nowcast(times, [7.0] * 6, now) == pytest.approx(7.0)
+        assert airquality.nowcasts(times, [7.0] * 6, [now])[0] == pytest.approx(7.0)
 
     def test_changing_air_weighs_the_latest_hours(self) -> None:
         now = datetime(2026, 6, 1, 12, tzinfo=UTC)
         times = [now - timedelta(hours=h) for h in range(6)]
         levels = [2.0, 8.0, 8.0, 8.0, 8.0, 8.0]  # it turned bad this hour
-        s = airquality.nowcast(times, levels, now)
+        s = airquality.nowcasts(times, levels, [now])[0]
         # w = max(2/8, 0.5) = 0.5: (2 + 8(0.5 + 0.25 + 0.125 + 0.0625 + 0.03125)) / 1.96875
         assert s == pytest.approx((2 + 8 * 0.96875) / 1.96875)
         assert s < np.mean(levels)
 
     def test_no_recent_reading(self) -> None:
         now = datetime(2026, 6, 1, 12, tzinfo=UTC)
-        assert airquality.nowcast([now - timedelta(hours=5)], [5.0], now) is None
+        assert airquality.nowcasts([now - timedelta(hours=5)], [5.0], [now])[0] is None
 
     def test_at_many_times_as_defined_reading_by_reading(self) -> None:
         """``nowcasts`` (running sums at hour boundaries) against the definition written out
@@ -502,7 +502,7 @@ def test_air_hovering_on_the_poor_edge_is_one_alert() -> None:
     for k in range(72):
         times.append(t0 + timedelta(minutes=5 * k))
         levels.append(float(rng.choice([4, 5])))
-        s = airquality.nowcast(times, levels, times[-1])
+        s = airquality.nowcasts(times, levels, [times[-1]])[0]
         assert s is not None
         a = airquality.alert_category(s, reversed(smoothed))
         if a is not None:
