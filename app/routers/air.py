@@ -367,16 +367,6 @@ CSV_CONTENT = {
 }
 
 
-def _csv(rows: list[AirReading] | list[AirAggregate], fields: list[str]) -> str:
-    """``rows`` as CSV with a header of ``fields``, each value as in the JSON answer (RFC 3339
-    times in UTC; an empty cell for null)."""
-    out = io.StringIO()
-    writer = csv.DictWriter(out, fieldnames=fields)
-    writer.writeheader()
-    writer.writerows(r.model_dump(mode="json") for r in rows)
-    return out.getvalue()
-
-
 @router.get(
     "/readings",
     response_model=list[AirReading] | list[AirAggregate],
@@ -471,8 +461,14 @@ async def readings(
 def _csv_response(
     rows: list[AirReading] | list[AirAggregate], fields: list[str], response: Response
 ) -> Response:
+    """``rows`` as CSV with a header of ``fields``, each value as in the JSON answer (RFC 3339
+    times in UTC; an empty cell for null), with the page's Link header."""
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(r.model_dump(mode="json") for r in rows)
     link = {"Link": response.headers["link"]} if "link" in response.headers else {}
-    return Response(_csv(rows, fields), media_type="text/csv; charset=utf-8", headers=link)
+    return Response(out.getvalue(), media_type="text/csv; charset=utf-8", headers=link)
 
 
 def _zone(name: str) -> ZoneInfo:

@@ -23,7 +23,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from app.errors import ServiceUnavailable
+from app.errors import RETRY_AFTER_SECONDS, ServiceUnavailable
 
 if TYPE_CHECKING:
     from app.settings import Settings
@@ -32,8 +32,14 @@ if TYPE_CHECKING:
 class StoreUnavailable(ServiceUnavailable):
     """The frame store cannot be reached or written: 503, try again shortly."""
 
-    def __init__(self, detail: str) -> None:
-        super().__init__(detail, code="store_unavailable")
+    def __init__(
+        self,
+        detail: str,
+        *,
+        code: str = "store_unavailable",
+        retry_after: int = RETRY_AFTER_SECONDS,
+    ) -> None:
+        super().__init__(detail, retry_after=retry_after, code=code)
 
 
 DISK_FULL_RETRY_AFTER = 60
@@ -45,9 +51,7 @@ class DiskFull(StoreUnavailable):
     when retention (or an operator) has freed some."""
 
     def __init__(self, detail: str) -> None:
-        ServiceUnavailable.__init__(
-            self, detail, retry_after=DISK_FULL_RETRY_AFTER, code="disk_full"
-        )
+        super().__init__(detail, code="disk_full", retry_after=DISK_FULL_RETRY_AFTER)
 
 
 def digest(data: bytes) -> str:
