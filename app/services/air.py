@@ -343,6 +343,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
         if g.level is not None:
             verdict.level = g.level
             verdict.category = airquality.category(g.level)
+    _lock_camera(session, camera.id)
     # the camera's readings of the 12 hours before this frame and the 12 after: those up to
     # its capture smooth it (a frame uploaded late, a backlog, is smoothed with the hours
     # before it was taken, not with the readings taken since); those after it, smoothed
@@ -413,6 +414,19 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     ):
         session.add(_alert(camera.id, frame.id, frame.received_at, kind, smoothed, alert))
     return verdict
+
+
+def _lock_camera(session: Session, camera_id: str) -> None:
+    """Take the camera's row for this transaction before its readings are read (PostgreSQL):
+    another process storing a frame of the same camera waits for this one's commit, and then
+    reads its reading. Without it, a backlog sent to two processes at once had each smooth
+    without the other's frame (stale smoothed levels, kept), and their updates of the same
+    readings in opposite orders deadlocked (a 503). ``FOR NO KEY UPDATE`` does not wait for the
+    key-share locks that inserting frames of the camera takes. SQLite has one writer anyway."""
+    if session.get_bind().dialect.name == "postgresql":
+        session.execute(
+            select(Camera.id).where(Camera.id == camera_id).with_for_update(key_share=True)
+        )
 
 
 def _alert(

@@ -68,6 +68,19 @@ class _Job:
 
 Outcome = tuple[Any, BaseException | None]
 
+TRANSACTION_ROLLBACK = "40"
+"""PostgreSQL's class of errors that roll a transaction back for having lost a race with
+another (40P01 deadlock detected, 40001 serialization failure); run again, it passes."""
+
+
+def _lost_a_race(exc: BaseException) -> bool:
+    """Whether the batch failed for having lost a race with another process's transaction: a
+    deadlock (two processes' batches locking the same cameras or panels in opposite orders).
+    Its jobs are run again one transaction each (each locks one camera or panel, and so takes
+    no part in a deadlock), rather than all failing as when the database is down."""
+    sqlstate = getattr(getattr(exc, "orig", None), "sqlstate", None) or ""
+    return isinstance(exc, DBAPIError) and sqlstate.startswith(TRANSACTION_ROLLBACK)
+
 
 def _refused(refusal: Refusal) -> BaseException:
     if refusal == "revoked":
@@ -308,11 +321,12 @@ class GroupCommitWriter:
             lost = isinstance(exc, DBAPIError) and exc.connection_invalidated
             if again and held and lost:
                 return self._write(batch, again=False)  # the kept connection was lost
-            if len(batch) == 1 and isinstance(exc, IntegrityError):
+            raced = _lost_a_race(exc)
+            if len(batch) == 1 and (isinstance(exc, IntegrityError) or raced):
                 # another process stored the same frame meanwhile: once more, the job now sees
-                # it (an idempotent replay) or fails for good
+                # it (an idempotent replay) or fails for good; or the job lost a deadlock
                 return [self._once(batch[0], exc)]
-            if len(batch) == 1 or database_unavailable(exc):
+            if len(batch) == 1 or (database_unavailable(exc) and not raced):
                 # the database down fails every job alike: trying each alone would wait out
                 # the connect timeout once per job (64 × 5 s) before the next batch
                 return [(None, exc)] * len(batch)

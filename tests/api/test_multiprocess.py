@@ -8,12 +8,15 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine
 
+from app.core import airquality
+from tests.api.test_air import calibrate, sky_jpeg
 from tests.api.test_camera_changes import LEFT, RIGHT, halves, near
 from tests.api.test_solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 from tests.conftest import ADMIN_TOKEN, _empty_tables
@@ -159,3 +162,59 @@ def test_a_new_token_a_new_region_and_retirement_reach_the_other_process_at_once
         # every 201 is a stored frame, and nothing else was stored
         kept = c.get(f"{a}/cameras/r/frames", params={"limit": 1000}).json()
         assert sorted(f["frame_id"] for f in kept) == sorted(stored)
+
+
+def test_backlogs_sent_at_once_to_both_processes_are_smoothed_as_if_sent_in_order(
+    servers: list[str],
+) -> None:
+    """Three cameras empty their buffers after an outage, each with many requests at once,
+    spread over both processes. Each reading's smoothed level is the NowCast of every reading
+    of its camera taken up to it, as when the frames come one by one: the two processes'
+    transactions do not each smooth without the other's frame (a process alone writes its
+    frames one after another, on one thread), and none of them fails, though each process's
+    batches take the cameras in their own order."""
+    a, b = servers
+    cameras = ["s0", "s1", "s2"]
+    tokens = {}
+    with httpx.Client(headers=ADMIN, timeout=60) as c:
+        for i, camera in enumerate(cameras):
+            body = {"id": camera, "kind": "sky", "lat": 45.46, "lon": 9.19 + 0.01 * i}
+            body["roi"] = [0, 0, 160, 55]
+            tokens[camera] = c.post(f"{a}/cameras", json=body).json()["token"]
+        with httpx.Client(base_url=b, headers=ADMIN, timeout=60) as at_b:
+            assert calibrate(at_b, ADMIN, None).status_code == 201  # type: ignore[arg-type]
+    start = datetime(2026, 11, 2, 6, 0, tzinfo=UTC)
+    levels = [10, 10, 7, 5, 3, 1, 1, 3, 5, 7, 10, 10] * 3  # changing air: smoothing matters
+    frames = [
+        (camera, start + timedelta(minutes=10 * k), sky_jpeg(level, seed=k))
+        for camera in cameras  # one camera after another: many of its frames at once
+        for k, level in enumerate(levels)
+    ]
+
+    def post(i: int) -> httpx.Response:
+        camera, taken, jpeg = frames[i]
+        return httpx.post(
+            f"{servers[i % 2]}/cameras/{camera}/frames",
+            content=jpeg,
+            params={"captured_at": taken.isoformat()},
+            headers={"Authorization": f"Bearer {tokens[camera]}", "Content-Type": "image/jpeg"},
+            timeout=60,
+        )
+
+    with ThreadPoolExecutor(16) as pool:
+        results = list(pool.map(post, range(len(frames))))
+    assert [r.status_code for r in results] == [201] * len(frames), [
+        r.text for r in results if r.status_code != 201
+    ][:3]
+    for camera in cameras:
+        stored = httpx.get(
+            f"{a}/air/readings", params={"camera_id": camera, "limit": 1000}, timeout=30
+        ).json()
+        assert len(stored) == len(levels)
+        taken = [datetime.fromisoformat(r["captured_at"]) for r in stored]
+        graded = [(t, r["level"]) for t, r in zip(taken, stored, strict=True) if r["level"]]
+        assert len(graded) >= 30  # a sky may fall outside the calibration: ungraded, smoothed
+        expected = airquality.nowcasts(
+            [t for t, _ in graded], [float(level) for _, level in graded], taken
+        )
+        assert [r["smoothed_level"] for r in stored] == pytest.approx(expected, rel=1e-9)

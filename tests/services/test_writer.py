@@ -579,3 +579,56 @@ def test_more_rows_than_one_sqlite_statement_may_bind_go_in_several(
     assert [sql.count("), (") + 1 for sql in inserts] == [99, 99, 2]
     with sessions() as s:
         assert s.scalar(select(func.count()).select_from(Frame)) == 200
+
+
+def test_batches_of_two_processes_that_deadlock_store_every_job(
+    sessions: sessionmaker[Session],
+) -> None:
+    """PostgreSQL: two processes' batches take two cameras' rows in opposite orders (as sky
+    frames do, ``air._lock_camera``, and panel frames their panels). The server ends the
+    deadlock by failing one batch; its jobs are then run one transaction each, and every job of
+    both batches is stored, where the whole losing batch used to fail (a 503 for each frame)."""
+    engine = sessions.kw["bind"]
+    if engine.dialect.name != "postgresql":
+        pytest.skip("SQLite has one writer: no deadlock between processes")
+    with sessions() as s:
+        s.add(Camera(id="cam2", kind=CameraKind.rig, token_hash="h2"))
+        s.commit()
+    both_hold_one = threading.Barrier(2, timeout=10)
+
+    def lock(first: str, second: str | None, n: int) -> Any:
+        calls = []
+
+        def fn(session: Session, retry: bool = False) -> str:
+            stmt = select(Camera.id).with_for_update(key_share=True)
+            session.execute(stmt.where(Camera.id == first))
+            calls.append(retry)
+            if second is None and len(calls) == 1:  # the batch's first job, first time
+                both_hold_one.wait()
+            if second is not None:
+                session.execute(stmt.where(Camera.id == second))
+            insert_rows(session, *frame_and_verdict(n))
+            return "stored"
+
+        return fn
+
+    def batch(one: str, other: str, n: int) -> list[_Job]:
+        return [_Job(lock(one, None, n), Future()), _Job(lock(other, one, n + 1), Future())]
+
+    writers = [GroupCommitWriter(sessions), GroupCommitWriter(sessions)]
+    batches = [batch("cam", "cam2", 1), batch("cam2", "cam", 3)]
+    outcomes: list[Any] = [None, None]
+
+    def write(i: int) -> None:
+        outcomes[i] = writers[i]._write(batches[i])
+
+    threads = [threading.Thread(target=write, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert outcomes == [[("stored", None)] * 2] * 2
+    with sessions() as s:
+        assert s.scalars(select(Frame.id).order_by(Frame.id)).all() == [
+            "f0001", "f0002", "f0003", "f0004",
+        ]  # fmt: skip
