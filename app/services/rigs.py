@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.core import laser_grid
@@ -61,7 +62,10 @@ def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
         raise Conflict(f"a rig with id {rig_id!r} already exists")
     row = Rig(id=rig_id, kind=body.kind, spec=spec_of(session, body), created_at=utcnow())
     session.add(row)
-    session.flush()
+    try:
+        session.flush()
+    except IntegrityError:  # a concurrent request inserted the same id first
+        raise Conflict(f"a rig with id {rig_id!r} already exists") from None
     return row
 
 

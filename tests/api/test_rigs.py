@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import functools
 import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import Engine, insert
 
 from app.core.triangulation import CrossRig, View, project_views
+from app.db.models import Rig
 from tests.core.test_triangulation import RIG, calibrated_views, points
 
 
@@ -566,3 +571,24 @@ class TestLaserGrid:
             ).status_code
             == 404
         )
+
+
+def test_a_rig_registered_twice_at_once_is_one_rig_and_a_409(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """The same rig registered by two requests at once (a deploy script run twice, a retry
+    after a timeout): the second looks before the first has committed, finds no rig, and its
+    insert then collides with the first's row. It gets 409, as it would a moment later, not
+    500. The first request here is an insert held uncommitted on another connection."""
+    body = {"id": "cell-1", "kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2}
+    first = {"id": "cell-1", "kind": "cross", "spec": {}, "created_at": datetime.now(UTC)}
+    with engine.connect() as other, ThreadPoolExecutor(1) as pool:
+        other.execute(insert(Rig).values(first))
+        second = pool.submit(client.post, "/rigs", json=body, headers=admin)
+        time.sleep(1.0)  # the second has looked, and waits for the first's row
+        other.commit()
+        r = second.result(timeout=60)
+    assert r.status_code == 409, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert "already exists" in r.json()["detail"]
+    assert [g["id"] for g in client.get("/rigs", headers=admin).json()] == ["cell-1"]
