@@ -39,6 +39,7 @@ from app.routers import (
 from app.routers.responses import DATABASE_UNAVAILABLE
 from app.security import admin_token_hash, hash_token
 from app.services import rate_limit, registry, retention, webhooks
+from app.services.bounded_store import BoundedStore
 from app.services.camera_info import TokenCache
 from app.services.isopleth_cache import MapCache
 from app.services.policy import Policy
@@ -174,6 +175,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )
     app.state.frame_store = frame_store(settings)
+    app.state.bounded_store = BoundedStore(
+        app.state.frame_store, seconds=settings.frame_store_timeout_seconds
+    )
     app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
     secret = settings.alert_webhook_secret
     app.state.webhook_key = (

@@ -91,6 +91,13 @@ class Settings(BaseSettings):
         default=None, description="An S3-compatible store's URL (MinIO, Ceph …); default: AWS."
     )
     s3_region: str | None = Field(default=None, description="The bucket's region.")
+    frame_store_timeout_seconds: float = Field(
+        default=10.0,
+        gt=0,
+        le=300,
+        description="How long /health and the image endpoints wait for the frame store before "
+        "answering 503 (a network mount whose server is gone blocks every call into it).",
+    )
     fsync_frames: bool = Field(
         default=False,
         description="fsync each stored frame: survives power loss, not only a process crash.",

@@ -17,6 +17,7 @@ from fastapi.responses import Response
 from pydantic import TypeAdapter, ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm.interfaces import ORMOption
 
 from app.core import imaging, jpeg
 from app.db.models import Camera, CameraKind, Frame
@@ -54,7 +55,6 @@ from app.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, Fr
 from app.services import ingest, registry, retention
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
-from app.services.storage import FrameStore
 from app.services.writer import CameraChanged, GroupCommitWriter
 from app.settings import Settings
 from app.uploads import read_jpeg
@@ -406,11 +406,11 @@ def get_frame(frame_id: RecordId, session: SessionDep, _: Admin) -> FrameOut:
         **NOT_FOUND,
     },
 )
-def get_frame_image(
+async def get_frame_image(
     frame_id: RecordId, session: SessionDep, _: Admin, request: Request
 ) -> Response:
     """The stored JPEG of a frame (304 when the client's ``If-None-Match`` already names it)."""
-    frame = session.get(Frame, frame_id)
+    frame = await run_in_threadpool(_frame_row, session, frame_id)
     if frame is None or frame.stored_path is None:
         raise NotFound(f"no stored image for frame {frame_id!r}")
     # content-addressed: the bytes behind this URL never change
@@ -418,11 +418,21 @@ def get_frame_image(
     headers = {"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"}
     if not_modified(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
-    store: FrameStore = request.app.state.frame_store
-    data = store.read(frame.stored_path)
+    data = await request.app.state.bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
     return Response(data, media_type="image/jpeg", headers=headers)
+
+
+def _frame_row(session: Session, frame_id: str, *options: ORMOption) -> Frame | None:
+    """The frame's row, read and the session closed: what follows waits on the frame store and
+    on image work, and must not hold the database connection meanwhile (with SQLite, the one
+    every request shares: an image read from a store that hung held every request of the
+    service for as long)."""
+    try:
+        return session.get(Frame, frame_id, options=options)
+    finally:
+        session.close()
 
 
 RegionQuery = Annotated[
@@ -452,9 +462,7 @@ async def get_frame_region(
     """The stored frame with the region its statistics were measured in outlined and the rest
     darkened: where a sky camera's region (clear of overlays, buildings and the sun) or a panel
     camera's panel lies, checked on a real frame; ``roi`` previews another region."""
-    frame = await run_in_threadpool(
-        session.get, Frame, frame_id, options=[selectinload(Frame.verdict)]
-    )
+    frame = await run_in_threadpool(_frame_row, session, frame_id, selectinload(Frame.verdict))
     if frame is None or frame.stored_path is None:
         raise NotFound(f"no stored image for frame {frame_id!r}")
     region = frame.verdict.roi if frame.verdict is not None else None
@@ -467,8 +475,7 @@ async def get_frame_region(
         ingest.check_fits(region, frame.width, frame.height)
     except ValueError as exc:
         raise Unprocessable(str(exc), code="roi_outside_frame") from None
-    store: FrameStore = request.app.state.frame_store
-    data = await run_in_threadpool(store.read, frame.stored_path)
+    data = await request.app.state.bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
     body = await image_work(request, _outlined, data, region)

@@ -7,6 +7,7 @@ import os
 from typing import Literal
 
 from fastapi import APIRouter, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest, multiprocess
 from sqlalchemy import text
@@ -23,27 +24,12 @@ log = logging.getLogger("vantage.health")
 
 
 @router.get("/health", response_model=Health, responses={503: {"model": Health}})
-def health(request: Request) -> JSONResponse:
+async def health(request: Request) -> JSONResponse:
     """Whether the service, its database and its frame store answer; the version."""
-    database: Literal["ok", "unreachable", "read_only"]
-    try:
-        with get_sessionmaker(request)() as session:
-            if session.get_bind().dialect.name == "postgresql":
-                # a standby (a failover left this address on one) or a server set read-only
-                # answers SELECT 1 while every write fails
-                read_only = session.execute(text("SHOW transaction_read_only")).scalar()
-                database = "read_only" if read_only == "on" else "ok"
-                if read_only == "on":
-                    log.warning("database read-only: writes are refused")
-            else:
-                session.execute(text("SELECT 1"))
-                database = "ok"
-    except SQLAlchemyError as exc:
-        log.warning("database unreachable: %s", exc)
-        database = "unreachable"
+    database = await run_in_threadpool(_database_state, request)
     store: Literal["ok", "unreachable", "full"]
     try:
-        request.app.state.frame_store.check()
+        await request.app.state.bounded_store.check()
         store = "ok"
     except DiskFull as exc:
         log.warning("frame store full: %s", exc)
@@ -59,6 +45,24 @@ def health(request: Request) -> JSONResponse:
         version=__version__,
     )
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+
+
+def _database_state(request: Request) -> Literal["ok", "unreachable", "read_only"]:
+    try:
+        with get_sessionmaker(request)() as session:
+            if session.get_bind().dialect.name == "postgresql":
+                # a standby (a failover left this address on one) or a server set read-only
+                # answers SELECT 1 while every write fails
+                read_only = session.execute(text("SHOW transaction_read_only")).scalar()
+                if read_only == "on":
+                    log.warning("database read-only: writes are refused")
+                    return "read_only"
+            else:
+                session.execute(text("SELECT 1"))
+    except SQLAlchemyError as exc:
+        log.warning("database unreachable: %s", exc)
+        return "unreachable"
+    return "ok"
 
 
 @router.get("/metrics", include_in_schema=False)

@@ -1,0 +1,156 @@
+"""A frame store that stops answering (a network mount whose server went away blocks every call
+into it, with no timeout): /health and the image endpoints wait for it a bounded time, and the
+rest of the service, which never touches it, goes on answering."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+
+from app.main import create_app
+from app.services.storage import FrameStore
+from app.settings import Settings
+from tests.api.test_frame_store import rig_camera
+from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
+
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+WAIT = 20.0
+"""How long a test waits for an answer that must come without the store (it comes in ms)."""
+
+
+@dataclass
+class Hung:
+    """The service's store, whose checks and reads block while ``answering`` is clear."""
+
+    store: FrameStore
+    answering: threading.Event = field(default_factory=threading.Event)
+    checks: int = 0
+    reads: int = 0
+
+    def check(self) -> None:
+        self.checks += 1
+        self.answering.wait()
+        self.store.check()
+
+    def read(self, relative: str) -> bytes | None:
+        self.reads += 1
+        self.answering.wait()
+        return self.store.read(relative)
+
+
+def hung_client(settings: Settings, seconds: float) -> Iterator[tuple[TestClient, Hung, str]]:
+    """A client, its store made to hang once a frame is stored, and that frame's id."""
+    app = create_app(settings.model_copy(update={"frame_store_timeout_seconds": seconds}))
+    with TestClient(app, raise_server_exceptions=False) as client:
+        r = client.post("/cameras/c/frames", content=make_jpeg(), headers=rig_camera(client, ADMIN))
+        assert r.status_code == 201, r.text
+        hung = Hung(app.state.frame_store)
+        app.state.bounded_store.store = hung
+        try:
+            yield client, hung, r.json()["frame_id"]
+        finally:
+            hung.answering.set()  # the blocked calls end with the test
+
+
+@contextmanager
+def requests_at_once(store: Hung, workers: int) -> Iterator[ThreadPoolExecutor]:
+    """Threads to send requests from while the store hangs. The store answers again before
+    the threads are waited for, also when an assertion failed (else that wait never ends)."""
+    with ThreadPoolExecutor(workers) as pool:
+        try:
+            yield pool
+        finally:
+            store.answering.set()
+
+
+@pytest.fixture
+def slow(settings: Settings, engine: Engine) -> Iterator[tuple[TestClient, Hung, str]]:
+    """The store hung, and the service waiting for it longer than any test takes."""
+    _empty_tables(engine)
+    yield from hung_client(settings, seconds=600)
+
+
+@pytest.fixture
+def hung(settings: Settings, engine: Engine) -> Iterator[tuple[TestClient, Hung, str]]:
+    """The store hung, and the service waiting for it half a second."""
+    _empty_tables(engine)
+    yield from hung_client(settings, seconds=0.5)
+
+
+def test_health_probes_of_a_hung_store_wait_on_one_check(
+    slow: tuple[TestClient, Hung, str],
+) -> None:
+    """Probes made while the store hangs all wait for the one check under way, not one each:
+    each probe used to take a request thread for good, and within minutes of probes every
+    one of them, so that requests that never touch the store hung too."""
+    client, store, _ = slow
+    with requests_at_once(store, 12) as pool:
+        probes = [pool.submit(client.get, "/health") for _ in range(10)]
+        # the rest of the service answers meanwhile
+        cameras = pool.submit(client.get, "/cameras", headers=ADMIN).result(timeout=WAIT)
+        assert cameras.status_code == 200
+        assert [c["id"] for c in cameras.json()] == ["c"]
+        assert client.get("/air/readings").status_code == 200
+        assert not any(p.done() for p in probes)
+        assert store.checks == 1
+        store.answering.set()
+        assert [p.result(timeout=WAIT).status_code for p in probes] == [200] * 10
+    assert store.checks == 1
+
+
+def test_an_image_read_from_a_hung_store_holds_no_other_request(
+    slow: tuple[TestClient, Hung, str],
+) -> None:
+    """While an image read waits for the store, requests for the database are answered: the
+    read used to keep the request's database connection, with SQLite the one every request
+    shares, so the whole service waited with it."""
+    client, store, frame_id = slow
+    with requests_at_once(store, 4) as pool:
+        image = pool.submit(client.get, f"/frames/{frame_id}/image", headers=ADMIN)
+        region = pool.submit(client.get, f"/frames/{frame_id}/region.jpg", headers=ADMIN)
+        cameras = pool.submit(client.get, "/cameras", headers=ADMIN).result(timeout=WAIT)
+        assert cameras.status_code == 200
+        frames = client.get("/cameras/c/frames", headers=ADMIN)
+        assert [f["frame_id"] for f in frames.json()] == [frame_id]
+        assert not image.done()
+        assert not region.done()
+        store.answering.set()
+        assert image.result(timeout=WAIT).status_code == 200
+        assert image.result().content[:2] == b"\xff\xd8"
+        assert region.result(timeout=WAIT).status_code == 200
+
+
+def test_a_hung_store_is_a_503_within_the_bound(hung: tuple[TestClient, Hung, str]) -> None:
+    client, store, frame_id = hung
+    for _ in range(3):
+        r = client.get("/health")
+        assert r.status_code == 503
+        assert r.json()["frame_store"] == "unreachable"
+        assert r.json()["database"] == "ok"
+    assert store.checks == 1  # the first check still hangs: the next probes wait on it
+    r = client.get(f"/frames/{frame_id}/image", headers=ADMIN)
+    assert r.status_code == 503, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert r.json()["code"] == "store_unavailable"
+    assert "did not answer within 0.5 s" in r.json()["detail"]
+    assert r.headers["retry-after"] == "5"
+    # a few calls at most hang in the store: beyond them the 503 comes at once
+    with requests_at_once(store, 8) as pool:
+        answers = list(
+            pool.map(lambda _: client.get(f"/frames/{frame_id}/image", headers=ADMIN), range(8))
+        )
+    assert {a.status_code for a in answers} == {503}
+    assert store.reads <= 4  # THREADS, one of them the hung check
+    # the store is back (requests_at_once made it answer)
+    for _ in range(100):  # the hung calls end
+        if client.get("/health").status_code == 200:
+            break
+    assert client.get("/health").json()["frame_store"] == "ok"
+    assert client.get(f"/frames/{frame_id}/image", headers=ADMIN).status_code == 200
