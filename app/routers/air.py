@@ -22,6 +22,7 @@ from sqlalchemy.orm import Session
 from app.compression import accepts_gzip
 from app.core import airquality, isopleths
 from app.db.models import Frame, SkyVerdict
+from app.db.session import release
 from app.deps import (
     ID_PATTERN,
     Admin,
@@ -98,6 +99,7 @@ def _from_files(
     applies_to: list[str],
 ) -> AirCalibrationOut:
     camera, warnings = air.upload_region(session, camera_id, applies_to)
+    release(session)  # while decoding
     decoded = training.decode_all(files, camera, max_pixels=max_pixels)
     feats = np.array([d.features for d in decoded], dtype=np.float64)
     row = air.calibrate(

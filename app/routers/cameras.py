@@ -21,6 +21,7 @@ from sqlalchemy.orm.interfaces import ORMOption
 
 from app.core import imaging, jpeg
 from app.db.models import Camera, CameraKind, Frame
+from app.db.session import release
 from app.deps import (
     Admin,
     CameraId,
@@ -425,14 +426,13 @@ async def get_frame_image(
 
 
 def _frame_row(session: Session, frame_id: str, *options: ORMOption) -> Frame | None:
-    """The frame's row, read and the session closed: what follows waits on the frame store and
-    on image work, and must not hold the database connection meanwhile (with SQLite, the one
-    every request shares: an image read from a store that hung held every request of the
-    service for as long)."""
+    """The frame's row, the session then released: what follows waits on the frame store and
+    on image work (an image read from a store that hung had held every request of the
+    service on SQLite for as long)."""
     try:
         return session.get(Frame, frame_id, options=options)
     finally:
-        session.close()
+        release(session)
 
 
 RegionQuery = Annotated[

@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.core.panel_state import PanelState
 from app.db.models import Baseline, CameraKind, Panel
+from app.db.session import release
 from app.deps import (
     ID_PATTERN,
     Admin,
@@ -182,6 +183,7 @@ def _train_from_files(
 ) -> BaselineOut:
     registry.panel_in_service(session, panel_id)
     camera = training.panel_camera(session, panel_id, camera_id)
+    release(session)  # while decoding; training locks the panel and checks it again
     modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
     row = training.train_baseline(
         session,

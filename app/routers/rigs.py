@@ -7,10 +7,12 @@ from functools import partial
 
 import numpy as np
 from fastapi import APIRouter, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from app.core import shapes
 from app.db.models import Rig
+from app.db.session import release
 from app.deps import (
     Admin,
     Limit,
@@ -135,12 +137,20 @@ def triangulate(
 async def _rig_and_form(
     rig_id: str, request: Request, session: Session, settings: Settings, *parts: str
 ) -> tuple[Rig, Form]:
-    """The rig, and the images (and fields: ``parts``) of a multipart upload to it."""
-    row = rigs.get(session, rig_id)
+    """The rig, and the images (and fields: ``parts``) of a multipart upload to it. The
+    session is released before the upload is read and measured, which may take seconds."""
+    row = await run_in_threadpool(_rig_released, session, rig_id)
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send the images as multipart/form-data (files)")
     form = await read_form(request, settings.max_upload_bytes, max_files=64, parts=parts)
     return row, form
+
+
+def _rig_released(session: Session, rig_id: str) -> Rig:
+    try:
+        return rigs.get(session, rig_id)
+    finally:
+        release(session)
 
 
 def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
