@@ -1,7 +1,8 @@
 """Delivering air-quality alerts to a webhook, with retries and exponential backoff.
 
-A sweep takes undelivered alerts (``FOR UPDATE SKIP LOCKED``: several processes never send one
-twice at once), POSTs each as JSON, and records the outcome; a failure is retried after
+A sweep claims each due alert (``FOR UPDATE SKIP LOCKED``, then committed with its next attempt
+put ahead: several processes never send one at once, and no transaction waits on the
+receiver), POSTs it as JSON, and records the outcome; a failure is retried after
 2, 4, 8 … seconds, at most ``RETRY_CAP`` apart, until the alert is ``retry_for`` old (24 h by
 default: a receiver down for a deploy or a night still gets every alert). Alerts live in the
 database, so a restart loses none.
@@ -171,65 +172,94 @@ def sweep(
     key: bytes | None = None,
 ) -> int:
     """Try every due alert once (at most ``batch``); returns how many were delivered. Each
-    alert is taken, posted and recorded in its own transaction: a process that dies during a
-    sweep sends again at most the alert it was posting, not every one delivered before it in
-    the sweep. Once ``stopping`` is set (a shutdown waiting for this sweep), the alerts not yet
-    tried are left for the next one. ``key`` (``signing_key``) signs each POST."""
+    alert is claimed, posted and recorded one at a time: a process that dies during a sweep
+    sends again, once its claim has run out, at most the alert it was posting, not every one
+    delivered before it in the sweep. Once ``stopping`` is set (a shutdown waiting for this
+    sweep), the alerts not yet tried are left for the next one. ``key`` (``signing_key``) signs
+    each POST.
+
+    The POST holds no transaction: the alert is claimed first (taken ``FOR UPDATE SKIP
+    LOCKED``, its attempt counted and its next attempt put ``CLAIM`` ahead, committed), so no
+    other process sends it meanwhile, and its outcome is recorded after. Holding the
+    transaction through the POST held a database connection for as long as the receiver took,
+    up to ``TIMEOUT_S`` an alert: with SQLite, the one every request shares, a receiver that
+    took connections and never answered held every request of the service 5 s per alert
+    (GET /cameras waited 20 s behind 4 alerts)."""
     now = policy.now()
     delivered = 0
     for _ in range(batch):
         if stopping is not None and stopping.is_set():
             break
+        claimed = _claim(sessions, now, retry_for)
+        if claimed is None:
+            break
+        alert_id, attempts, body = claimed
+        try:
+            _post(url, body, _signed(alert_id, body, now, key))
+        except DeliveryFailed as exc:
+            error: str | None = str(exc)[:500]
+            log.warning("alert %s not delivered (attempt %d): %s", alert_id, attempts, exc)
+        else:
+            error = None
+            delivered += 1
         with sessions() as session:
-            alert = session.scalars(
-                select(AirAlert)
-                .where(
-                    AirAlert.delivered.is_(False),
-                    AirAlert.created_at >= retried_since(now, retry_for),
-                    or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
-                )
-                .order_by(AirAlert.created_at)
-                .limit(1)
-                .with_for_update(skip_locked=True)
-            ).first()
-            if alert is None:
-                break
-            camera = session.get(Camera, alert.camera_id)
-            frame = session.get(Frame, alert.frame_id)
-            body = json.dumps(
-                {
-                    "alert_id": alert.id,
-                    "camera_id": alert.camera_id,
-                    "camera_name": camera.name if camera else None,
-                    "lat": camera.lat if camera else None,
-                    "lon": camera.lon if camera else None,
-                    "frame_id": alert.frame_id,
-                    "captured_at": frame.captured_at.isoformat() if frame else None,
-                    "created_at": alert.created_at.isoformat(),
-                    "kind": alert.kind,
-                    "smoothed_level": alert.smoothed_level,
-                    "category": alert.category,
-                    "message": airquality.message(alert.category),
-                }
-            ).encode()
-            alert.attempts += 1
-            try:
-                _post(url, body, _signed(alert.id, body, now, key))
-            except DeliveryFailed as exc:
-                alert.last_error = str(exc)[:500]
-                alert.next_attempt_at = now + backoff(alert.attempts)
-                log.warning(
-                    "alert %s not delivered (attempt %d): %s", alert.id, alert.attempts, exc
-                )
-                outcome = "failed"
-            else:
-                alert.delivered = True
-                alert.last_error = None
-                delivered += 1
-                outcome = "delivered"
-            session.commit()
-            ALERT_DELIVERIES.labels(outcome).inc()  # counted once recorded
+            alert = session.get(AirAlert, alert_id)
+            if alert is not None:  # not swept away by retention meanwhile
+                alert.delivered = error is None
+                alert.last_error = error
+                alert.next_attempt_at = None if error is None else now + backoff(attempts)
+                session.commit()
+        ALERT_DELIVERIES.labels("failed" if error else "delivered").inc()  # once recorded
     return delivered
+
+
+CLAIM = timedelta(minutes=2)
+"""How long a claimed alert is left to the process posting it (well beyond ``TIMEOUT_S``); a
+process that died posting it leaves it to be sent again after this."""
+
+
+def _claim(
+    sessions: sessionmaker[Session], now: datetime, retry_for: timedelta
+) -> tuple[str, int, bytes] | None:
+    """The next due alert, claimed (committed): its id, its attempts with this one, and the
+    JSON to POST; None when none is due."""
+    with sessions() as session:
+        alert = session.scalars(
+            select(AirAlert)
+            .where(
+                AirAlert.delivered.is_(False),
+                AirAlert.created_at >= retried_since(now, retry_for),
+                or_(AirAlert.next_attempt_at.is_(None), AirAlert.next_attempt_at <= now),
+            )
+            .order_by(AirAlert.created_at)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+        ).first()
+        if alert is None:
+            return None
+        camera = session.get(Camera, alert.camera_id)
+        frame = session.get(Frame, alert.frame_id)
+        body = json.dumps(
+            {
+                "alert_id": alert.id,
+                "camera_id": alert.camera_id,
+                "camera_name": camera.name if camera else None,
+                "lat": camera.lat if camera else None,
+                "lon": camera.lon if camera else None,
+                "frame_id": alert.frame_id,
+                "captured_at": frame.captured_at.isoformat() if frame else None,
+                "created_at": alert.created_at.isoformat(),
+                "kind": alert.kind,
+                "smoothed_level": alert.smoothed_level,
+                "category": alert.category,
+                "message": airquality.message(alert.category),
+            }
+        ).encode()
+        alert.attempts += 1
+        alert.next_attempt_at = now + CLAIM
+        claimed = (alert.id, alert.attempts, body)
+        session.commit()
+    return claimed
 
 
 async def run(

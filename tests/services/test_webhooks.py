@@ -8,6 +8,7 @@ import json
 import socket
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from http.server import BaseHTTPRequestHandler, HTTPServer
@@ -245,8 +246,9 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
     engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The process stops (here SystemExit) while posting the second alert: the first, already
-    taken by the receiver, stays delivered. One transaction for the whole sweep rolled it back,
-    and it was sent again."""
+    taken by the receiver, stays delivered (one transaction for the whole sweep rolled it back,
+    and it was sent again). The second, claimed, may have reached the receiver: it is sent
+    again once its claim has run out, the third with it."""
     posted: list[str] = []
 
     def post(url: str, body: bytes, headers: dict[str, str]) -> None:
@@ -260,8 +262,20 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
         webhooks.sweep(sessions, "http://hook", at(T0))
     assert {k: v[:2] for k, v in state(engine).items()} == {
         "a0": (True, 1),
-        "a1": (False, 0),
+        "a1": (False, 1),
         "a2": (False, 0),
+    }
+    monkeypatch.undo()
+    receiver, got = recorder()
+    with served(receiver) as url:
+        assert webhooks.sweep(sessions, url, at(T0 + webhooks.CLAIM - timedelta(seconds=1))) == 1
+        assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2"]  # a1 still claimed
+        assert webhooks.sweep(sessions, url, at(T0 + webhooks.CLAIM)) == 1
+    assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2", "a1"]
+    assert {k: v[:2] for k, v in state(engine).items()} == {
+        "a0": (True, 1),
+        "a1": (True, 2),
+        "a2": (True, 1),
     }
 
 
@@ -344,3 +358,35 @@ def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Sessio
     headers = got[0][1]
     assert headers["webhook-id"] == "a0"
     assert "webhook-signature" not in headers
+
+
+def test_a_receiver_slow_to_answer_holds_no_database_connection(
+    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """While a POST waits for the receiver, the database serves everyone else. The sweep's
+    engine is the service's: with SQLite, one connection for every request. A sweep that held
+    its transaction through the POST held the whole service for as long, up to ``TIMEOUT_S``
+    an alert (GET /cameras waited 20 s behind 4 alerts to a receiver that never answered)."""
+    wait = 20.0
+    seed_alerts(engine, 1)
+    posting, answer = threading.Event(), threading.Event()
+
+    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
+        posting.set()
+        answer.wait(2 * wait)
+
+    def alerts_pending() -> int:
+        with sessions() as s:
+            return len(s.scalars(select(AirAlert).where(AirAlert.delivered.is_(False))).all())
+
+    monkeypatch.setattr(webhooks, "_post", post)
+    with ThreadPoolExecutor(2) as pool:
+        sweep = pool.submit(webhooks.sweep, sessions, "http://hook", at(T0))
+        try:
+            assert posting.wait(wait)
+            assert pool.submit(alerts_pending).result(timeout=wait) == 1
+            assert not sweep.done()
+        finally:
+            answer.set()
+        assert sweep.result(timeout=wait) == 1
+    assert state(engine)["a0"] == (True, 1, None)
