@@ -29,6 +29,8 @@ slow or hung, and a thread more would hang too)."""
 
 
 class BoundedStore:
+    """``store``'s ``check`` and ``read`` for requests: each waits at most ``seconds``."""
+
     def __init__(self, store: FrameStore, *, seconds: float) -> None:
         self.store = store
         self.seconds = seconds
