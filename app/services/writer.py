@@ -205,10 +205,22 @@ class GroupCommitWriter:
             assert pool is not None
         loop = asyncio.get_running_loop()
         future: asyncio.Future[T] = loop.create_future()
+        # emptied once the request has its answer or gave up (its deadline): a preparation
+        # not yet started then never starts, and the upload's body, which ``prepare`` holds,
+        # is let go at once rather than when a thread takes it. With the frame store hung,
+        # every thread stuck in it, uploads that had their 503 long ago stayed queued: 1500
+        # frames of 735 kB held 1.1 GB, and once the store answered again all were decoded
+        # and written for nobody.
+        waiting = [prepare]
+        future.add_done_callback(lambda _: waiting.clear())
 
         def work() -> None:
             try:
-                job = prepare()
+                preparation = waiting.pop()
+            except IndexError:  # the request has its answer already
+                return
+            try:
+                job = preparation()
             except Exception as exc:
                 outcome: Outcome = (None, exc)
                 with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
