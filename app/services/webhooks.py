@@ -185,11 +185,14 @@ def sweep(
     up to ``TIMEOUT_S`` an alert: with SQLite, the one every request shares, a receiver that
     took connections and never answered held every request of the service 5 s per alert
     (GET /cameras waited 20 s behind 4 alerts)."""
-    now = policy.now()
     delivered = 0
     for _ in range(batch):
         if stopping is not None and stopping.is_set():
             break
+        # the time of each attempt, not the sweep's start: a sweep of many alerts to a slow
+        # receiver takes minutes, and a claim dated from its start would run out before it
+        # was posted (another process would then send it too)
+        now = policy.now()
         claimed = _claim(sessions, now, retry_for)
         if claimed is None:
             break

@@ -390,3 +390,27 @@ def test_a_receiver_slow_to_answer_holds_no_database_connection(
             answer.set()
         assert sweep.result(timeout=wait) == 1
     assert state(engine)["a0"] == (True, 1, None)
+
+
+def test_an_alert_posted_late_in_a_long_sweep_is_not_due_for_another_process(
+    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A sweep of many alerts to a slow receiver takes minutes. Each alert is claimed from the
+    time it is posted, not from the sweep's start: a claim dated from the start ran out before
+    the later alerts were posted, and another process's sweep would send them too."""
+    seed_alerts(engine, 3)
+    clock = [T0]
+    due_elsewhere = []
+
+    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
+        clock[0] += timedelta(minutes=1)  # a slow receiver: each POST takes a minute
+        alert_id = json.loads(body)["alert_id"]
+        with Session(engine) as s:
+            alert = s.get(AirAlert, alert_id)
+            assert alert is not None
+            assert alert.next_attempt_at is not None
+            due_elsewhere.append(alert.next_attempt_at <= clock[0])
+
+    monkeypatch.setattr(webhooks, "_post", post)
+    assert webhooks.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
+    assert due_elsewhere == [False, False, False]
