@@ -25,7 +25,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -163,30 +163,11 @@ def calibration(port: int, photos: int) -> None:
 
 def seed_alerts(data: Path, n: int) -> None:
     from sqlalchemy import create_engine
-    from sqlalchemy.orm import Session
 
     sys.path.insert(0, str(ROOT))
-    from app.db.models import AirAlert, Camera, CameraKind, Frame
+    from tests.services.test_webhooks import seed_alerts as seed
 
-    now = datetime.now(UTC)
-    with Session(create_engine(f"sqlite:///{data / 'vantage.db'}")) as s:
-        s.add(Camera(id="sky-bench", kind=CameraKind.sky, token_hash=uuid.uuid4().hex))
-        s.add(
-            Frame(
-                id="f-bench", camera_id="sky-bench", captured_at=now, received_at=now,
-                width=1, height=1, size_bytes=1, sha256="0" * 64,
-            )
-        )  # fmt: skip
-        s.flush()
-        for k in range(n):
-            s.add(
-                AirAlert(
-                    id=f"alert-{k}", camera_id="sky-bench", frame_id="f-bench",
-                    created_at=now + timedelta(milliseconds=k), kind="raised",
-                    smoothed_level=2.0, category="Poor", delivered=False, attempts=0,
-                )
-            )  # fmt: skip
-        s.commit()
+    seed(create_engine(f"sqlite:///{data / 'vantage.db'}"), n, taken=datetime.now(UTC))
 
 
 def report(name: str, waits: list[float]) -> None:

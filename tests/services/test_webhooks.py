@@ -30,13 +30,14 @@ from tests.conftest import _empty_tables
 T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
 
 
-def seed_alerts(engine: Engine, n: int) -> None:
+def seed_alerts(engine: Engine, n: int, taken: datetime = T0) -> None:
+    """``n`` undelivered alerts of a camera's frame taken at ``taken``, a second apart."""
     _empty_tables(engine)
     with Session(engine) as s:
         s.add(Camera(id="sky", kind=CameraKind.sky, token_hash="h"))
         s.add(
             Frame(
-                id="f", camera_id="sky", captured_at=T0, received_at=T0, width=1, height=1,
+                id="f", camera_id="sky", captured_at=taken, received_at=taken, width=1, height=1,
                 size_bytes=1, sha256="0" * 64,
             )
         )  # fmt: skip
@@ -45,7 +46,7 @@ def seed_alerts(engine: Engine, n: int) -> None:
             s.add(
                 AirAlert(
                     id=f"a{k}", camera_id="sky", frame_id="f",
-                    created_at=T0 + timedelta(seconds=k), smoothed_level=2.0, category="Poor",
+                    created_at=taken + timedelta(seconds=k), smoothed_level=2.0, category="Poor",
                 )
             )  # fmt: skip
         s.commit()
