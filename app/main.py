@@ -51,6 +51,17 @@ from app.uploads import BodyLimitMiddleware
 log = logging.getLogger("vantage")
 
 
+def _orphan_sweep_done(sweep: asyncio.Future[int]) -> None:
+    if sweep.cancelled():
+        return
+    exc = sweep.exception()
+    if isinstance(exc, StoreUnavailable):
+        # served anyway: /health says so, uploads get 503 until the store is back
+        log.error("orphan sweep skipped, frame store unreachable: %s", exc)
+    elif exc is not None:
+        log.error("orphan sweep failed", exc_info=exc)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service. The database schema must already be at the migrations' head."""
     settings = settings or get_settings()
@@ -59,6 +70,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
+        # the data directory (frames; by default the SQLite file too): on a network mount
+        # whose server is gone it hangs, and waiting for it kept the process from ever serving,
+        # what needs only PostgreSQL included. Waited for as /health waits for the store.
+        # (the orphan sweep below shares the bound)
+        patience = settings.frame_store_timeout_seconds
+        deadline = asyncio.get_running_loop().time() + patience
+        made = asyncio.ensure_future(
+            asyncio.to_thread(settings.data_dir.mkdir, parents=True, exist_ok=True)
+        )
+        try:
+            await asyncio.wait_for(asyncio.shield(made), patience)
+        except TimeoutError:
+            log.error(
+                "data directory %s not answering after %g s: serving meanwhile",
+                settings.data_dir,
+                patience,
+            )
         try:
             await asyncio.to_thread(schema.check, engine)
         except schema.SchemaBehind as exc:
@@ -70,8 +98,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # serve anyway, as without the frame store: /health says so, requests get 503
             log.error("schema not checked, database unreachable: %s", str(exc).splitlines()[0])
         # files a killed process wrote without committing their rows
-        try:
-            await asyncio.to_thread(
+        orphans = asyncio.ensure_future(
+            asyncio.to_thread(
                 partial(
                     retention.sweep_orphans,
                     app.state.sessionmaker,
@@ -79,9 +107,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     min_age_s=settings.orphan_min_age_seconds,
                 )
             )
-        except StoreUnavailable as exc:
-            # serve anyway: /health says so, uploads get 503 until the store is back
-            log.error("orphan sweep skipped, frame store unreachable: %s", exc)
+        )
+        orphans.add_done_callback(_orphan_sweep_done)
+        try:
+            # a store that hangs (a network mount whose server is gone) kept the process from
+            # ever serving, the endpoints that never touch the store included: it is waited
+            # for as long as /health waits for it, then left to end in the background (it
+            # takes only files too old to be in flight)
+            left = max(0.0, deadline - asyncio.get_running_loop().time())
+            await asyncio.wait_for(asyncio.shield(orphans), left)
+        except StoreUnavailable:
+            pass  # _orphan_sweep_done says so
+        except TimeoutError:
+            log.error(
+                "orphan sweep still running after %g s (the frame store is slow or hung): "
+                "serving meanwhile",
+                patience,
+            )
         app.state.writer.start()
         if settings.warm_up_triangulation:
             # before serving, not in a thread beside requests: numba's compiler and FastAPI's
@@ -144,7 +186,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         responses=DATABASE_UNAVAILABLE,
     )
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(
         settings.effective_database_url,
         pool_size=settings.database_pool_size,

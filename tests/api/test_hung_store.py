@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -33,6 +34,7 @@ class Hung:
     answering: threading.Event = field(default_factory=threading.Event)
     checks: int = 0
     reads: int = 0
+    listings: int = 0
 
     def check(self) -> None:
         self.checks += 1
@@ -43,6 +45,15 @@ class Hung:
         self.reads += 1
         self.answering.wait()
         return self.store.read(relative)
+
+    def older_than(self, seconds: float) -> list[str]:
+        """The orphan sweep's first call."""
+        self.listings += 1
+        self.answering.wait()
+        return self.store.older_than(seconds)
+
+    def __getattr__(self, name: str) -> Any:  # the rest of the store, answering
+        return getattr(self.store, name)
 
 
 def hung_client(settings: Settings, seconds: float) -> Iterator[tuple[TestClient, Hung, str]]:
@@ -154,3 +165,29 @@ def test_a_hung_store_is_a_503_within_the_bound(hung: tuple[TestClient, Hung, st
             break
     assert client.get("/health").json()["frame_store"] == "ok"
     assert client.get(f"/frames/{frame_id}/image", headers=ADMIN).status_code == 200
+
+
+def test_a_process_started_on_a_hung_store_serves(settings: Settings, engine: Engine) -> None:
+    """The start-up sweep of orphan files waits for the store as /health does, then goes on in
+    the background: a process started while the store hung never served, not even the
+    endpoints that do not touch it. (Its shutdown still waits for the sweep.)"""
+    _empty_tables(engine)
+    app = create_app(settings.model_copy(update={"frame_store_timeout_seconds": 0.5}))
+    hung = Hung(app.state.frame_store)
+    app.state.frame_store = hung
+    app.state.bounded_store.store = hung
+    answers: Future[tuple[int, int]] = Future()
+
+    def serve() -> None:
+        with TestClient(app) as client:  # entering it runs the start-up
+            cameras = client.get("/cameras", headers=ADMIN).status_code
+            answers.set_result((cameras, client.get("/health").status_code))
+
+    with ThreadPoolExecutor(1) as pool:
+        served = pool.submit(serve)
+        try:
+            assert answers.result(timeout=WAIT) == (200, 503)
+            assert hung.listings == 1  # the sweep, still waiting for the store
+        finally:
+            hung.answering.set()
+        served.result(timeout=WAIT)
