@@ -1,6 +1,6 @@
 """A frame store that stops answering (a network mount whose server went away blocks every call
-into it, with no timeout): /health and the image endpoints wait for it a bounded time, and the
-rest of the service, which never touches it, goes on answering."""
+into it, with no timeout): /health, the image endpoints and the start-up wait for it a bounded
+time, and the rest of the service, which never touches it, goes on answering."""
 
 from __future__ import annotations
 
