@@ -96,7 +96,8 @@ class Settings(BaseSettings):
         gt=0,
         le=300,
         description="How long /health and the image endpoints wait for the frame store before "
-        "answering 503 (a network mount whose server is gone blocks every call into it).",
+        "answering 503, and the start-up before serving without it (a network mount whose "
+        "server is gone blocks every call into it).",
     )
     fsync_frames: bool = Field(
         default=False,
