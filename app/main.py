@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 import gc
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from datetime import timedelta
 from functools import partial
@@ -51,15 +51,23 @@ from app.uploads import BodyLimitMiddleware
 log = logging.getLogger("vantage")
 
 
-def _orphan_sweep_done(sweep: asyncio.Future[int]) -> None:
-    if sweep.cancelled():
-        return
-    exc = sweep.exception()
-    if isinstance(exc, StoreUnavailable):
-        # served anyway: /health says so, uploads get 503 until the store is back
-        log.error("orphan sweep skipped, frame store unreachable: %s", exc)
-    elif exc is not None:
-        log.error("orphan sweep failed", exc_info=exc)
+async def _done_by(deadline: float, fn: Callable[[], object]) -> bool:
+    """Run ``fn`` in a thread; True once it has returned (its exception raised here), False
+    when the event loop's clock reaches ``deadline`` first: it is then left to end in the
+    background, and what it raises is logged."""
+    work = asyncio.ensure_future(asyncio.to_thread(fn))
+    try:
+        left = max(0.0, deadline - asyncio.get_running_loop().time())
+        await asyncio.wait_for(asyncio.shield(work), left)
+    except TimeoutError:
+        work.add_done_callback(_log_failure)
+        return False
+    return True
+
+
+def _log_failure(work: asyncio.Future[object]) -> None:
+    if not work.cancelled() and (exc := work.exception()) is not None:
+        log.error("start-up work left in the background failed: %s", exc, exc_info=exc)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -72,16 +80,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
         # the data directory (frames; by default the SQLite file too): on a network mount
         # whose server is gone it hangs, and waiting for it kept the process from ever serving,
-        # what needs only PostgreSQL included. Waited for as /health waits for the store.
-        # (the orphan sweep below shares the bound)
+        # what needs only PostgreSQL included. Waited for as /health waits for the store;
+        # the orphan sweep below shares the bound.
         patience = settings.frame_store_timeout_seconds
         deadline = asyncio.get_running_loop().time() + patience
-        made = asyncio.ensure_future(
-            asyncio.to_thread(settings.data_dir.mkdir, parents=True, exist_ok=True)
-        )
-        try:
-            await asyncio.wait_for(asyncio.shield(made), patience)
-        except TimeoutError:
+        made = partial(settings.data_dir.mkdir, parents=True, exist_ok=True)
+        if not await _done_by(deadline, made):
             log.error(
                 "data directory %s not answering after %g s: serving meanwhile",
                 settings.data_dir,
@@ -97,33 +101,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 raise
             # serve anyway, as without the frame store: /health says so, requests get 503
             log.error("schema not checked, database unreachable: %s", str(exc).splitlines()[0])
-        # files a killed process wrote without committing their rows
-        orphans = asyncio.ensure_future(
-            asyncio.to_thread(
-                partial(
-                    retention.sweep_orphans,
-                    app.state.sessionmaker,
-                    app.state.frame_store,
-                    min_age_s=settings.orphan_min_age_seconds,
-                )
-            )
+        # files a killed process wrote without committing their rows (only files too old to
+        # be in flight: it may go on in the background once the bound is over)
+        sweep = partial(
+            retention.sweep_orphans,
+            app.state.sessionmaker,
+            app.state.frame_store,
+            min_age_s=settings.orphan_min_age_seconds,
         )
-        orphans.add_done_callback(_orphan_sweep_done)
         try:
-            # a store that hangs (a network mount whose server is gone) kept the process from
-            # ever serving, the endpoints that never touch the store included: it is waited
-            # for as long as /health waits for it, then left to end in the background (it
-            # takes only files too old to be in flight)
-            left = max(0.0, deadline - asyncio.get_running_loop().time())
-            await asyncio.wait_for(asyncio.shield(orphans), left)
-        except StoreUnavailable:
-            pass  # _orphan_sweep_done says so
-        except TimeoutError:
-            log.error(
-                "orphan sweep still running after %g s (the frame store is slow or hung): "
-                "serving meanwhile",
-                patience,
-            )
+            if not await _done_by(deadline, sweep):
+                log.error(
+                    "orphan sweep still running after %g s (the frame store is slow or hung): "
+                    "serving meanwhile",
+                    patience,
+                )
+        except StoreUnavailable as exc:
+            # serve anyway: /health says so, uploads get 503 until the store is back
+            log.error("orphan sweep skipped, frame store unreachable: %s", exc)
         app.state.writer.start()
         if settings.warm_up_triangulation:
             # before serving, not in a thread beside requests: numba's compiler and FastAPI's
