@@ -272,8 +272,10 @@ class FrameOut(Out):
 
 class Health(Out):
     status: Literal["ok", "degraded"]
-    database: Literal["ok", "unreachable", "read_only"]
-    """``read_only``: PostgreSQL answers but refuses writes (a standby, or set read-only)."""
+    database: Literal["ok", "unreachable", "read_only", "full"]
+    """``read_only``: the database answers but refuses writes (PostgreSQL: a standby, or set
+    read-only; SQLite: its file or filesystem no longer written). ``full``: SQLite's disk has
+    no room for a write."""
     frame_store: Literal["ok", "unreachable", "full"]
     """The frame store (a directory or an S3 bucket) answers and, for a directory, is writable
     and has more than the space kept free for the database (``full`` otherwise)."""

@@ -11,7 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest, multiprocess
 from sqlalchemy import text
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.exc import DBAPIError, SQLAlchemyError
 
 from app import __version__
 from app.deps import Admin, MetricsReader, get_sessionmaker
@@ -47,10 +47,11 @@ async def health(request: Request) -> JSONResponse:
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 
-def _database_state(request: Request) -> Literal["ok", "unreachable", "read_only"]:
+def _database_state(request: Request) -> Literal["ok", "unreachable", "read_only", "full"]:
     try:
         with get_sessionmaker(request)() as session:
-            if session.get_bind().dialect.name == "postgresql":
+            dialect = session.get_bind().dialect.name
+            if dialect == "postgresql":
                 # a standby (a failover left this address on one) or a server set read-only
                 # answers SELECT 1 while every write fails
                 read_only = session.execute(text("SHOW transaction_read_only")).scalar()
@@ -62,6 +63,26 @@ def _database_state(request: Request) -> Literal["ok", "unreachable", "read_only
     except SQLAlchemyError as exc:
         log.warning("database unreachable: %s", exc)
         return "unreachable"
+    return _sqlite_writes(request) if dialect == "sqlite" else "ok"
+
+
+def _sqlite_writes(request: Request) -> Literal["ok", "read_only", "full"]:
+    """Whether a write commits on SQLite: the schema's version number written back unchanged
+    (one page through the WAL). A SQLite file answers reads, and even begins its IMMEDIATE
+    transactions (their lock lives in shared memory), on a filesystem the kernel has stopped
+    writing to (ext4's errors=remount-ro after an I/O error): measured, every upload and
+    registration got 503 "disk I/O error" while /health said "ok". Alembic keeps its
+    revision in a table, not in ``user_version``, which nothing else reads."""
+    try:
+        with get_sessionmaker(request)() as session, session.begin():
+            version = int(session.execute(text("PRAGMA user_version")).scalar_one())
+            session.execute(text(f"PRAGMA user_version = {version}"))
+    except SQLAlchemyError as exc:
+        if isinstance(exc, DBAPIError) and "full" in str(exc.orig):  # SQLITE_FULL
+            log.warning("database full: writes are refused: %s", exc)
+            return "full"
+        log.warning("database read-only: writes are refused: %s", exc)
+        return "read_only"
     return "ok"
 
 

@@ -9,11 +9,13 @@ else refers to a stored frame.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import hashlib
 import os
 import re
 import struct
+import tempfile
 import threading
 import time
 from collections.abc import Generator, Iterator
@@ -422,7 +424,17 @@ class DiskFrameStore:
             raise StoreUnavailable(f"{self.root} is missing or not writable")
         try:
             self._make_room(self.largest_frame_bytes)
+            # A file made and written, as a frame is: neither the mount's flags nor
+            # os.access say that the kernel has stopped the filesystem's writes. ext4 with
+            # errors=remount-ro does so after an I/O error ("emergency_ro"), its mount still
+            # listed rw: measured, every frame got 503 (EROFS) while /health said "ok".
+            # An unnamed file (O_TMPFILE where the filesystem has it) leaves nothing behind.
+            with tempfile.TemporaryFile(dir=self.root, prefix=".probe-") as probe:
+                probe.write(b"\0")
+                probe.flush()
         except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise DiskFull(f"{self.root}: {exc}") from exc
             raise StoreUnavailable(f"{self.root}: {exc}") from exc
 
 

@@ -8,6 +8,7 @@ what a client sees when the store is down (503, nothing half-stored).
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import uuid
@@ -341,6 +342,77 @@ def test_a_database_whose_disk_is_full_says_so(settings: Settings, tmp_path: Pat
         assert r.status_code == 503, statuses
         assert r.json()["code"] == "database_unavailable"
         assert r.json()["detail"].startswith("the database's disk is full")
+
+
+def test_health_sees_a_sqlite_database_that_takes_no_more_writes(
+    settings: Settings, tmp_path: Path
+) -> None:
+    """A SQLite file answers reads, and begins its IMMEDIATE transactions, after the kernel
+    has stopped its filesystem's writes (ext4's errors=remount-ro after an I/O error):
+    measured so, every upload and registration got 503 "disk I/O error" while /health said
+    "ok", and a load balancer kept sending it cameras. /health now commits a write. Here
+    SQLite itself refuses them (``query_only``), in a database of its own."""
+    url = f"sqlite:///{tmp_path / 'refusing.db'}"
+    migrate(url)
+    app = create_app(settings.model_copy(update={"database_url": url}))
+    refusing = [False]
+
+    @event.listens_for(app.state.engine, "begin")
+    def _refuse(conn: Any) -> None:  # once BEGIN IMMEDIATE went through, as it did
+        conn.exec_driver_sql(f"PRAGMA query_only = {int(refusing[0])}")
+
+    @event.listens_for(app.state.engine, "commit")
+    @event.listens_for(app.state.engine, "rollback")
+    def _until_it_ends(conn: Any) -> None:
+        conn.exec_driver_sql("PRAGMA query_only = 0")
+
+    with TestClient(app) as client:
+        headers = rig_camera(client, ADMIN)
+        body = panel_jpeg(CLEAN_RGB, seed=7)
+        assert client.get("/health").status_code == 200
+
+        refusing[0] = True
+        r = client.get("/health")
+        assert r.status_code == 503
+        assert r.json() | {"version": ""} == {
+            "status": "degraded",
+            "database": "read_only",
+            "frame_store": "ok",
+            "version": "",
+        }
+        assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 503
+        assert client.get("/cameras", headers=ADMIN).status_code == 200  # reads are served
+
+        refusing[0] = False
+        assert client.get("/health").status_code == 200
+        assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+
+
+@pytest.mark.parametrize(("error", "state"), [(errno.EROFS, "unreachable"), (errno.ENOSPC, "full")])
+def test_health_sees_a_frame_directory_that_takes_no_more_files(
+    client: TestClient, settings: Settings, monkeypatch: pytest.MonkeyPatch, error: int, state: str
+) -> None:
+    """The frame directory's filesystem stopped by the kernel (ext4's errors=remount-ro after
+    an I/O error) is still listed rw and passes ``os.access``: measured so, every frame got
+    503 (EROFS) while /health said "ok". Out of inodes (ENOSPC with blocks free) is the same
+    to a frame. Here every file made under it fails as the kernel fails it."""
+    assert client.get("/health").status_code == 200
+    root = str(settings.data_dir)
+    real_open = os.open
+
+    def stopped(path: Any, flags: int, *args: Any, **kwargs: Any) -> int:
+        if str(path).startswith(root) and flags & (os.O_CREAT | os.O_TMPFILE):
+            raise OSError(error, os.strerror(error), str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", stopped)
+    r = client.get("/health")
+    assert r.status_code == 503
+    assert (r.json()["database"], r.json()["frame_store"]) == ("ok", state)
+
+    monkeypatch.setattr(os, "open", real_open)
+    assert client.get("/health").status_code == 200
+    assert [p.name for p in settings.data_dir.iterdir() if p.name.startswith(".probe")] == []
 
 
 def test_two_machines_share_one_bucket(
