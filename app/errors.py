@@ -8,10 +8,11 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from sqlalchemy.exc import DataError, DBAPIError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from app.db.session import READ_ONLY_SQL_TRANSACTION
 from app.observability import FRAMES_REJECTED
@@ -156,6 +157,10 @@ def allowed_methods(request: Request, first: str | None) -> str:
     return ", ".join(sorted(methods))
 
 
+CLIENT_CLOSED_REQUEST = 499
+"""The status a request whose client went away is counted under (nginx's), never sent."""
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(VantageError)
     async def _vantage(request: Request, exc: VantageError) -> JSONResponse:
@@ -210,6 +215,16 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(PoolTimeout)
     async def _pool_timeout(request: Request, exc: PoolTimeout) -> JSONResponse:
         return _database_unavailable(request, exc)
+
+    @app.exception_handler(ClientDisconnect)
+    async def _client_gone(request: Request, _: ClientDisconnect) -> Response:
+        # The client went away before its body was all sent (a camera losing its link
+        # mid-upload; or closed by app.protocol for sending too slowly): nothing is stored,
+        # and there is no one to answer. Before, an ERROR with its traceback and a 500 were
+        # counted for each, as if the service had failed.
+        log.info("the client went away before sending its whole request")
+        _count_rejected_frame(request, CLIENT_CLOSED_REQUEST, "client_disconnected")
+        return Response(status_code=CLIENT_CLOSED_REQUEST)
 
     @app.exception_handler(Exception)
     async def _unexpected(_: Request, exc: Exception) -> JSONResponse:
