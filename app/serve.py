@@ -7,18 +7,43 @@ takes for counter resets. With more than one worker this sets ``PROMETHEUS_MULTI
 a directory of its own (emptied first: counts of an earlier run must not add up with these),
 where every worker writes its counters and from which ``/metrics`` sums them. A directory set
 by the caller is used as it is.
+
+Connections are served by ``app.protocol``, which closes those whose client sends its request
+too slowly (uvicorn's own bounds nothing a client sends), unless ``--http`` names another.
+Other options are uvicorn's.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
+HTTP = ["--http", "app.protocol:DeadlineProtocol"]
+"""uvicorn's protocol with deadlines on what clients send (``app.protocol``)."""
+
+
+def raise_file_limit() -> int:
+    """Lift this process's soft limit on open files to its hard one (as Go's runtime does for
+    every server), for it and the workers it starts; return the limit now. Each connection
+    takes a file: under systemd's soft limit of 1,024 a thousand cameras kept connected left
+    none for a request, a frame's pack or the database (measured: every new connection reset
+    at once). The hard limit is the operator's (``LimitNOFILE=``, ``ulimit -Hn``)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    # an unlimited hard limit: Linux's own ceiling (fs.nr_open) by default
+    target = 1 << 20 if hard == resource.RLIM_INFINITY else hard
+    if soft == resource.RLIM_INFINITY or soft >= target:
+        return soft
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+    except (ValueError, OSError):  # fs.nr_open set lower than the hard limit
+        return soft
+    return target
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -27,6 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--port", type=int, default=8000)
     parser.add_argument("--workers", type=int, default=1)
     args, uvicorn_args = parser.parse_known_args(argv)
+    raise_file_limit()
     if args.workers > 1 and METRICS_DIR not in os.environ:
         # one directory per port: two servers on one host never share (nor empty) it
         metrics = Path(tempfile.gettempdir()) / f"vantage-metrics-{args.port}"
@@ -45,6 +71,7 @@ def main(argv: list[str] | None = None) -> None:
         str(args.port),
         "--workers",
         str(args.workers),
+        *([] if any(a.split("=")[0] == "--http" for a in uvicorn_args) else HTTP),
         *uvicorn_args,
     ]
     os.execv(sys.executable, command)

@@ -31,6 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PG_ADMIN_URL = "postgresql://postgres@127.0.0.1:5432/postgres"
 PG_BENCH_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_bench"
 ADMIN = "bench-admin-token-0123456789abcdef"
+HTTP = "app.protocol:DeadlineProtocol"
+"""The protocol the service is served with (``app.serve``), deadlines on clients included."""
 
 
 def jpeg_640x480(seed: int = 1) -> bytes:
@@ -102,6 +104,7 @@ class Server:
         workers: int = 1,
         rate_limit: bool = False,
         env: dict[str, str] | None = None,
+        http: str = HTTP,
     ) -> None:
         env = {
             **os.environ,
@@ -137,6 +140,8 @@ class Server:
                 "--log-level",
                 "warning",
                 "--no-access-log",
+                "--http",
+                http,
                 *(["--workers", str(workers)] if workers > 1 else []),
             ],
             cwd=ROOT,
@@ -245,7 +250,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     # by an order of magnitude between the two on some machines
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
-        server = Server(backend, port, Path(tmp), args.workers, env=pool_env(args))
+        server = Server(backend, port, Path(tmp), args.workers, env=pool_env(args), http=args.http)
         try:
             cam = server.rig_camera("bench")
             # warm-up
@@ -303,6 +308,9 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
     parser.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
+    parser.add_argument(
+        "--http", default=HTTP, help="uvicorn's protocol (auto: its own, without deadlines)"
+    )
     add_pool_arguments(parser)
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()

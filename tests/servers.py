@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import socket
 import subprocess
 import sys
@@ -33,16 +34,24 @@ def server_env(database_url: str, data_dir: Path, **extra: str) -> dict[str, str
     }
 
 
-def start_server(env: dict[str, str], port: int, *, workers: int = 0) -> subprocess.Popen[bytes]:
-    """uvicorn on ``port``, returned once /health answers; with ``workers``, as the Docker
-    image starts it (``python -m app.serve --workers N``)."""
-    launch = ["app.serve", "--workers", str(workers)] if workers else ["uvicorn"]
+def start_server(
+    env: dict[str, str], port: int, *, workers: int = 0, file_limit: int | None = None
+) -> subprocess.Popen[bytes]:
+    """The service on ``port`` as ``make run`` and the Docker image start it (``python -m
+    app.serve``, with ``workers`` processes), returned once /health answers; started under
+    a soft limit of ``file_limit`` open files when given (systemd's is 1,024)."""
+
+    def limited() -> None:
+        hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+        resource.setrlimit(resource.RLIMIT_NOFILE, (file_limit, hard))
+
     proc = subprocess.Popen(
         [
             sys.executable,
             "-m",
-            *launch,
-            *(["app.main:create_app", "--factory"] if not workers else []),
+            "app.serve",
+            "--workers",
+            str(workers or 1),
             "--port",
             str(port),
             "--log-level",
@@ -50,6 +59,7 @@ def start_server(env: dict[str, str], port: int, *, workers: int = 0) -> subproc
         ],
         cwd=ROOT,
         env=env,
+        preexec_fn=None if file_limit is None else limited,
     )
     for _ in range(100):
         try:

@@ -1,0 +1,146 @@
+"""uvicorn's HTTP/1.1 protocol, with deadlines on what a client sends.
+
+uvicorn bounds nothing a client sends. A connection that sends no byte, or its headers a byte
+at a time, or stops in the middle of a body (a camera that lost power or its link mid-upload,
+whose connection no FIN or RST ever ends), is held for good, with its file descriptor:
+measured, 1,100 connections that sent nothing made a process with the usual limit of 1,024
+files answer no one (`/health` reset at once) for as long as they stayed open. Its keep-alive
+timeout runs only between requests, and any byte restarts it.
+
+Here, as a reverse proxy's ``client_header_timeout`` and ``client_body_timeout`` would:
+- a request's line and headers must arrive within ``VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS``
+  of its first byte (of the connection, for its first request);
+- while its body arrives, no more than ``VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS`` may pass
+  without a byte (a slow upload goes on for as long as bytes keep coming).
+Past either the connection is closed: the endpoint reading the body sees the client gone, and
+nothing is stored. No deadline runs while the request is being answered, nor while the body
+waits for the endpoint to read it (uvicorn stops reading past 64 kB unread).
+
+Served with ``uvicorn --http app.protocol:DeadlineProtocol`` (``python -m app.serve`` and
+``make run`` do).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+from typing import Any
+
+from prometheus_client import Counter
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+try:
+    from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol as _Fast
+except ImportError:  # pragma: no cover - httptools is a dependency
+    _Fast = H11Protocol  # type: ignore[misc, assignment]
+
+log = logging.getLogger("vantage.protocol")
+
+HEADER_TIMEOUT_ENV = "VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS"
+IDLE_TIMEOUT_ENV = "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS"
+HEADER_TIMEOUT_S = 30.0
+IDLE_TIMEOUT_S = 60.0
+
+CLOSED = Counter(
+    "vantage_connections_timed_out_total",
+    "Connections closed because the client sent its request too slowly",
+    ["phase"],
+)
+
+
+def _seconds(name: str, default: float) -> float:
+    """A deadline from the environment, as the settings read theirs (``app.settings``):
+    uvicorn makes the protocol before, and apart from, the application."""
+    raw = os.environ.get(name)
+    if raw is None:
+        return default
+    value = float(raw)
+    if not 0 < value <= 3600:
+        raise ValueError(f"{name} must be in (0, 3600] seconds, not {raw}")
+    return value
+
+
+class DeadlineProtocol(_Fast):
+    """uvicorn's protocol (httptools'), closing connections whose client sends too slowly."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._header_timeout = _seconds(HEADER_TIMEOUT_ENV, HEADER_TIMEOUT_S)
+        self._idle_timeout = _seconds(IDLE_TIMEOUT_ENV, IDLE_TIMEOUT_S)
+        self._headers_since: float | None = None
+        """When the request now awaited began (its first byte, or the connection): None
+        between requests and once its headers are in."""
+        self._last_byte = 0.0
+        self._timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        self._headers_since = self._last_byte = self.loop.time()
+        self._watch()
+
+    def data_received(self, data: bytes) -> None:
+        self._last_byte = now = self.loop.time()
+        begins = self._headers_since is None and self._between_requests()
+        if begins:
+            self._headers_since = now  # a kept-alive connection's next request
+        super().data_received(data)
+        if self._headers_since is not None and not self._between_requests():
+            self._headers_since = None  # its headers are in
+        if begins or self._timer is None:
+            # else the timer armed already fires no later than the deadline now (a body's
+            # bytes only move it on), and looks again then
+            self._watch()
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        self._headers_since = None  # uvicorn's keep-alive timeout runs until a byte comes
+        self._watch()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        super().connection_lost(exc)
+
+    def _between_requests(self) -> bool:
+        return self.cycle is None or self.cycle.response_complete
+
+    def _deadline(self) -> tuple[float, str] | None:
+        """When the connection is to be closed, and why; None while no deadline runs."""
+        if self._headers_since is not None:
+            return self._headers_since + self._header_timeout, "headers"
+        cycle = self.cycle
+        if cycle is None or cycle.response_complete or not cycle.more_body:
+            return None  # between requests, or the request is being answered
+        if self.flow.read_paused:  # the endpoint has not read what came: not the client's
+            self._last_byte = self.loop.time()
+            return None
+        return self._last_byte + self._idle_timeout, "body"
+
+    def _watch(self) -> None:
+        """Arm the one timer for the deadline that runs now (or for a look later), unless it
+        is armed for no later already: a body's bytes move its deadline on, and the timer,
+        once it fires, looks again rather than being set anew for every chunk."""
+        if self.transport.is_closing():
+            return
+        deadline = self._deadline()
+        at = self.loop.time() + self._idle_timeout if deadline is None else deadline[0]
+        if self._timer is not None:
+            if self._timer.when() <= at:
+                return
+            self._timer.cancel()
+        self._timer = self.loop.call_at(at, self._expire)
+
+    def _expire(self) -> None:
+        self._timer = None
+        deadline = self._deadline()
+        if self.transport.is_closing():
+            return
+        if deadline is None or deadline[0] > self.loop.time():
+            self._watch()
+            return
+        phase = deadline[1]
+        CLOSED.labels(phase).inc()
+        log.debug("connection from %s closed: its request's %s came too slowly", self.client, phase)
+        self.transport.close()

@@ -1,0 +1,183 @@
+"""What a client sends, bounded in time (``app.protocol``), and the open files a process may
+hold (``app.serve.raise_file_limit``): a real server, as ``make run`` starts it, and raw
+sockets that send too little, too slowly, or stop."""
+
+from __future__ import annotations
+
+import resource
+import socket
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx2 as httpx
+import pytest
+from sqlalchemy import Engine
+
+from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
+from tests.servers import free_port, server_env, start_server
+
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+HEADERS_S = 1.0
+IDLE_S = 1.5
+
+
+@dataclass(frozen=True)
+class Server:
+    port: int
+    token: str
+    """Camera "c"'s."""
+    pid: int
+
+
+@pytest.fixture
+def server(database_url: str, engine: Engine, tmp_path: Path) -> Iterator[Server]:
+    """A server whose clients have 1 s for their headers and may pause 1.5 s in a body; a
+    rig camera "c" and its token."""
+    _empty_tables(engine)
+    env = server_env(
+        database_url,
+        tmp_path,
+        VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS=str(HEADERS_S),
+        VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS=str(IDLE_S),
+    )
+    port = free_port()
+    proc = start_server(env, port, file_limit=256)
+    try:
+        r = httpx.post(
+            f"http://127.0.0.1:{port}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN
+        )
+        yield Server(port, r.json()["token"], proc.pid)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def _closed_after(sock: socket.socket, *, within: float, trickle: bytes = b"") -> float:
+    """Seconds until the server closes ``sock`` (sending ``trickle`` a byte every 0.2 s the
+    while); fails past ``within``."""
+    start = time.monotonic()
+    sock.settimeout(0.2)
+    sent = 0
+    while time.monotonic() - start < within:
+        try:
+            data = sock.recv(4096)
+        except TimeoutError:
+            if sent < len(trickle):
+                try:
+                    sock.sendall(trickle[sent : sent + 1])
+                except OSError:  # reset: closed
+                    return time.monotonic() - start
+                sent += 1
+            continue
+        except ConnectionResetError:
+            return time.monotonic() - start
+        if data == b"" or data.startswith(b"HTTP/1.1 4"):
+            return time.monotonic() - start
+    pytest.fail(f"the connection was still open after {within} s")
+
+
+def _response(sock: socket.socket) -> bytes:
+    """One whole response read from ``sock`` (its head, then Content-Length bytes)."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        data += sock.recv(65536) or pytest.fail(f"closed after {data!r}")
+    head, _, body = data.partition(b"\r\n\r\n")
+    length = next(
+        int(line.split(b":")[1])
+        for line in head.lower().split(b"\r\n")
+        if line.startswith(b"content-length:")
+    )
+    while len(body) < length:
+        body += sock.recv(65536) or pytest.fail("closed mid-body")
+    return head + b"\r\n\r\n" + body
+
+
+def _metric(port: int, phase: str) -> float:
+    text = httpx.get(f"http://127.0.0.1:{port}/metrics", headers=ADMIN).text
+    line = f'vantage_connections_timed_out_total{{phase="{phase}"}} '
+    return next((float(x[len(line) :]) for x in text.splitlines() if x.startswith(line)), 0.0)
+
+
+def test_a_connection_that_sends_nothing_is_closed(server: Server) -> None:
+    """uvicorn holds such a connection for good: 1,100 of them made a process (its soft limit
+    1,024 files) reset every new connection, /health included, for as long as they stayed."""
+    port = server.port
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        took = _closed_after(sock, within=10)
+    assert HEADERS_S * 0.9 <= took < HEADERS_S + 3
+    assert _metric(port, "headers") == 1
+
+
+def test_headers_sent_a_byte_at_a_time_are_cut_off(server: Server) -> None:
+    """Each byte restarts uvicorn's keep-alive timeout; the deadline here is for the whole of
+    the headers."""
+    port = server.port
+    headers = b"GET /health HTTP/1.1\r\nHost: x\r\n" + b"X-Slow: " + b"y" * 200
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        took = _closed_after(sock, within=10, trickle=headers)
+    assert HEADERS_S * 0.9 <= took < HEADERS_S + 3
+
+
+def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) -> None:
+    """A camera that lost its link mid-upload: no FIN, no RST, nothing more. Its connection is
+    closed once no byte has come for the idle timeout, and the frame is not stored."""
+    port, token = server.port, server.token
+    body = make_jpeg(320, 240, noise=20, seed=3)
+    head = (
+        f"POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n"
+        f"Content-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n\r\n"
+    ).encode()
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(head + body[: len(body) // 2])
+        took = _closed_after(sock, within=15)
+    assert IDLE_S * 0.9 <= took < IDLE_S + 3
+    assert _metric(port, "body") == 1
+    # the endpoint saw its client go: counted as nginx counts it, not as a failure (500)
+    text = httpx.get(f"http://127.0.0.1:{port}/metrics", headers=ADMIN).text
+    upload = 'method="POST",route="/cameras/{camera_id}/frames"'
+    assert f'vantage_http_requests_total{{{upload},status="499"}} 1.0' in text
+    assert 'status="500"' not in text
+    assert 'vantage_frames_rejected_total{camera_id="c",reason="client_disconnected"} 1.0' in text
+    camera = httpx.get(f"http://127.0.0.1:{port}/cameras/c", headers=ADMIN).json()
+    assert camera["last_captured_at"] is None
+
+
+def test_slow_uploads_and_kept_alive_connections_are_served(server: Server) -> None:
+    """A body that keeps coming may take longer than any deadline (here 4 s in 10 pieces,
+    after headers sent slowly but within theirs); the same connection's next request, sent
+    after a pause, is answered too."""
+    port, token = server.port, server.token
+    body = make_jpeg(320, 240, noise=20, seed=4)
+    head = (
+        f"POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n"
+        f"Content-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n\r\n"
+    ).encode()
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.settimeout(10)
+        sock.sendall(head[:20])
+        time.sleep(0.5)
+        sock.sendall(head[20:])
+        pieces = [body[k * len(body) // 10 : (k + 1) * len(body) // 10] for k in range(10)]
+        for piece in pieces:
+            time.sleep(0.4)
+            sock.sendall(piece)
+        assert _response(sock)[:12] == b"HTTP/1.1 201"
+        time.sleep(0.5)
+        sock.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n")
+        assert _response(sock)[:12] == b"HTTP/1.1 200"
+    camera = httpx.get(f"http://127.0.0.1:{port}/cameras/c", headers=ADMIN).json()
+    assert camera["last_captured_at"] is not None
+    assert _metric(port, "body") == _metric(port, "headers") == 0
+
+
+def test_the_server_lifts_its_soft_file_limit_to_the_hard_one(server: Server) -> None:
+    """Started under a soft limit of 256 (systemd's default is 1,024), the process serving
+    (``python -m app.serve`` execs uvicorn: the same process) runs with its hard limit: a
+    thousand connected cameras no longer take every file it may open."""
+    hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+    limits = Path(f"/proc/{server.pid}/limits").read_text().splitlines()
+    files = next(x for x in limits if x.startswith("Max open files")).split()
+    assert [int(files[3]), int(files[4])] == [hard, hard]
+    assert hard > 256
