@@ -4,6 +4,8 @@ sockets that send too little, too slowly, or stop."""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import resource
 import socket
 import time
@@ -118,6 +120,28 @@ def test_headers_sent_a_byte_at_a_time_are_cut_off(server: Server) -> None:
     with socket.create_connection(("127.0.0.1", port)) as sock:
         took = _closed_after(sock, within=10, trickle=headers)
     assert HEADERS_S * 0.9 <= took < HEADERS_S + 3
+
+
+def test_headers_past_64_kb_get_431_and_the_rest_is_not_kept(server: Server) -> None:
+    """httptools keeps every header: one connection sent 300 MB of them in 3 s and the process
+    grew by 356 MB. Past 64 kB it gets 431 (problem+json) and is closed; 20 kB are served."""
+    port = server.port
+    padding = b"X-Pad: " + b"a" * 1000 + b"\r\n"
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.settimeout(10)
+        sock.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n")
+        with contextlib.suppress(OSError):  # reset once refused
+            for _ in range(1000):
+                sock.sendall(padding * 100)  # 100 kB at a time, 100 MB in all
+        answer = _response(sock)
+    head, _, body = answer.partition(b"\r\n\r\n")
+    assert head.startswith(b"HTTP/1.1 431")
+    assert b"content-type: application/problem+json" in head
+    assert json.loads(body)["code"] == "headers_too_large"
+    assert _metric(port, "header_size") == 1
+
+    r = httpx.get(f"http://127.0.0.1:{port}/health", headers={"X-Pad": "a" * 20_000})
+    assert r.status_code == 200
 
 
 def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) -> None:
