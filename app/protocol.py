@@ -12,7 +12,10 @@ Here, as a reverse proxy's ``client_header_timeout`` and ``client_body_timeout``
   of its first byte (of the connection, for its first request);
 - while its body arrives, no more than ``VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS`` may pass
   without a byte (a slow upload goes on for as long as bytes keep coming).
-Past either the connection is closed: the endpoint reading the body sees the client gone, and
+- while an answer is sent, no more than that may pass with the client reading nothing (a
+  client that stops reading held the answer in memory and the connection for good: uvicorn's
+  close waits for what it buffered to be sent).
+Past any the connection is closed: the endpoint reading the body sees the client gone, and
 nothing is stored. No deadline runs while the request is being answered, nor while the body
 waits for the endpoint to read it (uvicorn stops reading past 64 kB unread). And headers of
 more than ``MAX_HEADER_BYTES`` get 431, as from a proxy; uvicorn's httptools kept them all.
@@ -51,7 +54,7 @@ gigabytes."""
 
 CLOSED = Counter(
     "vantage_connections_timed_out_total",
-    "Connections closed because the client sent its request too slowly",
+    "Connections closed because the client sent its request, or read the answer, too slowly",
     ["phase"],
 )
 
@@ -81,6 +84,9 @@ class DeadlineProtocol(_Fast):
         self._header_bytes = 0
         """Bytes received since the request now awaited began."""
         self._last_byte = 0.0
+        self._stalled_since: float | None = None
+        """Since when the answer waits for the client to read what was sent (uvicorn stops
+        writing past 64 kB unsent)."""
         self._timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -113,6 +119,15 @@ class DeadlineProtocol(_Fast):
         self._headers_since = None  # uvicorn's keep-alive timeout runs until a byte comes
         self._watch()
 
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        self._stalled_since = self.loop.time()
+        self._watch()
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        self._stalled_since = None
+
     def connection_lost(self, exc: Exception | None) -> None:
         if self._timer is not None:
             self._timer.cancel()
@@ -143,6 +158,8 @@ class DeadlineProtocol(_Fast):
 
     def _deadline(self) -> tuple[float, str] | None:
         """When the connection is to be closed, and why; None while no deadline runs."""
+        if self._stalled_since is not None:
+            return self._stalled_since + self._idle_timeout, "response"
         if self._headers_since is not None:
             return self._headers_since + self._header_timeout, "headers"
         cycle = self.cycle
@@ -157,8 +174,8 @@ class DeadlineProtocol(_Fast):
         """Arm the one timer for the deadline that runs now (or for a look later), unless it
         is armed for no later already: a body's bytes move its deadline on, and the timer,
         once it fires, looks again rather than being set anew for every chunk."""
-        if self.transport.is_closing():
-            return
+        if self.transport.is_closing() and self._stalled_since is None:
+            return  # closed, or closing with nothing left to send
         deadline = self._deadline()
         at = self.loop.time() + self._idle_timeout if deadline is None else deadline[0]
         if self._timer is not None:
@@ -170,12 +187,13 @@ class DeadlineProtocol(_Fast):
     def _expire(self) -> None:
         self._timer = None
         deadline = self._deadline()
-        if self.transport.is_closing():
+        if self.transport.is_closing() and self._stalled_since is None:
             return
         if deadline is None or deadline[0] > self.loop.time():
             self._watch()
             return
         phase = deadline[1]
         CLOSED.labels(phase).inc()
-        log.debug("connection from %s closed: its request's %s came too slowly", self.client, phase)
-        self.transport.close()
+        log.debug("connection from %s closed: its %s was too slow", self.client, phase)
+        # close() would wait to send what is buffered: for good, to a client that reads nothing
+        self.transport.abort()

@@ -13,7 +13,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import httpx2 as httpx
+import numpy as np
 import pytest
 from sqlalchemy import Engine
 
@@ -43,6 +45,7 @@ def server(database_url: str, engine: Engine, tmp_path: Path) -> Iterator[Server
         tmp_path,
         VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS=str(HEADERS_S),
         VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS=str(IDLE_S),
+        VANTAGE_MAX_BODY_BYTES=str(40 * 2**20),  # for a frame larger than the sockets' buffers
     )
     port = free_port()
     proc = start_server(env, port, file_limit=256)
@@ -166,6 +169,40 @@ def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) 
     assert 'vantage_frames_rejected_total{camera_id="c",reason="client_disconnected"} 1.0' in text
     camera = httpx.get(f"http://127.0.0.1:{port}/cameras/c", headers=ADMIN).json()
     assert camera["last_captured_at"] is None
+
+
+def test_an_answer_the_client_stops_reading_is_dropped(server: Server) -> None:
+    """A client that stops reading (a dashboard's tab put to sleep mid-download): uvicorn held
+    the rest of the answer in memory and the connection for good, its close waiting for the
+    bytes to go. Measured with an 8 MB frame: closed 3 s after the client stopped (its idle
+    timeout then), 2.8 MB of it sent."""
+    port, token = server.port, server.token
+    rng = np.random.default_rng(11)
+    noise = (rng.random((2400, 3000, 3)) * 255).astype(np.uint8)
+    jpeg = cv2.imencode(".jpg", noise, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    assert len(jpeg) > 6 * 2**20  # more than the kernel's buffers take on both sides
+    r = httpx.post(
+        f"http://127.0.0.1:{port}/cameras/c/frames",
+        content=jpeg,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        timeout=60,
+    )
+    assert r.status_code == 201, r.text
+    with socket.socket() as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(("127.0.0.1", port))
+        sock.sendall(
+            f"GET /frames/{r.json()['frame_id']}/image HTTP/1.1\r\nHost: x\r\n"
+            f"Authorization: Bearer {ADMIN_TOKEN}\r\n\r\n".encode()
+        )
+        time.sleep(IDLE_S + 2)  # reading nothing
+        sock.settimeout(10)
+        received = 0
+        with contextlib.suppress(ConnectionResetError):
+            while data := sock.recv(1 << 20):
+                received += len(data)
+    assert 0 < received < len(jpeg)
+    assert _metric(port, "response") == 1
 
 
 def test_slow_uploads_and_kept_alive_connections_are_served(server: Server) -> None:
