@@ -27,6 +27,7 @@ Served with ``uvicorn --http app.protocol:DeadlineProtocol`` (``python -m app.se
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import os
@@ -59,15 +60,27 @@ CLOSED = Counter(
 )
 
 
+@functools.cache
+def deadlines() -> tuple[float, float]:
+    """The header and idle timeouts [s], from the environment as the settings read theirs:
+    uvicorn makes the protocol apart from the application. Read once; ``app.serve`` reads
+    them before serving, so that a wrong value stops the start, not each connection."""
+    return (
+        _seconds(HEADER_TIMEOUT_ENV, HEADER_TIMEOUT_S),
+        _seconds(IDLE_TIMEOUT_ENV, IDLE_TIMEOUT_S),
+    )
+
+
 def _seconds(name: str, default: float) -> float:
-    """A deadline from the environment, as the settings read theirs (``app.settings``):
-    uvicorn makes the protocol before, and apart from, the application."""
     raw = os.environ.get(name)
     if raw is None:
         return default
-    value = float(raw)
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
     if not 0 < value <= 3600:
-        raise ValueError(f"{name} must be in (0, 3600] seconds, not {raw}")
+        raise SystemExit(f"{name} must be a number of seconds in (0, 3600], not {raw!r}")
     return value
 
 
@@ -76,8 +89,7 @@ class DeadlineProtocol(_Fast):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._header_timeout = _seconds(HEADER_TIMEOUT_ENV, HEADER_TIMEOUT_S)
-        self._idle_timeout = _seconds(IDLE_TIMEOUT_ENV, IDLE_TIMEOUT_S)
+        self._header_timeout, self._idle_timeout = deadlines()
         self._headers_since: float | None = None
         """When the request now awaited began (its first byte, or the connection): None
         between requests and once its headers are in."""
@@ -103,6 +115,8 @@ class DeadlineProtocol(_Fast):
         if self._headers_since is not None:
             self._header_bytes += len(data)
         super().data_received(data)
+        if self.transport.is_closing():
+            return  # a request the parser refused (400), answered and closed
         if self._headers_since is not None:
             if not self._between_requests():
                 self._headers_since = None  # its headers are in

@@ -23,6 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from app import protocol
+
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
 """uvicorn's protocol with deadlines on what clients send (``app.protocol``)."""
@@ -52,6 +54,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--port", type=int, default=8000)
     parser.add_argument("--workers", type=int, default=1)
     args, uvicorn_args = parser.parse_known_args(argv)
+    protocol.deadlines()  # a wrong value stops here, with its name
     raise_file_limit()
     if args.workers > 1 and METRICS_DIR not in os.environ:
         # one directory per port: two servers on one host never share (nor empty) it

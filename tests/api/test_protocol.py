@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import resource
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -19,7 +22,7 @@ import numpy as np
 import pytest
 from sqlalchemy import Engine
 
-from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
+from tests.conftest import ADMIN_TOKEN, ROOT, _empty_tables, make_jpeg
 from tests.servers import free_port, server_env, start_server
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
@@ -242,3 +245,17 @@ def test_the_server_lifts_its_soft_file_limit_to_the_hard_one(server: Server) ->
     files = next(x for x in limits if x.startswith("Max open files")).split()
     assert [int(files[3]), int(files[4])] == [hard, hard]
     assert hard > 256
+
+
+@pytest.mark.parametrize("value", ["abc", "0", "-5", "nan", "7200"])
+def test_a_wrong_deadline_stops_the_start_with_its_name(value: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "app.serve", "--port", str(free_port())],
+        cwd=ROOT,
+        env={**os.environ, "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS": value},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 1
+    assert "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS must be" in proc.stderr
