@@ -26,18 +26,20 @@ from __future__ import annotations
 import asyncio
 import base64
 import binascii
+import contextlib
 import hashlib
 import hmac
 import http.client
 import json
 import logging
+import socket
 import threading
 import urllib.error
 import urllib.request
 import uuid
 from datetime import datetime, timedelta
 from functools import partial
-from typing import Literal
+from typing import Any, Literal
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -51,6 +53,9 @@ from app.services.policy import Policy
 log = logging.getLogger("vantage.webhooks")
 
 TIMEOUT_S = 5.0
+"""How long a POST waits to connect, and for each read of the answer."""
+DEADLINE_S = 10.0
+"""How long a POST may take in all, its whole answer read."""
 RETRY_CAP = timedelta(minutes=10)
 """The longest wait between two attempts."""
 DEFAULT_RETRY_FOR = timedelta(hours=24)
@@ -104,33 +109,89 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
         return None  # the 3xx then raises HTTPError
 
 
-_opener = urllib.request.build_opener(_NoRedirect)
+class _Kept:
+    """Keeps the connections its handler opens (in ``made``), so that they can be cut."""
+
+    made: list[http.client.HTTPConnection]
+
+    def do_open(self, http_class: Any, req: urllib.request.Request, **kwargs: Any) -> Any:
+        def connection(*args: Any, **kw: Any) -> http.client.HTTPConnection:
+            made: http.client.HTTPConnection = http_class(*args, **kw)
+            self.made.append(made)
+            return made
+
+        return super().do_open(connection, req, **kwargs)  # type: ignore[misc]
+
+
+class _KeptHTTP(_Kept, urllib.request.HTTPHandler):
+    def __init__(self, made: list[http.client.HTTPConnection]) -> None:
+        super().__init__()
+        self.made = made
+
+
+class _KeptHTTPS(_Kept, urllib.request.HTTPSHandler):
+    def __init__(self, made: list[http.client.HTTPConnection]) -> None:
+        super().__init__()
+        self.made = made
 
 
 class DeliveryFailed(Exception):
     """The receiver did not take the alert."""
 
 
+def _cut(made: list[http.client.HTTPConnection], cut: threading.Event) -> None:
+    """Shut the POST's sockets down: the read blocked on one returns at once."""
+    cut.set()
+    for connection in made:
+        if connection.sock is not None:
+            with contextlib.suppress(OSError):
+                connection.sock.shutdown(socket.SHUT_RDWR)
+
+
 def _post(url: str, body: bytes, headers: dict[str, str]) -> None:
+    """POST ``body``; raise DeliveryFailed unless the receiver answers 2xx within
+    ``DEADLINE_S``. ``TIMEOUT_S`` bounds each wait on the socket, and a receiver sending its
+    answer a byte every few seconds never met it: measured, a POST still waiting after 50 s,
+    which held the process's sweep, so that no later alert went anywhere, and let its claim
+    run out, so that the next process was held as well. The sockets are shut down at the
+    deadline."""
     request = urllib.request.Request(
         url,
         data=body,
         headers={"Content-Type": "application/json", "User-Agent": "vantage-alerts", **headers},
         method="POST",
     )
+    made: list[http.client.HTTPConnection] = []
+    cut = threading.Event()
+    opener = urllib.request.build_opener(_NoRedirect, _KeptHTTP(made), _KeptHTTPS(made))
+    deadline = threading.Timer(DEADLINE_S, _cut, (made, cut))
+    deadline.daemon = True
+    deadline.start()
     try:
-        with _opener.open(request, timeout=TIMEOUT_S) as response:
+        with opener.open(request, timeout=TIMEOUT_S) as response:
+            if cut.is_set():  # http.client takes the end of what came for the end of headers
+                raise DeliveryFailed(f"no whole answer within {DEADLINE_S:g} s")
             if not 200 <= response.status < 300:
                 raise DeliveryFailed(f"HTTP {response.status}")
-    except urllib.error.HTTPError as exc:
+    except (OSError, http.client.HTTPException) as exc:
+        if cut.is_set():
+            raise DeliveryFailed(f"no whole answer within {DEADLINE_S:g} s") from None
+        raise _failed(exc) from None
+    finally:
+        deadline.cancel()
+
+
+def _failed(exc: OSError | http.client.HTTPException) -> DeliveryFailed:
+    """Why the POST failed, from what urllib raised: an HTTP error, or the connection refused,
+    timed out, not HTTP, cut."""
+    if isinstance(exc, urllib.error.HTTPError):
         if 300 <= exc.code < 400:
-            raise DeliveryFailed(
+            return DeliveryFailed(
                 f"HTTP {exc.code} redirect to {exc.headers.get('Location')!r}, not followed:"
                 " set the webhook URL to the address that takes the POST"
-            ) from None
-        raise DeliveryFailed(f"HTTP {exc.code} {exc.reason}") from None
-    except (OSError, http.client.HTTPException) as exc:  # refused, timed out, not HTTP, cut
-        raise DeliveryFailed(f"{type(exc).__name__}: {exc}") from None
+            )
+        return DeliveryFailed(f"HTTP {exc.code} {exc.reason}")
+    return DeliveryFailed(f"{type(exc).__name__}: {exc}")
 
 
 def _signed(msg_id: str, body: bytes, now: datetime, key: bytes | None) -> dict[str, str]:

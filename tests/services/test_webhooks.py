@@ -4,6 +4,7 @@ delivery, a bad answer is one alert's failed attempt, and retries go on for the 
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import socket
 import threading
@@ -193,6 +194,48 @@ def test_an_answer_that_is_not_http_fails_that_alert_only(
     finally:
         listener.close()
     assert posted == ["a0", "a1", "a2", "a1"]
+
+
+def test_a_receiver_sending_its_answer_a_byte_at_a_time_fails_at_the_deadline(
+    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each read waits at most TIMEOUT_S, and a receiver sending a byte every few seconds
+    never let one run out: a POST was still waiting after 50 s, and the sweep with it (no
+    later alert went anywhere). And once cut, what had come passed for a whole answer 200.
+    The POST now fails at DEADLINE_S (1 s here), and the sweep goes on to the next alert."""
+    monkeypatch.setattr(webhooks, "DEADLINE_S", 1.0)
+    listener = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def trickle() -> None:
+        while not stop.is_set():
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            with conn:
+                conn.recv(65536)
+                with contextlib.suppress(OSError):
+                    conn.sendall(b"HTTP/1.1 204 No Content\r\n")
+                    while not stop.wait(0.2):
+                        conn.sendall(b"X")
+
+    threading.Thread(target=trickle, daemon=True).start()
+    seed_alerts(engine, 2)
+    result: list[int] = []
+    url = f"http://127.0.0.1:{listener.getsockname()[1]}/hook"
+    sweeping = threading.Thread(target=lambda: result.append(webhooks.sweep(sessions, url, at(T0))))
+    try:
+        sweeping.start()
+        sweeping.join(timeout=15)
+        assert not sweeping.is_alive(), "the sweep is still posting"
+    finally:
+        stop.set()
+        listener.close()
+    assert result == [0]
+    after = state(engine)
+    assert {k: v[:2] for k, v in after.items()} == {"a0": (False, 1), "a1": (False, 1)}
+    assert all("no whole answer within 1 s" in str(v[2]) for v in after.values())
 
 
 def closed_port() -> str:
