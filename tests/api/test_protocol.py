@@ -150,6 +150,31 @@ def test_headers_past_64_kb_get_431_and_the_rest_is_not_kept(server: Server) -> 
     assert r.status_code == 200
 
 
+def test_a_few_pipelined_requests_are_answered_and_a_flood_of_them_is_not(
+    server: Server,
+) -> None:
+    """uvicorn parsed every pipelined request it received into one of its own, kept until
+    answered: 1 MB of them made the process grow by 71 MB. Past 16 the connection is closed
+    (here a thousand GETs); a few are answered in order, as HTTP/1.1 has them."""
+    port = server.port
+    get = b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.settimeout(10)
+        sock.sendall(get * 5)
+        assert [_response(sock)[:12] for _ in range(5)] == [b"HTTP/1.1 200"] * 5
+
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.settimeout(10)
+        with contextlib.suppress(OSError):
+            sock.sendall(get * 1000)
+        received = b""
+        with contextlib.suppress(ConnectionResetError):
+            while data := sock.recv(65536):
+                received += data
+    assert received.count(b"HTTP/1.1 200") <= 16
+    assert _metric(port, "pipelined") == 1
+
+
 def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) -> None:
     """A camera that lost its link mid-upload: no FIN, no RST, nothing more. Its connection is
     closed once no byte has come for the idle timeout, and the frame is not stored."""
