@@ -1,4 +1,4 @@
-"""uvicorn's HTTP/1.1 protocol, with deadlines and a size cap on what a client sends.
+"""uvicorn's HTTP/1.1 protocol, with bounds on what a client sends and how slowly it reads.
 
 uvicorn bounds nothing a client sends. A connection that sends no byte, or its headers a byte
 at a time, or stops in the middle of a body (a camera that lost power or its link mid-upload,
@@ -7,18 +7,21 @@ measured, 1,100 connections that sent nothing made a process with the usual limi
 files answer no one (`/health` reset at once) for as long as they stayed open. Its keep-alive
 timeout runs only between requests, and any byte restarts it.
 
-Here, as a reverse proxy's ``client_header_timeout`` and ``client_body_timeout`` would:
+Here, as a reverse proxy's ``client_header_timeout``, ``client_body_timeout`` and
+``send_timeout`` would:
 - a request's line and headers must arrive within ``VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS``
   of its first byte (of the connection, for its first request);
 - while its body arrives, no more than ``VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS`` may pass
-  without a byte (a slow upload goes on for as long as bytes keep coming).
+  without a byte (a slow upload goes on for as long as bytes keep coming);
 - while an answer is sent, no more than that may pass with the client reading nothing (a
   client that stops reading held the answer in memory and the connection for good: uvicorn's
   close waits for what it buffered to be sent).
-Past any the connection is closed: the endpoint reading the body sees the client gone, and
+Past any, the connection is closed: the endpoint reading the body sees the client gone, and
 nothing is stored. No deadline runs while the request is being answered, nor while the body
-waits for the endpoint to read it (uvicorn stops reading past 64 kB unread). And headers of
-more than ``MAX_HEADER_BYTES`` get 431, as from a proxy; uvicorn's httptools kept them all.
+waits for the endpoint to read it (uvicorn stops reading past 64 kB unread).
+
+And, as a proxy would: headers of more than ``MAX_HEADER_BYTES`` get 431, and a connection
+pipelining more than ``MAX_PIPELINED`` requests is closed; uvicorn's httptools kept them all.
 
 Served with ``uvicorn --http app.protocol:DeadlineProtocol`` (``python -m app.serve`` and
 ``make run`` do).

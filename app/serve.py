@@ -8,9 +8,10 @@ a directory of its own (emptied first: counts of an earlier run must not add up 
 where every worker writes its counters and from which ``/metrics`` sums them. A directory set
 by the caller is used as it is.
 
-Connections are served by ``app.protocol``, which closes those whose client sends its request
-too slowly (uvicorn's own bounds nothing a client sends), unless ``--http`` names another.
-Other options are uvicorn's.
+Connections are served by ``app.protocol`` (unless ``--http`` names another), which bounds
+what uvicorn's own did not: how long a client may take to send its request or to read the
+answer, its headers' size, and the requests it may pipeline. The process lifts its soft limit
+on open files to the hard one first. Other options are uvicorn's.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from app import protocol
 
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
-"""uvicorn's protocol with deadlines on what clients send (``app.protocol``)."""
+"""uvicorn's protocol, with bounds on what clients send (``app.protocol``)."""
 
 
 def raise_file_limit() -> int:

@@ -102,6 +102,14 @@ def _response(sock: socket.socket) -> bytes:
     return head + b"\r\n\r\n" + body
 
 
+def _upload_head(token: str, length: int) -> bytes:
+    """The request line and headers of a frame of ``length`` bytes from camera "c"."""
+    return (
+        f"POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n"
+        f"Content-Type: image/jpeg\r\nContent-Length: {length}\r\n\r\n"
+    ).encode()
+
+
 def _metric(port: int, phase: str) -> float:
     text = httpx.get(f"http://127.0.0.1:{port}/metrics", headers=ADMIN).text
     line = f'vantage_connections_timed_out_total{{phase="{phase}"}} '
@@ -180,10 +188,7 @@ def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) 
     closed once no byte has come for the idle timeout, and the frame is not stored."""
     port, token = server.port, server.token
     body = make_jpeg(320, 240, noise=20, seed=3)
-    head = (
-        f"POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n"
-        f"Content-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n\r\n"
-    ).encode()
+    head = _upload_head(token, len(body))
     with socket.create_connection(("127.0.0.1", port)) as sock:
         sock.sendall(head + body[: len(body) // 2])
         took = _closed_after(sock, within=15)
@@ -239,10 +244,7 @@ def test_slow_uploads_and_kept_alive_connections_are_served(server: Server) -> N
     after a pause, is answered too."""
     port, token = server.port, server.token
     body = make_jpeg(320, 240, noise=20, seed=4)
-    head = (
-        f"POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n"
-        f"Content-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n\r\n"
-    ).encode()
+    head = _upload_head(token, len(body))
     with socket.create_connection(("127.0.0.1", port)) as sock:
         sock.settimeout(10)
         sock.sendall(head[:20])
