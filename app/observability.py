@@ -59,7 +59,10 @@ UNMATCHED = "unmatched"
 class JsonFormatter(logging.Formatter):
     """One JSON object per line: time, level, logger, message, request id, extras."""
 
-    _skip = frozenset(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {"message"}
+    _skip = frozenset(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {
+        "message",
+        "color_message",  # uvicorn's message again, with terminal colours
+    }
 
     def format(self, record: logging.LogRecord) -> str:
         out: dict[str, Any] = {
@@ -101,6 +104,16 @@ def configure_logging(level: str, as_json: bool) -> None:
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
     root.propagate = False
+    # uvicorn's own lines (its start, a request that is not HTTP, an error it caught) in the
+    # same format: they came as plain text between the JSON ones, which a log pipeline
+    # parsing JSON lines takes for garbage. Its access line is ``vantage.access``'s twice
+    # over, without the request id: it is left out (a line a request, not two).
+    server = logging.getLogger("uvicorn")
+    server.handlers[:] = [handler]
+    server.setLevel(level.upper())
+    server.propagate = False
+    logging.getLogger("uvicorn.access").handlers[:] = []
+    logging.getLogger("uvicorn.access").setLevel(logging.WARNING)
 
 
 access_log = logging.getLogger("vantage.access")

@@ -286,3 +286,46 @@ def test_a_wrong_deadline_stops_the_start_with_its_name(value: str) -> None:
     )
     assert proc.returncode == 1
     assert "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS must be" in proc.stderr
+
+
+def test_the_server_logs_json_lines_only_and_one_a_request(
+    database_url: str, engine: Engine, tmp_path: Path
+) -> None:
+    """uvicorn's own lines (its start and stop, a request that is not HTTP) came as plain
+    text between the JSON ones, and its access line doubled ``vantage.access``'s for every
+    request, without the request id."""
+    _empty_tables(engine)
+    port = free_port()
+    env = server_env(database_url, tmp_path, VANTAGE_LOG_LEVEL="INFO")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.serve", "--port", str(port)],
+        cwd=ROOT,
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        for _ in range(100):
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/health").status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        assert httpx.get(f"http://127.0.0.1:{port}/cameras", headers=ADMIN).status_code == 200
+        with socket.create_connection(("127.0.0.1", port)) as sock:
+            sock.settimeout(10)
+            sock.sendall(b"NOT HTTP AT ALL\r\n\r\n")
+            assert sock.recv(65536).startswith(b"HTTP/1.1 400")
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    records = [json.loads(line) for line in err.splitlines()]  # each line JSON, or this fails
+    logged = {(r["logger"], r["message"]) for r in records}
+    assert ("uvicorn.error", "Invalid HTTP request received.") in logged
+    assert any(r["logger"] == "uvicorn.error" and "Started server" in r["message"] for r in records)
+    requests = [r for r in records if r["logger"] == "vantage.access"]
+    assert [(r["method"], r["path"]) for r in requests if r["path"] == "/cameras"] == [
+        ("GET", "/cameras")
+    ]
+    assert not any(r["logger"] == "uvicorn.access" for r in records)
+    assert not any("color_message" in r for r in records)
