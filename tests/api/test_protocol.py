@@ -263,6 +263,22 @@ def test_slow_uploads_and_kept_alive_connections_are_served(server: Server) -> N
     assert _metric(port, "body") == _metric(port, "headers") == 0
 
 
+def test_a_connection_idle_longer_than_uvicorns_keep_alive_is_still_served(
+    server: Server,
+) -> None:
+    """uvicorn closed a connection idle 5 s, the moment a load balancer (idle 60 s) might send
+    on it: of 12 requests sent after ~5 s, 4 found it closed (a 502 from the balancer). Kept
+    75 s now."""
+    get = b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", server.port)) as sock:
+        sock.settimeout(10)
+        sock.sendall(get)
+        assert _response(sock)[:12] == b"HTTP/1.1 200"
+        time.sleep(6)
+        sock.sendall(get)
+        assert _response(sock)[:12] == b"HTTP/1.1 200"
+
+
 def test_the_server_lifts_its_soft_file_limit_to_the_hard_one(server: Server) -> None:
     """Started under a soft limit of 256 (systemd's default is 1,024), the process serving
     (``python -m app.serve`` execs uvicorn: the same process) runs with its hard limit: a
