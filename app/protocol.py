@@ -37,12 +37,7 @@ import os
 from typing import Any
 
 from prometheus_client import Counter
-from uvicorn.protocols.http.h11_impl import H11Protocol
-
-try:
-    from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol as _Fast
-except ImportError:  # pragma: no cover - httptools is a dependency
-    _Fast = H11Protocol  # type: ignore[misc, assignment]
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 log = logging.getLogger("vantage.protocol")
 
@@ -91,17 +86,23 @@ def _seconds(name: str, default: float) -> float:
     return value
 
 
-class DeadlineProtocol(_Fast):
-    """uvicorn's protocol (httptools'), closing connections whose client sends too slowly."""
+class DeadlineProtocol(HttpToolsProtocol):
+    """uvicorn's httptools protocol, closing connections whose client is too slow or sends
+    too much. Where a request stands comes from the parser's own callbacks (a message begun,
+    its headers in, its end parsed): the body of a request answered early (401, 413) goes on
+    arriving after its answer, and is neither the next request's headers nor exempt."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._header_timeout, self._idle_timeout = deadlines()
         self._headers_since: float | None = None
-        """When the request now awaited began (its first byte, or the connection): None
-        between requests and once its headers are in."""
+        """When the request whose headers are awaited began (its first byte; the connection's
+        opening for its first): None while no headers are awaited."""
         self._header_bytes = 0
-        """Bytes received since the request now awaited began."""
+        """Bytes received since the last request's headers were in (the next's line and
+        headers, and what came with them)."""
+        self._in_body = False
+        """The request's headers are in and the end of its body is not."""
         self._last_byte = 0.0
         self._stalled_since: float | None = None
         """Since when the answer waits for the client to read what was sent (uvicorn stops
@@ -113,35 +114,46 @@ class DeadlineProtocol(_Fast):
         self._headers_since = self._last_byte = self.loop.time()
         self._watch()
 
+    # the parser's callbacks, in the order a request makes them
+    def on_message_begin(self) -> None:
+        super().on_message_begin()
+        if self._headers_since is None:  # a kept-alive connection's next request
+            self._headers_since = self.loop.time()
+
+    def on_headers_complete(self) -> None:
+        super().on_headers_complete()
+        self._headers_since = None
+        self._header_bytes = 0
+        self._in_body = True
+
+    def on_message_complete(self) -> None:
+        super().on_message_complete()
+        self._in_body = False
+
     def data_received(self, data: bytes) -> None:
-        self._last_byte = now = self.loop.time()
-        begins = self._headers_since is None and self._between_requests()
-        if begins:
-            self._headers_since = now  # a kept-alive connection's next request
-            self._header_bytes = 0
-        if self._headers_since is not None:
+        self._last_byte = self.loop.time()
+        awaited = self._headers_since is not None
+        if not self._in_body:
+            # a request's line and headers, counted as they come: httptools keeps a header
+            # line unfinished in a buffer of its own, which no callback shows
             self._header_bytes += len(data)
         super().data_received(data)
         if self.transport.is_closing():
             return  # a request the parser refused (400), answered and closed
-        if self._headers_since is not None:
-            if not self._between_requests():
-                self._headers_since = None  # its headers are in
-            elif self._header_bytes > MAX_HEADER_BYTES:
-                self._refuse_headers()
-                return
-        if len(getattr(self, "pipeline", ())) > MAX_PIPELINED:
+        if self._headers_since is not None and self._header_bytes > MAX_HEADER_BYTES:
+            self._refuse_headers()
+            return
+        if len(self.pipeline) > MAX_PIPELINED:
             CLOSED.labels("pipelined").inc()
             self.transport.close()  # what is queued is dropped with it
             return
-        if begins or self._timer is None:
+        if self._timer is None or (self._headers_since is not None and not awaited):
             # else the timer armed already fires no later than the deadline now (a body's
             # bytes only move it on), and looks again then
             self._watch()
 
     def on_response_complete(self) -> None:
         super().on_response_complete()
-        self._headers_since = None  # uvicorn's keep-alive timeout runs until a byte comes
         self._watch()
 
     def pause_writing(self) -> None:
@@ -178,18 +190,14 @@ class DeadlineProtocol(_Fast):
         )
         self.transport.close()
 
-    def _between_requests(self) -> bool:
-        return self.cycle is None or self.cycle.response_complete
-
     def _deadline(self) -> tuple[float, str] | None:
         """When the connection is to be closed, and why; None while no deadline runs."""
         if self._stalled_since is not None:
             return self._stalled_since + self._idle_timeout, "response"
         if self._headers_since is not None:
             return self._headers_since + self._header_timeout, "headers"
-        cycle = self.cycle
-        if cycle is None or cycle.response_complete or not cycle.more_body:
-            return None  # between requests, or the request is being answered
+        if not self._in_body:
+            return None  # between requests (uvicorn's keep-alive), or being answered
         if self.flow.read_paused:  # the endpoint has not read what came: not the client's
             self._last_byte = self.loop.time()
             return None

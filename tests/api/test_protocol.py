@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from sqlalchemy import Engine
 
+from app.protocol import MAX_HEADER_BYTES
 from tests.conftest import ADMIN_TOKEN, ROOT, _empty_tables, make_jpeg
 from tests.servers import free_port, server_env, start_server
 
@@ -181,6 +182,26 @@ def test_a_few_pipelined_requests_are_answered_and_a_flood_of_them_is_not(
                 received += data
     assert received.count(b"HTTP/1.1 200") <= 16
     assert _metric(port, "pipelined") == 1
+
+
+def test_a_body_answered_early_is_not_taken_for_the_next_requests_headers(
+    server: Server,
+) -> None:
+    """An upload with a wrong token is answered 401 before its body is read; the body goes on
+    arriving after the answer, and the connection is kept for the next request. Counted as
+    that request's headers, 700 kB of it got a 431 the client read as the answer to its next
+    request."""
+    port = server.port
+    body = make_jpeg(640, 480, noise=40, seed=5)
+    assert len(body) > 2 * MAX_HEADER_BYTES
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.settimeout(10)
+        sock.sendall(_upload_head("vc_not-a-token", len(body)))
+        assert _response(sock)[:12] == b"HTTP/1.1 401"
+        sock.sendall(body)
+        sock.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n")
+        assert _response(sock)[:12] == b"HTTP/1.1 200"
+    assert _metric(port, "header_size") == 0
 
 
 def test_a_body_that_stops_coming_is_dropped_and_nothing_stored(server: Server) -> None:
