@@ -18,6 +18,7 @@ on open files to the hard one first, and keeps idle connections ``KEEP_ALIVE_S``
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import shutil
@@ -30,6 +31,8 @@ from app import protocol
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
 """uvicorn's protocol, with bounds on what clients send (``app.protocol``)."""
+FALSE = frozenset({"0", "false", "f", "no", "n", "off"})
+"""What pydantic reads as false (``VANTAGE_LOG_JSON``)."""
 KEEP_ALIVE_S = "75"
 """How long an idle kept-alive connection stays open [s] (nginx's default), longer than the
 load balancers' (60 s on AWS's ALB and nginx's upstreams). uvicorn's 5 s closed connections a
@@ -55,6 +58,37 @@ def raise_file_limit() -> int:
     return target
 
 
+def log_json() -> bool:
+    """``VANTAGE_LOG_JSON`` as the settings read it (true unless set false)."""
+    return os.environ.get("VANTAGE_LOG_JSON", "true").strip().lower() not in FALSE
+
+
+def _log_config(port: int) -> Path:
+    """uvicorn's logging as JSON lines from its start, in the supervising process of several
+    workers too, which never runs the application's own set-up (``configure_logging``):
+    its lines came as plain text among the JSON ones. A file per port, as uvicorn reads it."""
+    config = {
+        "version": 1,
+        "disable_existing_loggers": False,
+        "formatters": {"json": {"()": "app.observability.JsonFormatter"}},
+        "handlers": {
+            "stderr": {
+                "class": "logging.StreamHandler",
+                "formatter": "json",
+                "stream": "ext://sys.stderr",
+            }
+        },
+        "loggers": {
+            "uvicorn": {"handlers": ["stderr"], "level": "INFO", "propagate": False},
+            # vantage.access logs each request, with its id
+            "uvicorn.access": {"handlers": [], "level": "WARNING", "propagate": False},
+        },
+    }
+    path = Path(tempfile.gettempdir()) / f"vantage-logging-{port}.json"
+    path.write_text(json.dumps(config))
+    return path
+
+
 def _unless_given(option: str, ours: list[str], given: list[str]) -> list[str]:
     """``ours`` (an option and its value), unless the caller gave ``option`` itself."""
     return [] if any(a.split("=")[0] == option for a in given) else ours
@@ -74,6 +108,8 @@ def main(argv: list[str] | None = None) -> None:
         shutil.rmtree(metrics, ignore_errors=True)
         metrics.mkdir(parents=True)
         os.environ[METRICS_DIR] = str(metrics)
+    if log_json() and not any(a.split("=")[0] == "--log-config" for a in uvicorn_args):
+        uvicorn_args = ["--log-config", str(_log_config(args.port)), *uvicorn_args]
     command = [
         sys.executable,
         "-m",

@@ -325,17 +325,19 @@ def test_a_wrong_deadline_stops_the_start_with_its_name(value: str) -> None:
     assert "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS must be" in proc.stderr
 
 
+@pytest.mark.parametrize("workers", [1, 2])
 def test_the_server_logs_json_lines_only_and_one_a_request(
-    database_url: str, engine: Engine, tmp_path: Path
+    database_url: str, engine: Engine, tmp_path: Path, workers: int
 ) -> None:
-    """uvicorn's own lines (its start and stop, a request that is not HTTP) came as plain
-    text between the JSON ones, and its access line doubled ``vantage.access``'s for every
-    request, without the request id."""
+    """uvicorn's own lines (its start and stop, a request that is not HTTP; with several
+    workers, those of the process supervising them) came as plain text between the JSON
+    ones, and its access line doubled ``vantage.access``'s for every request, without the
+    request id."""
     _empty_tables(engine)
     port = free_port()
     env = server_env(database_url, tmp_path, VANTAGE_LOG_LEVEL="INFO")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "app.serve", "--port", str(port)],
+        [sys.executable, "-m", "app.serve", "--port", str(port), "--workers", str(workers)],
         cwd=ROOT,
         env=env,
         stderr=subprocess.PIPE,
@@ -360,6 +362,8 @@ def test_the_server_logs_json_lines_only_and_one_a_request(
     logged = {(r["logger"], r["message"]) for r in records}
     assert ("uvicorn.error", "Invalid HTTP request received.") in logged
     assert any(r["logger"] == "uvicorn.error" and "Started server" in r["message"] for r in records)
+    if workers > 1:
+        assert any("Started parent process" in r["message"] for r in records)
     requests = [r for r in records if r["logger"] == "vantage.access"]
     assert [(r["method"], r["path"]) for r in requests if r["path"] == "/cameras"] == [
         ("GET", "/cameras")
