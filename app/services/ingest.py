@@ -19,7 +19,7 @@ from app.core.jpeg import (
     decode_rgb,
     read_header,
 )
-from app.core.quality import DEFAULT_LIMITS, SKY_LIMITS, unusable_reason
+from app.core.quality import DEFAULT_LIMITS, SKY_LIMITS, obstruction_reason, unusable_reason
 from app.core.stats import (
     ChannelStats,
     Polygon,
@@ -132,7 +132,7 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
     limits = SKY_LIMITS if camera.kind == CameraKind.sky else DEFAULT_LIMITS
-    quality = unusable_reason(stats, limits)
+    quality = unusable_reason(stats, limits) or obstruction_reason(region, limits)
     features = None
     if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
         features = fleet.features(region)

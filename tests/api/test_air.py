@@ -1423,3 +1423,41 @@ def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
         headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
     )
     assert r.json()["verdict"]["reason"].startswith("blank frame"), r.text
+
+
+def test_leaves_over_a_sky_region_are_reported_not_graded(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A calibrated sky camera whose region (rows 0–55) is half covered by leaves: the frame
+    is stored with level null and the reason, the camera's latest reading stays the graded one
+    before, and a calibration that includes the frame is refused by name. A panel camera's
+    green view is not an obstruction."""
+    assert calibrate(client, admin, "sky0").status_code == 201
+    graded = post(client, city, "sky0", 7, seed=5)
+    assert graded["level"] is not None
+    image = cv2.imdecode(np.frombuffer(sky_jpeg(7, seed=6), np.uint8), cv2.IMREAD_COLOR)
+    image[25:55] = (50, 140, 60)  # BGR: leaves over the lower 30 rows of the region
+    image += np.random.default_rng(3).integers(0, 12, image.shape, dtype=np.uint8)
+    leafy = cv2.imencode(".jpg", image)[1].tobytes()
+    v = post_bytes(client, city, "sky0", leafy)
+    assert (v["level"], v["category"]) == (None, None), v
+    assert v["reason"].startswith("obstructed: "), v
+    assert "foliage" in v["reason"], v
+    latest = client.get("/air/cameras/sky0/latest").json()
+    assert latest["level"] == graded["level"], latest
+    frames = client.get("/cameras/sky0/frames", headers=admin).json()
+    leafy_id = next(f["frame_id"] for f in frames if f["verdict"]["level"] is None)
+    body = {"frame_ids": [leafy_id], "levels": [7]}
+    r = client.post("/air/calibration", json=body, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.json()["unusable"] == [leafy_id], r.text
+
+    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
+    cam = {"id": "pc", "kind": "panel", "panel_id": "p"}
+    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
+    r = client.post(
+        "/cameras/pc/frames",
+        content=leafy,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert "obstructed" not in (r.json()["verdict"].get("reason") or ""), r.text

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.core.jpeg import decode_rgb
-from app.core.quality import SKY_LIMITS, unusable_reason
+from app.core.quality import DEFAULT_LIMITS, SKY_LIMITS, obstruction_reason, unusable_reason
 from app.core.stats import channel_stats
 from tests.conftest import SHARED_DATA
 
@@ -110,9 +110,53 @@ def test_no_real_sky_photo_is_gated() -> None:
     gated = [
         (name, why)
         for name, region in regions
-        if (why := unusable_reason(channel_stats(region), SKY_LIMITS))
+        if (
+            why := unusable_reason(channel_stats(region), SKY_LIMITS)
+            or obstruction_reason(region, SKY_LIMITS)
+        )
     ]
     assert gated == []
     by_panel_limits = [name for name, region in regions if reason(region) is not None]
     assert len(by_panel_limits) == 5
     assert all("SEV" in n or n.startswith(("pm25_20-30", "pm25_30plus")) for n in by_panel_limits)
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "sky").exists(), reason="shared data absent")
+def test_leaves_in_a_real_sky_region_are_an_obstruction() -> None:
+    """Milan's webcam of 30 April: its sky region is graded; the same region with the leafy
+    trees from below its skyline (rows 70–92 %) laid over its lower half, or over all of it,
+    is refused as foliage. The panel limits never test for it (a panel's view may be green),
+    and the histograms alone do not see it: the covered region passes ``unusable_reason``."""
+    data = (SHARED_DATA / "sky" / "milan_webcam" / "pm25_10-20" / "20250430-1100.jpg").read_bytes()
+    _, image = decode_rgb(data, max_pixels=10**8)
+    h = image.shape[0]
+    sky = image[int(0.03 * h) : int(0.35 * h)].copy()
+    trees = image[int(0.70 * h) : int(0.92 * h)]
+    assert obstruction_reason(sky, SKY_LIMITS) is None
+    covered = sky.copy()
+    half = sky.shape[0] // 2
+    covered[half:] = trees[: sky.shape[0] - half]
+    why = obstruction_reason(covered, SKY_LIMITS)
+    assert why is not None
+    assert why.startswith("obstructed:")
+    assert "foliage" in why
+    assert unusable_reason(channel_stats(covered), SKY_LIMITS) is None
+    assert obstruction_reason(trees, SKY_LIMITS) is not None
+    assert obstruction_reason(covered, DEFAULT_LIMITS) is None
+
+
+def test_foliage_threshold_and_polygon_regions() -> None:
+    """Known fractions of green pixels (by more than 8 levels over red and blue) around the
+    quarter that sky limits allow, in a rectangle and in a polygon's column of pixels; a grey
+    or blue sky with a green tint under the margin is not foliage."""
+    sky = np.full((100, 200, 3), (150, 170, 215), np.uint8)
+    leaf = (60, 140, 50)
+    for rows, refused in ((20, False), (24, False), (26, True), (80, True)):
+        region = sky.copy()
+        region[:rows] = leaf
+        assert (obstruction_reason(region, SKY_LIMITS) is not None) is refused, rows
+        column = np.ascontiguousarray(region.reshape(-1, 1, 3))
+        assert (obstruction_reason(column, SKY_LIMITS) is not None) is refused, rows
+    tinted = np.full((100, 200, 3), (180, 188, 181), np.uint8)  # green by 7 and 8 levels
+    assert obstruction_reason(tinted, SKY_LIMITS) is None
+    assert obstruction_reason(np.zeros((0, 5, 3), np.uint8), SKY_LIMITS) is None
