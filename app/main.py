@@ -165,7 +165,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             notifier.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await notifier
-        app.state.writer.stop()
+        app.state.writer.stop(settings.frame_store_timeout_seconds)
         app.state.frame_store.close()
         engine.dispose()
         if read_engine is not None:

@@ -17,8 +17,9 @@ import contextlib
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -103,6 +104,42 @@ def _settle_all(settled: Sequence[tuple[asyncio.Future[Any], Outcome]]) -> None:
         _settle(future, outcome)
 
 
+class _Preparers:
+    """The preparing threads: daemons fed from one queue. A frame's write into a store that
+    stopped answering (a hard network mount) never returns, and a ``ThreadPoolExecutor``'s
+    threads are joined at the interpreter's exit: the process, told to stop, waited for that
+    write for ever and needed SIGKILL. Daemon threads let it go once ``shutdown`` has waited
+    its bound."""
+
+    def __init__(self, size: int, name: str) -> None:
+        self._work: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
+        self._threads = [
+            threading.Thread(target=self._run, name=f"{name}_{i}", daemon=True) for i in range(size)
+        ]
+        for thread in self._threads:
+            thread.start()
+
+    def _run(self) -> None:
+        while (work := self._work.get()) is not None:
+            try:
+                work()
+            except Exception:  # the thread must outlive any one piece of work
+                log.exception("a preparation failed outside its request")
+
+    def submit(self, work: Callable[[], None]) -> None:
+        self._work.put(work)
+
+    def shutdown(self, timeout: float) -> int:
+        """Let the work queued so far run; wait for it at most ``timeout`` seconds. Returns how
+        many threads are still busy (hung) then."""
+        for _ in self._threads:
+            self._work.put(None)
+        deadline = time.monotonic() + timeout
+        for thread in self._threads:
+            thread.join(max(0.0, deadline - time.monotonic()))
+        return sum(thread.is_alive() for thread in self._threads)
+
+
 class GroupCommitWriter:
     """Runs write jobs ``fn(session)`` on one thread, committing each batch once."""
 
@@ -125,7 +162,7 @@ class GroupCommitWriter:
         get ``CameraChanged``, and are measured again)."""
         self._max_batch = max_batch
         self._preparers = preparers
-        self._pool: ThreadPoolExecutor | None = None
+        self._pool: _Preparers | None = None
         """Threads that run ``submit_after``'s preparation (decoding, the file write)."""
         engine: Engine = sessions.kw["bind"]
         # The writer keeps one connection checked out from batch to batch, where a checkout per
@@ -156,14 +193,22 @@ class GroupCommitWriter:
                 )
                 self._thread.start()
             if self._pool is None:
-                self._pool = ThreadPoolExecutor(self._preparers, "vantage-prepare")
+                self._pool = _Preparers(self._preparers, "vantage-prepare")
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 10.0) -> None:
+        """Finish the preparations under way (at most ``timeout`` seconds: one hung in the frame
+        store is left behind, its request answered long ago) and the batches queued."""
         with self._lock:
             thread, self._thread = self._thread, None
             pool, self._pool = self._pool, None
         if pool is not None:  # first: a preparation that finishes still queues its job
-            pool.shutdown(wait=True)
+            if hung := pool.shutdown(timeout):
+                log.error(
+                    "%d preparation(s) still running after %g s (the frame store hung?): "
+                    "stopping without them",
+                    hung,
+                    timeout,
+                )
         if thread is not None:
             self._queue.put(None)
             thread.join(timeout=30)

@@ -4,11 +4,15 @@ time, and the rest of the service, which never touches it, goes on answering."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -191,3 +195,58 @@ def test_a_process_started_on_a_hung_store_serves(settings: Settings, engine: En
         finally:
             hung.answering.set()
         served.result(timeout=WAIT)
+
+
+STOP_SCRIPT = """
+import sys, threading
+from fastapi.testclient import TestClient
+from app.main import create_app
+from app.settings import Settings
+from tests.conftest import make_jpeg
+
+data_dir, database_url, token = sys.argv[1:]
+settings = Settings(
+    env="test", data_dir=data_dir, database_url=database_url, admin_token=token,
+    rate_limit_per_minute=0, upload_timeout_seconds=1, frame_store_timeout_seconds=1,
+)
+app = create_app(settings)
+with TestClient(app) as client:
+    admin = {"Authorization": f"Bearer {token}"}
+    camera = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+    never = threading.Event()
+    app.state.frame_store.put = lambda *args: never.wait()  # the mount stops answering
+    headers = {"Authorization": f"Bearer {camera['token']}", "Content-Type": "image/jpeg"}
+    r = client.post("/cameras/c/frames", content=make_jpeg(), headers=headers)
+    print(r.status_code, r.json().get("code"), flush=True)
+print("stopped", flush=True)
+"""
+
+
+def test_a_process_with_an_upload_hung_in_the_store_stops(
+    settings: Settings, engine: Engine, tmp_path: Path
+) -> None:
+    """A frame's write into a store that stopped answering (a hard NFS mount) never returns.
+    The upload has its 503 at its deadline; then the process, told to stop, waited for that
+    write forever (the preparing pool was shut down with wait=True, and its threads were
+    joined again at the interpreter's exit), so only SIGKILL ended it. It now waits for
+    preparations a bounded time, then exits (a separate interpreter, so that its exit is
+    what is tested)."""
+    _empty_tables(engine)
+    started = time.monotonic()
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            STOP_SCRIPT,
+            str(tmp_path / "data"),
+            settings.effective_database_url,
+            ADMIN_TOKEN,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=Path(__file__).parents[2],
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split("\n")[:2] == ["503 upload_timeout", "stopped"], run.stdout
+    assert time.monotonic() - started < 45
