@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from typing import Literal
@@ -25,18 +26,15 @@ log = logging.getLogger("vantage.health")
 
 @router.get("/health", response_model=Health, responses={503: {"model": Health}})
 async def health(request: Request) -> JSONResponse:
-    """Whether the service, its database and its frame store answer; the version."""
-    database = await run_in_threadpool(_database_state, request)
-    store: Literal["ok", "unreachable", "full"]
-    try:
-        await request.app.state.bounded_store.check()
-        store = "ok"
-    except DiskFull as exc:
-        log.warning("frame store full: %s", exc)
-        store = "full"
-    except StoreUnavailable as exc:
-        log.warning("frame store unreachable: %s", exc)
-        store = "unreachable"
+    """Whether the service, its database and its frame store answer; the version.
+
+    The two are checked at once: each waits up to its own bound when its server is gone (the
+    database's connect timeout, ``VANTAGE_FRAME_STORE_TIMEOUT_SECONDS``), and one after the
+    other a probe waited for the sum, with both on one hung mount (SQLite in the data
+    directory) longer than a probe's timeout."""
+    database, store = await asyncio.gather(
+        run_in_threadpool(_database_state, request), _store_state(request)
+    )
     ok = database == "ok" and store == "ok"
     body = Health(
         status="ok" if ok else "degraded",
@@ -45,6 +43,18 @@ async def health(request: Request) -> JSONResponse:
         version=__version__,
     )
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+
+
+async def _store_state(request: Request) -> Literal["ok", "unreachable", "full"]:
+    try:
+        await request.app.state.bounded_store.check()
+    except DiskFull as exc:
+        log.warning("frame store full: %s", exc)
+        return "full"
+    except StoreUnavailable as exc:
+        log.warning("frame store unreachable: %s", exc)
+        return "unreachable"
+    return "ok"
 
 
 def _database_state(request: Request) -> Literal["ok", "unreachable", "read_only", "full"]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import json
 import shutil
+import threading
 from typing import Any
 
 import pytest
@@ -13,6 +14,7 @@ from pydantic import SecretStr
 
 from app import __version__
 from app.main import create_app
+from app.routers import health as health_router
 from app.settings import Settings
 from tests.conftest import make_jpeg
 
@@ -26,6 +28,33 @@ def test_health_reports_database_and_version(client: TestClient) -> None:
         "frame_store": "ok",
         "version": __version__,
     }
+
+
+def test_the_database_and_the_store_are_checked_at_once(
+    client: TestClient, app: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each check waits for the other to have begun (a barrier of two): checked one after the
+    other, as they were, the first waits out the barrier's timeout and fails. (With both on
+    one hung mount a probe had waited for the sum of their bounds.)"""
+    both = threading.Barrier(2, timeout=5)
+    state = health_router._database_state
+
+    def database(request: Any) -> Any:
+        both.wait()
+        return state(request)
+
+    store = app.state.bounded_store.store
+    check = store.check
+
+    def store_check() -> None:
+        both.wait()
+        check()
+
+    monkeypatch.setattr(health_router, "_database_state", database)
+    monkeypatch.setattr(store, "check", store_check)
+    r = client.get("/health")
+    assert r.status_code == 200, r.text
+    assert (r.json()["database"], r.json()["frame_store"]) == ("ok", "ok")
 
 
 @pytest.mark.parametrize("path", ["/health", "/air/latest", "/openapi.json", "/cameras"])
