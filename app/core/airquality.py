@@ -160,6 +160,8 @@ class Grade:
 def grade(calibration: Calibration, modes: ArrayLike) -> Grade:
     """The level whose cluster's T² test accepts the mode vector (eqs. 6.19–6.22); of several,
     the smallest F; of none, no level ("outside calibration") rather than a guess."""
+    if not calibration.clusters:  # a regression's, made without them
+        return Grade(None, None, None, "the calibration has no clusters to grade modes by")
     results = [(c, soiling.classify(c.baseline, modes)) for c in calibration.clusters]
     accepted = [(c, r) for c, r in results if r.clean]  # F < F₍₃,ₙ₋₃,ς₎ (6.21–6.22)
     if not accepted:

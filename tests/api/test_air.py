@@ -1164,6 +1164,43 @@ def test_regression_calibration(
     assert r.status_code == 422
 
 
+def even_smog(v: int) -> bytes:
+    """An even white-grey sky (v, v + 4, v + 10) over most of the region (rows 0–40), a
+    brighter band below it (rows 40–55): its modes are exactly (v, v + 3, v + 10)."""
+    image = np.empty((120, 160, 3), np.float64)
+    image[:] = (v, v + 4, v + 10)
+    image[40:55] += np.linspace(5, 30, 160)[None, :, None]
+    image[60:] = (40, 40, 45)
+    bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return buf.tobytes()
+
+
+def test_a_regression_needs_no_cluster_covariance(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Eight even skies of level 1 whose modes lie on one line (one grey sky, eight
+    exposures): that level's mode covariance is singular, which refuses the dissertation's
+    clusters (422) but not a regression, which never uses it. It was refused too; now it is
+    made without clusters, says why, and grades."""
+
+    def image(level: int, k: int) -> bytes:
+        return even_smog(186 + 3 * k) if level == 1 else sky_jpeg(level, seed=100 * level + k)
+
+    refused = calibrate(client, admin, "sky0", image=image)
+    assert refused.status_code == 422, refused.text
+    assert "level 1:" in refused.json()["detail"], refused.text
+    r = calibrate(client, admin, "sky0", method="regression", image=image)
+    assert r.status_code == 201, r.text
+    assert r.json()["clusters"] == []
+    assert any(w.startswith("no T² clusters") for w in r.json()["warnings"]), r.json()
+    for level in (3, 7):
+        v = post(client, city, "sky2", level, seed=700 + level)
+        assert abs(v["level"] - level) <= 1, v
+    assert post_bytes(client, city, "sky2", even_smog(193))["level"] <= 2
+
+
 def test_a_camera_calibrated_from_its_own_frames_is_graded_by_its_own_calibration(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:

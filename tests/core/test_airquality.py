@@ -511,3 +511,11 @@ def test_air_hovering_on_the_poor_edge_is_one_alert() -> None:
     crossings = sum(1 for a, b in pairwise(smoothed) if a >= 4.5 > b)
     assert crossings >= 3  # the edge was crossed downwards repeatedly
     assert alerts == [(t0, "Poor")]
+
+
+def test_a_calibration_without_clusters_grades_no_modes() -> None:
+    """A regression's calibration may have no clusters (a level's covariance was singular):
+    grading modes by it says so instead of failing on an empty list."""
+    g = airquality.grade(airquality.Calibration(()), [120.0, 130.0, 180.0])
+    assert (g.level, g.statistic, g.p_value) == (None, None, None)
+    assert g.reason == "the calibration has no clusters to grade modes by"
