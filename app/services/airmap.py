@@ -85,7 +85,11 @@ def render(
         entries, colours = _legend_uncertainty(edges, unit)
         z = isopleths.uncertainty_of(field)
         title = "kriging sd [level]" if unit == "level" else "nearest camera"
-    canvas = np.full((max(height, MIN_HEIGHT), SIZE + LEGEND, 3), 255, np.uint8)
+    # the legend beside the map, not beside a 640-pixel square: a tall map (a city that runs
+    # north-south) was a strip at the left with most of the image white between it and the
+    # legend
+    left = width if field is not None and bbox is not None else SIZE
+    canvas = np.full((max(height, MIN_HEIGHT), left + LEGEND, 3), 255, np.uint8)
     if field is not None and bbox is not None and z is not None:
         x0, y0, x1, y1 = bbox
         band = np.full(z.shape, -1, np.int32)
@@ -112,16 +116,16 @@ def render(
             2,
         )
     font = cv2.FONT_HERSHEY_SIMPLEX
-    cv2.putText(canvas, title, (SIZE + 12, 20), font, 0.42, (0, 0, 0), 1)
+    cv2.putText(canvas, title, (left + 12, 20), font, 0.42, (0, 0, 0), 1)
     for i, (text, colour) in enumerate(entries):
         y = 44 + 30 * i
-        cv2.rectangle(canvas, (SIZE + 12, y - 14), (SIZE + 36, y + 4), colour, -1)
-        cv2.putText(canvas, text, (SIZE + 42, y), font, 0.42, (0, 0, 0), 1)
-    cv2.putText(canvas, "o camera", (SIZE + 12, 44 + 30 * len(entries)), font, 0.45, (0, 0, 0), 1)
+        cv2.rectangle(canvas, (left + 12, y - 14), (left + 36, y + 4), colour, -1)
+        cv2.putText(canvas, text, (left + 42, y), font, 0.42, (0, 0, 0), 1)
+    cv2.putText(canvas, "o camera", (left + 12, 44 + 30 * len(entries)), font, 0.45, (0, 0, 0), 1)
     utc = at.astimezone(UTC)
     for i, text in enumerate((utc.strftime("%Y-%m-%d"), utc.strftime("%H:%M UTC"))):
         y = canvas.shape[0] - 36 + 18 * i
-        cv2.putText(canvas, text, (SIZE + 12, y), font, 0.45, (0, 0, 0), 1)
+        cv2.putText(canvas, text, (left + 12, y), font, 0.45, (0, 0, 0), 1)
     ok, buf = cv2.imencode(".png", canvas)
     assert ok
     return bytes(buf.tobytes())

@@ -800,6 +800,26 @@ def test_the_png_map_is_drawn_at_one_scale_in_metres(
         assert (png[py + 4, px] == 0).all(), cam  # inside its black ring
 
 
+def test_the_legend_of_a_tall_map_stands_beside_it(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A bbox 0.1° wide and 0.4° tall at 45.45° N (7.8 × 44.5 km) is drawn 112 × 640 pixels;
+    the legend begins right after it, where it stood 640 pixels from the left edge with 500
+    white columns between (the image is now 112 + 150 wide, not 640 + 150)."""
+    calibrate(client, admin)
+    for cam, level in (("sky1", 3), ("sky2", 7)):
+        post(client, city, cam, level, seed=1)
+    x0, y0, x1, y1 = 9.15, 45.25, 9.25, 45.65
+    r = client.get("/air/isopleths.png", params={"bbox": f"{x0},{y0},{x1},{y1}"})
+    assert r.status_code == 200, r.text
+    png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    width = round(640 * (x1 - x0) * np.cos(np.radians((y0 + y1) / 2)) / (y1 - y0))
+    assert png.shape[:2] == (640, width + 150)
+    inked = (png < 128).all(axis=2)  # the legend's black text and the markers' rings
+    legend = np.flatnonzero(inked[:, width:].any(axis=0))
+    assert 0 < legend.min() <= 20, legend.min()  # its first column of text
+
+
 def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
     client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
 ) -> None:
