@@ -4,6 +4,8 @@ a word (``app/query.py``)."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta, timezone
+
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
@@ -122,3 +124,37 @@ def test_the_rules_come_from_the_openapi_document() -> None:
     assert not rule.pattern.match("/a/x/y/b")
     assert not rule.pattern.match("/a/x/b/c")
     assert counted(b"one=1&many=2&many=3&x=&x=") == {"one": 1, "many": 2, "x": 2}
+
+
+def test_an_offset_sent_with_its_plus_unencoded_is_read_as_the_offset(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """A camera whose URL template gives ``captured_at=…T10:00:00+02:00`` as it is: the "+"
+    of a query is a space, the time arrived as ``…10:00:00 02:00``, and every upload got 422.
+    The frame is now stored as taken at 08:00 UTC; a reading's range given so answers as with
+    %2B; a "+" elsewhere in a value is still a space."""
+    token = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()["token"]
+    headers = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+    taken = (datetime.now(UTC) - timedelta(days=1)).replace(microsecond=0)
+    local = taken.astimezone(timezone(timedelta(hours=2)))
+    r = client.post(
+        f"/cameras/c/frames?captured_at={local.isoformat()}", content=make_jpeg(), headers=headers
+    )
+    assert "+02:00" in local.isoformat()
+    assert r.status_code == 201, r.text
+    assert r.json()["captured_at"] == taken.strftime("%Y-%m-%dT%H:%M:%SZ")
+    india = (taken + timedelta(seconds=0.5)).astimezone(timezone(timedelta(hours=5, minutes=30)))
+    as_sent = india.strftime("%Y-%m-%d+%H:%M:%S.%f+0530")  # a space for T too, and +HHMM
+    r = client.post(
+        f"/cameras/c/frames?captured_at={as_sent}", content=make_jpeg(seed=1), headers=headers
+    )
+    assert r.status_code == 201, r.text
+    assert r.json()["captured_at"] == taken.strftime("%Y-%m-%dT%H:%M:%S.500000Z")
+    since = local.isoformat()
+    raw = client.get(f"/air/readings?since={since}")
+    encoded = client.get(f"/air/readings?since={since.replace('+', '%2B')}")
+    assert raw.status_code == encoded.status_code == 200, raw.text
+    assert raw.json() == encoded.json()
+    r = client.get(f"/air/readings?since={since[:-6]}+1")  # not an offset
+    assert r.status_code == 422
+    assert r.json()["errors"][0]["loc"] == ["query", "since"]
