@@ -850,16 +850,19 @@ def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]
 
 
 def stations(session: Session, *, since: datetime, until: datetime) -> list[Station]:
-    """Each located sky camera in service at ``until``: its latest smoothed (else graded) level
-    taken in [``since``, ``until``] (as smoothed when it was taken)."""
+    """Each located sky camera in service at ``until``: the smoothed (else graded) level of its
+    latest reading taken in [``since``, ``until``] that has either (as smoothed when it was
+    taken).
+
+    A night frame has no grade but keeps the camera's smoothed level while NowCast has a
+    graded reading in the 3 hours before it: the camera's public level, which /latest and
+    the alerts give. Taking graded readings alone, the map lost a camera an hour (its window)
+    after dusk while /latest still gave its level."""
+    has_level = or_(SkyVerdict.level.is_not(None), SkyVerdict.smoothed_level.is_not(None))
     newest = (
         select(Frame.camera_id, func.max(Frame.captured_at).label("t"))
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(
-            Frame.captured_at >= since,
-            Frame.captured_at <= until,
-            SkyVerdict.level.is_not(None),
-        )
+        .where(Frame.captured_at >= since, Frame.captured_at <= until, has_level)
         .group_by(Frame.camera_id)
         .subquery()
     )
@@ -881,7 +884,7 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
             Camera.lon.is_not(None),
             # a camera taken down no longer paints the map, but did before it was
             or_(Camera.retired_at.is_(None), Camera.retired_at > until),
-            SkyVerdict.level.is_not(None),
+            has_level,
         )
     ).all()
     seen: dict[str, Station] = {}

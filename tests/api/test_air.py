@@ -967,6 +967,51 @@ def test_the_public_level_is_the_smoothed_one_not_one_frames(
     assert dark["message"] == f"Today's Air Quality is {dark['category']}"
 
 
+def test_at_dusk_the_map_shows_what_latest_says(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """After dusk a camera's frames are night frames, ungraded, each keeping the camera's
+    smoothed level while NowCast has a graded reading in the 3 hours before. /latest gave
+    that level (current) for those 3 hours, but the map took only graded readings of its
+    window (1 h): from an hour after dusk the camera was off the map while /latest and the
+    alerts still spoke for it. The map now takes the newest reading of its window that has a
+    level, smoothed or its own: three hours after dusk the camera has no public level, and an
+    hour later (the window) it is off the map."""
+    assert calibrate(client, admin).status_code == 201
+    for k in range(6):
+        city["clock"].advance(minutes=20)
+        post(client, city, "sky2", 7, seed=k)
+        post(client, city, "sky5", 10, seed=k)
+    ok, night = cv2.imencode(".jpg", np.full((100, 160, 3), 3, np.uint8))
+    assert ok
+
+    def on_map() -> dict[str, float]:
+        fc = client.get("/air/isopleths").json()
+        return {c["camera_id"]: c["level"] for c in fc["cameras"]}
+
+    for _ in range(6):  # two hours of night frames, beyond the map's window
+        city["clock"].advance(minutes=20)
+        assert post_bytes(client, city, "sky2", night.tobytes())["level"] is None
+        post(client, city, "sky5", 10, seed=99)
+    latest = client.get("/air/cameras/sky2/latest").json()
+    assert latest["current"] is True
+    assert latest["smoothed_level"] is not None
+    assert on_map()["sky2"] == pytest.approx(latest["smoothed_level"])
+    for _ in range(3):  # past three hours without a graded reading
+        city["clock"].advance(minutes=20)
+        post_bytes(client, city, "sky2", night.tobytes())
+        post(client, city, "sky5", 10, seed=98)
+    latest = client.get("/air/cameras/sky2/latest").json()
+    assert latest["smoothed_level"] is None
+    assert "sky2" in on_map()  # its last public level, 20 minutes old
+    for _ in range(3):  # and a window's length later
+        city["clock"].advance(minutes=20)
+        post_bytes(client, city, "sky2", night.tobytes())
+        post(client, city, "sky5", 10, seed=97)
+    assert "sky2" not in on_map()
+    assert "sky5" in on_map()
+
+
 def test_a_camera_gone_quiet_does_not_speak_of_today(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
