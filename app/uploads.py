@@ -176,6 +176,12 @@ async def read_files(
     return files
 
 
+RAW_JPEG_TYPES = frozenset({"image/jpeg", "image/jpg", "image/pjpeg", "application/octet-stream"})
+"""Content types a raw frame upload may carry. ``image/pjpeg`` (a "progressive JPEG" type of
+old browsers, sent by older camera firmware for any JPEG) got 415 as a raw body, though the
+same file in a multipart form, whose part types are not read, was taken."""
+
+
 @dataclass(frozen=True, slots=True)
 class FrameUpload:
     data: bytes
@@ -187,10 +193,11 @@ class FrameUpload:
 
 async def read_jpeg(request: Request, limit: int) -> FrameUpload:
     """The JPEG of a frame upload: a raw ``image/jpeg`` body (or ``application/octet-stream``,
-    as many cameras and scripts label any bytes: the JPEG is checked either way) or multipart
-    field ``file``."""
+    as many cameras and scripts label any bytes, or ``image/pjpeg``, which older camera
+    firmware sends for its JPEGs: the JPEG is checked either way) or multipart field
+    ``file``."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if content_type in ("image/jpeg", "image/jpg", "application/octet-stream"):
+    if content_type in RAW_JPEG_TYPES:
         return FrameUpload(await read_capped(request, limit))
     if content_type == "multipart/form-data":
         # lenient: a camera's form may carry fields of its own
