@@ -1493,6 +1493,20 @@ def test_a_calibration_for_cameras_that_are_not_sky_cameras_is_refused_and_store
     assert client.get("/air/calibration", params={"camera_id": "sky0"}).status_code == 404
 
 
+def panel_verdict(client: TestClient, admin: dict[str, str], jpeg: bytes) -> Any:
+    """The verdict on ``jpeg`` of a new panel camera ``pc`` watching a new panel ``p``."""
+    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
+    cam = {"id": "pc", "kind": "panel", "panel_id": "p"}
+    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
+    r = client.post(
+        "/cameras/pc/frames",
+        content=jpeg,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]
+
+
 def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
@@ -1516,15 +1530,7 @@ def test_smog_is_graded_and_calibrated_on_not_taken_for_a_fault(
     v = post_bytes(client, city, "sky0", make_jpeg(160, 120, (196, 198, 202), noise=1.5, seed=99))
     assert (v["level"], v["category"]) == (1, "Very Poor"), v
 
-    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
-    cam = {"id": "pc", "kind": "panel", "panel_id": "p"}
-    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
-    r = client.post(
-        "/cameras/pc/frames",
-        content=smog,
-        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
-    )
-    assert r.json()["verdict"]["reason"].startswith("blank frame"), r.text
+    assert panel_verdict(client, admin, smog)["reason"].startswith("blank frame")
 
 
 def test_leaves_over_a_sky_region_are_reported_not_graded(
@@ -1554,12 +1560,4 @@ def test_leaves_over_a_sky_region_are_reported_not_graded(
     assert r.status_code == 422, r.text
     assert r.json()["unusable"] == [leafy_id], r.text
 
-    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
-    cam = {"id": "pc", "kind": "panel", "panel_id": "p"}
-    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
-    r = client.post(
-        "/cameras/pc/frames",
-        content=leafy,
-        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
-    )
-    assert "obstructed" not in (r.json()["verdict"].get("reason") or ""), r.text
+    assert "obstructed" not in (panel_verdict(client, admin, leafy).get("reason") or "")
