@@ -240,8 +240,8 @@ def calibrate(
         if regression is None:
             raise Unprocessable(f"cannot calibrate: {exc}", code="bad_calibration") from None
         # the regression grades without the clusters (they grade only a frame stored without
-        # sky features): a level whose images share a mode (smog's white sky, its blue at
-        # 255 in every one) refused a regression for a covariance it never uses
+        # sky features): a level whose modes vary along fewer than three directions (one grey
+        # sky at several exposures) refused a regression for a covariance it never uses
         cal = airquality.Calibration(
             (), (f"no T² clusters, the regression grades without them: {exc}",)
         )
