@@ -104,7 +104,8 @@ def obstruction_reason(
     should be, beyond what the histograms tell (``unusable_reason``), or None.
 
     The joint test of a pixel's channels needs the pixels, not the histograms: it looks at a
-    regular subsample of about ``_SAMPLES`` of them, so it costs the same for any region.
+    regular subsample of about ``_SAMPLES`` of them, so it costs the same for any region. For a
+    region declared as sky only: a whole street view may well be a fifth trees.
     """
     if limits.foliage_fraction is None or region.size == 0:
         return None

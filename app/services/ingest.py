@@ -132,7 +132,11 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
     limits = SKY_LIMITS if camera.kind == CameraKind.sky else DEFAULT_LIMITS
-    quality = unusable_reason(stats, limits) or obstruction_reason(region, limits)
+    quality = unusable_reason(stats, limits)
+    if quality is None and roi is not None:
+        # only in a region declared as sky: a camera without one measures its whole view,
+        # street and trees included (the Milan webcam's whole frames are up to 21 % foliage)
+        quality = obstruction_reason(region, limits)
     features = None
     if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
         features = fleet.features(region)

@@ -1539,7 +1539,8 @@ def test_leaves_over_a_sky_region_are_reported_not_graded(
     """A calibrated sky camera whose region (rows 0–55) is half covered by leaves: the frame
     is stored with level null and the reason, the camera's latest reading stays the graded one
     before, and a calibration that includes the frame is refused by name. A panel camera's
-    green view is not an obstruction."""
+    green view is not an obstruction, nor is a sky camera's without a region (its whole view
+    is not meant to be sky)."""
     assert calibrate(client, admin, "sky0").status_code == 201
     graded = post(client, city, "sky0", 7, seed=5)
     assert graded["level"] is not None
@@ -1561,3 +1562,8 @@ def test_leaves_over_a_sky_region_are_reported_not_graded(
     assert r.json()["unusable"] == [leafy_id], r.text
 
     assert "obstructed" not in (panel_verdict(client, admin, leafy).get("reason") or "")
+    # a sky camera without a region measures its whole view, trees and street included
+    whole = {"id": "whole", "kind": "sky", "lat": 45.45, "lon": 9.2}
+    token = client.post("/cameras", json=whole, headers=admin).json()["token"]
+    city["tokens"]["whole"] = (token, 9.2)
+    assert "obstructed" not in (post_bytes(client, city, "whole", leafy).get("reason") or "")
