@@ -86,7 +86,13 @@ class CameraCreate(CameraFields):
 
 class CameraUpdate(CameraFields):
     """The fields to change: a field left out keeps its value, ``null`` clears it (a camera
-    without ``roi`` is judged on the whole frame). A camera's id and kind never change."""
+    without ``roi`` is judged on the whole frame). A camera's id never changes; its kind only
+    while it has stored no frame (a camera registered as the wrong kind)."""
+
+    kind: CameraKind | None = Field(
+        default=None,
+        description="Only while the camera has stored no frame (409 camera_has_frames after).",
+    )
 
 
 def _roi(roi: list[int] | list[list[int]] | None) -> list[int] | list[list[int]] | None:

@@ -35,8 +35,8 @@ class CameraInfo:
     up for the admin token): the writer checks it still holds before storing a frame."""
 
     view: str | None = None
-    """What the camera measured with when this snapshot was taken, its panel and region as
-    stored (``view_of``): the writer checks it is still so before storing a frame measured by
+    """What the camera measured with when this snapshot was taken, its kind, panel and region
+    as stored (``view_of``): the writer checks it is still so before storing a frame measured by
     it. None: not checked (a snapshot built by hand)."""
 
     region: Region = field(init=False, compare=False)
@@ -55,7 +55,7 @@ class CameraInfo:
     @classmethod
     def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
         roi, polygon = parse_region(camera.roi)
-        view = view_of(camera.panel_id, camera.roi)
+        view = view_of(camera.kind, camera.panel_id, camera.roi)
         return cls(
             camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon, view=view
         )
@@ -69,11 +69,12 @@ class CameraInfo:
         return (self.id, self.token_hash, self.view)
 
 
-def view_of(panel_id: str | None, roi: Region | str) -> str:
-    """A camera's panel and region as one comparable string; ``roi`` as the ORM gives it, or as
-    JSON text (the driver's answer on SQLite)."""
+def view_of(kind: CameraKind | str, panel_id: str | None, roi: Region | str) -> str:
+    """A camera's kind, panel and region as one comparable string; ``roi`` as the ORM gives
+    it, or as JSON text (the driver's answer on SQLite)."""
     region = json.loads(roi) if isinstance(roi, str) else roi
-    return json.dumps([panel_id, region], separators=(",", ":"))
+    name = kind.value if isinstance(kind, CameraKind) else kind
+    return json.dumps([name, panel_id, region], separators=(",", ":"))
 
 
 def parse_region(r: Region) -> tuple[Roi | None, Polygon | None]:

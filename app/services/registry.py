@@ -134,20 +134,26 @@ def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> N
 
 def refusals(session: Session, credentials: set[Credential]) -> dict[Credential, Refusal]:
     """Which (camera id, token hash, view) triples no longer hold, and how: ``revoked``, the
-    token was replaced or its camera retired; ``changed``, the camera now watches another
-    panel or measures another region (``view_of``), so a frame measured by the old view must be
-    measured again. One query for all of them, made by the group-commit writer in every batch
-    of frames, so sent through the driver (``select_rows``). A None token or view is not
-    checked (an upload with the admin token has no token of the camera's)."""
+    token was replaced or its camera retired; ``changed``, the camera is now of another kind,
+    watches another panel or measures another region (``view_of``), so a frame measured by
+    the old view must be measured again. One query for all of them, made by the group-commit
+    writer in every batch of frames, so sent through the driver (``select_rows``). A None
+    token or view is not checked (an upload with the admin token has no token of the
+    camera's)."""
     ids = sorted({camera_id for camera_id, _, _ in credentials})
     marks = ", ".join("?" * len(ids))
     sql = (
-        "SELECT id, token_hash, panel_id, roi FROM cameras"
+        "SELECT id, token_hash, kind, panel_id, roi FROM cameras"
         f" WHERE retired_at IS NULL AND id IN ({marks})"
     )
+    if session.get_bind().dialect.name == "postgresql":
+        # the lock the batch's frame rows take on their cameras anyway (their foreign key),
+        # taken now: a change of kind (``_check_no_frames``, FOR UPDATE) either waits for
+        # this batch and then sees its frames, or is seen by this check
+        sql += " ORDER BY id FOR KEY SHARE"
     now = {
-        camera_id: (token_hash, panel_id, roi)
-        for camera_id, token_hash, panel_id, roi in select_rows(session, sql, ids)
+        camera_id: (token_hash, view_of(kind, panel_id, roi))
+        for camera_id, token_hash, kind, panel_id, roi in select_rows(session, sql, ids)
     }
     out: dict[Credential, Refusal] = {}
     for credential in credentials:
@@ -157,9 +163,24 @@ def refusals(session: Session, credentials: set[Credential]) -> dict[Credential,
             out[credential] = "revoked" if token_hash is not None else "changed"
         elif token_hash is not None and token_hash != found[0]:
             out[credential] = "revoked"
-        elif view is not None and view != view_of(found[1], found[2]):
+        elif view is not None and view != found[1]:
             out[credential] = "changed"
     return out
+
+
+def _check_no_frames(session: Session, camera: Camera) -> None:
+    """Refuse (409 ``camera_has_frames``) to change the kind of a camera that has stored a
+    frame: its verdicts are of its kind. Takes the camera's row first (PostgreSQL): a batch
+    storing the camera's first frame holds it from its check of the cameras (``refusals``)
+    to its commit, so this either waits for that batch and finds its frame, or goes first and
+    the batch's check finds the new kind (and the frame is measured again as that kind)."""
+    session.execute(select(Camera.id).where(Camera.id == camera.id).with_for_update())
+    if session.execute(select(Frame.id).where(Frame.camera_id == camera.id).limit(1)).first():
+        raise Conflict(
+            f"camera {camera.id!r} has stored frames as a {camera.kind.value} camera: its kind "
+            "cannot change; register a camera of the other kind (and retire this one)",
+            code="camera_has_frames",
+        )
 
 
 def update_camera(
@@ -169,8 +190,13 @@ def update_camera(
     commit are judged with the new region."""
     camera = _in_service(session, camera_id)
     changes = data.model_dump(include=data.model_fields_set)
-    if "panel_id" in changes:
-        _check_panel(session, camera.kind, changes["panel_id"])
+    kind = changes.get("kind", camera.kind)
+    if kind is None:
+        raise Unprocessable("kind cannot be cleared: give panel, sky or rig")
+    if kind != camera.kind:
+        _check_no_frames(session, camera)
+    if "panel_id" in changes or kind != camera.kind:
+        _check_panel(session, kind, changes.get("panel_id", camera.panel_id))
     for field, value in changes.items():
         setattr(camera, field, value)
     _check_located(camera)

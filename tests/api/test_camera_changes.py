@@ -106,7 +106,7 @@ class TestUpdate:
     @pytest.mark.parametrize(
         "body",
         [
-            {"kind": "sky"},
+            {"kind": None},
             {"id": "other"},
             {"roi": [0, 0, 10]},
             {"roi": [[0, 0], [10, 10], [0, 10], [10, 0]]},  # self-crossing
@@ -406,3 +406,61 @@ def test_a_cache_time_of_zero_keeps_nothing(monkeypatch: pytest.MonkeyPatch) -> 
     cache = TokenCache(ttl=0)
     cache.put("h1", CameraInfo("a", CameraKind.rig, None, None))
     assert cache.get("h1") is None
+
+
+def test_a_camera_registered_as_the_wrong_kind_is_corrected_before_its_first_frame(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """A sky camera registered as a panel camera by mistake: its kind changes while it has
+    stored no frame (its id was burnt before: retired, an id is never registered again), and
+    its next frame is judged as a sky. Once it has frames, a change of kind is 409 and changes
+    nothing. A kind goes with the panel_id it needs or must not have; it cannot be cleared."""
+    assert client.post("/panels", json={"id": "p"}, headers=admin).status_code == 201
+    token = register(client, admin, kind="panel", panel_id="p", roi=[0, 0, 64, 24])
+    r = client.patch("/cameras/cam", json={"kind": "sky"}, headers=admin)
+    assert r.status_code == 422, r.text  # a sky camera watches no panel
+    assert "panel_id is only for panel cameras" in r.json()["detail"]
+    assert client.patch("/cameras/cam", json={"kind": None}, headers=admin).status_code == 422
+    r = client.patch("/cameras/cam", json={"kind": "sky", "panel_id": None}, headers=admin)
+    assert r.status_code == 200, r.text
+    assert (r.json()["kind"], r.json()["panel_id"], r.json()["roi"]) == (
+        "sky",
+        None,
+        [0, 0, 64, 24],
+    )
+    up = client.post(
+        "/cameras/cam/frames",
+        content=make_jpeg(noise=3),
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+    )
+    assert up.status_code == 201, up.text
+    assert "level" in up.json()["verdict"]  # a sky verdict, not a panel's
+    assert "clean" not in up.json()["verdict"]
+
+    before = table_counts(engine)
+    r = client.patch("/cameras/cam", json={"kind": "rig"}, headers=admin)
+    assert r.status_code == 409, r.text
+    assert r.json()["code"] == "camera_has_frames"
+    assert client.get("/cameras/cam", headers=admin).json()["kind"] == "sky"
+    assert table_counts(engine) == before
+    # the same kind again is no change
+    assert client.patch("/cameras/cam", json={"kind": "sky"}, headers=admin).status_code == 200
+
+
+def test_a_kind_changed_by_another_process_judges_the_next_frame_as_that_kind(
+    client: TestClient, admin: dict[str, str], engine: Engine
+) -> None:
+    """This process keeps the camera's snapshot (a rig); another changes its kind to sky before
+    its first frame: the batch's check finds the kind changed, and the frame is measured again
+    as a sky, not stored as a rig's."""
+    token = register(client, admin)
+    headers = {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
+    assert client.get("/cameras/cam/frames", headers=admin).json() == []
+    # cache the snapshot here: an upload refused after authentication (a PNG)
+    png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    assert client.post("/cameras/cam/frames", content=png, headers=headers).status_code == 415
+    with engine.begin() as conn:
+        conn.execute(update(Camera).where(Camera.id == "cam").values(kind=CameraKind.sky))
+    r = client.post("/cameras/cam/frames", content=make_jpeg(noise=3), headers=headers)
+    assert r.status_code == 201, r.text
+    assert "level" in r.json()["verdict"], r.json()

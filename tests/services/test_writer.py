@@ -200,26 +200,33 @@ def test_a_batch_checks_its_cameras_once_and_refuses_only_the_jobs_that_no_longe
         asked.append(set(credentials))
         return registry.refusals(session, credentials)
 
-    cam = ("cam", "h", view_of(None, None))
-    old_view = view_of(None, [0, 0, 64, 48])
+    cam = ("cam", "h", view_of("rig", None, None))
+    old_view = view_of("rig", None, [0, 0, 64, 48])
     writer = GroupCommitWriter(sessions, check=check)
     batch = [
         _Job(_storing(1), Future(), credential=cam),
-        _Job(_storing(2), Future(), credential=("other", "old", view_of(None, None))),
+        _Job(_storing(2), Future(), credential=("other", "old", view_of("rig", None, None))),
         _Job(_storing(3), Future()),  # nothing to check
         _Job(_storing(4), Future(), credential=cam),
         _Job(_storing(5), Future(), credential=("moved", "m", old_view)),
         _Job(_storing(6), Future(), credential=("moved", None, old_view)),  # the admin token's
-        _Job(_storing(7), Future(), credential=("moved", "m", view_of(None, [0, 0, 32, 24]))),
+        _Job(
+            _storing(7), Future(), credential=("moved", "m", view_of("rig", None, [0, 0, 32, 24]))
+        ),
+        # its snapshot of another kind (the camera's kind was changed through another process)
+        _Job(
+            _storing(8), Future(), credential=("moved", "m", view_of("sky", None, [0, 0, 32, 24]))
+        ),
     ]
     outcomes = writer._write(batch)
     assert len(asked) == 1  # one query for the batch
-    assert [o[0] for o in outcomes] == ["f0001", None, "f0003", "f0004", None, None, "f0007"]
+    assert [o[0] for o in outcomes] == ["f0001", None, "f0003", "f0004", None, None, "f0007", None]
     revoked = outcomes[1][1]
     assert isinstance(revoked, Unauthorized)
     assert revoked.status == 401
     assert isinstance(outcomes[4][1], CameraChanged)
     assert isinstance(outcomes[5][1], CameraChanged)
+    assert isinstance(outcomes[7][1], CameraChanged)
     with sessions() as s:
         stored = s.scalars(select(Frame.id).order_by(Frame.id)).all()
         assert stored == ["f0001", "f0003", "f0004", "f0007"]
@@ -564,7 +571,7 @@ def test_a_lost_connection_costs_no_job(sessions: sessionmaker[Session]) -> None
             assert other.scalar(text("SELECT pg_terminate_backend(:pid)"), {"pid": first})
         # the batch's first statement is the check of its camera token, sent through the
         # driver itself: the lost connection is still told apart, and the batch run once more
-        second = writer.run(store(1), credential=("cam", "h", view_of(None, None)))
+        second = writer.run(store(1), credential=("cam", "h", view_of("rig", None, None)))
         assert second != first
     finally:
         writer.stop()
