@@ -12,6 +12,7 @@ checkouts, alternating, to compare writer changes side by side:
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
@@ -52,7 +53,12 @@ def main() -> None:
     views = hasattr(registry, "refusals")
     if views:
         writer = GroupCommitWriter(sessions, check=registry.refusals)
-        extra: dict[str, object] = {"credential": ("c", "-", "[null,null]")}
+        # the view as this checkout writes it (with the kind since the kind may change)
+        from app.services import camera_info
+
+        kinds = "kind" in inspect.signature(camera_info.view_of).parameters
+        view = '["rig",null,null]' if kinds else "[null,null]"
+        extra: dict[str, object] = {"credential": ("c", "-", view)}
     elif checks:
         writer = GroupCommitWriter(sessions, revoked=registry.revoked)
         extra = {"credential": ("c", "-")}
