@@ -43,6 +43,7 @@ from app.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
     AUTH_ERRORS,
+    CAMERA_KEEPS_KIND,
     CAMERA_RETIRED,
     CONFLICT,
     NOT_FOUND,
@@ -307,15 +308,21 @@ def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
 @router.patch(
     "/cameras/{camera_id}",
     response_model=CameraOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **CAMERA_RETIRED, **UNPROCESSABLE},
+    responses={
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+        **CAMERA_KEEPS_KIND,
+        **UNPROCESSABLE,
+    },
 )
 def update_camera(
     camera_id: CameraId, body: CameraUpdate, session: SessionDep, _: Admin, request: Request
 ) -> CameraOut:
     """Change a camera's name, location, panel or region of interest (JSON merge: fields left
-    out keep their value, ``null`` clears one). A region that would not fit the camera's latest
-    frame is refused (422). Frames uploaded afterwards are judged with the new values; other
-    server processes pick them up within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s)."""
+    out keep their value, ``null`` clears one), and its kind while it has stored no frame
+    (409 ``camera_has_frames`` after). A region that would not fit the camera's latest frame
+    is refused (422). Frames uploaded afterwards are judged with the new values, on every
+    server process (each batch of frames checks its cameras again)."""
     tokens: TokenCache = request.app.state.camera_tokens
     return _shown(session, registry.update_camera(session, camera_id, body, tokens))
 

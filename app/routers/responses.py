@@ -39,6 +39,9 @@ AUTH_ERRORS: Responses = {
 NOT_FOUND: Responses = {404: _problem("No such resource")}
 CONFLICT: Responses = {409: _problem("The id is taken")}
 CAMERA_RETIRED: Responses = {409: _problem("The camera is retired")}
+CAMERA_KEEPS_KIND: Responses = {
+    409: _problem("The camera is retired, or has stored frames and so keeps its kind")
+}
 ROBOT_RETIRED: Responses = {409: _problem("The robot is retired")}
 PANEL_RETIRED: Responses = {409: _problem("The panel is retired")}
 PANEL_IN_USE: Responses = {409: _problem("Cameras in service watch the panel")}
