@@ -14,7 +14,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
-from app.db.session import READ_ONLY_SQL_TRANSACTION
+from app.db.rows import READ_ONLY_SQL_TRANSACTION
 from app.observability import FRAMES_REJECTED
 from app.routes import operations_of
 

@@ -27,6 +27,10 @@ from sqlalchemy.sql.type_api import _BindProcessorType
 
 from app.db.base import Base
 
+READ_ONLY_SQL_TRANSACTION = "25006"
+"""PostgreSQL's sqlstate of a write (or a row lock) refused by a read-only server or
+transaction."""
+
 if TYPE_CHECKING:
     import psycopg
 
@@ -141,12 +145,20 @@ def _values(connection: Connection, plan: _BulkPlan, rows: list[dict[str, Any]])
 
 @contextmanager
 def _as_sqlalchemy_error(connection: Connection, sql: str) -> Iterator[None]:
-    """The driver's errors raised as SQLAlchemy's (``IntegrityError`` …), as ``execute`` does."""
+    """The driver's errors raised as SQLAlchemy's (``IntegrityError`` …), as ``execute`` does;
+    a statement refused as read-only (PostgreSQL's 25006: a standby after a failover) as a
+    connection lost, as the engine's ``handle_error`` takes it for statements it runs
+    (``app.db.session``), so that the request gets 503 and the pool new connections."""
     dbapi_error = connection.dialect.loaded_dbapi.Error
     try:
         yield
     except dbapi_error as exc:
-        raise DBAPIError.instance(sql, None, exc, dbapi_error, dialect=connection.dialect) from exc
+        lost = getattr(exc, "sqlstate", None) == READ_ONLY_SQL_TRANSACTION
+        if lost:
+            connection.invalidate(exc)
+        raise DBAPIError.instance(
+            sql, None, exc, dbapi_error, connection_invalidated=lost, dialect=connection.dialect
+        ) from exc
 
 
 def select_rows(session: Session, sql: str, params: Sequence[Any]) -> list[tuple[Any, ...]]:

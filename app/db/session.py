@@ -8,10 +8,8 @@ from sqlalchemy import Engine, create_engine, event, make_url
 from sqlalchemy.engine import ExceptionContext
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.rows import send_pending_first
+from app.db.rows import READ_ONLY_SQL_TRANSACTION, send_pending_first
 
-READ_ONLY_SQL_TRANSACTION = "25006"
-"""PostgreSQL's sqlstate of a write refused by a read-only server or transaction."""
 PG_STATEMENT_TIMEOUT_S = 30.0
 """How long a statement may run or wait for a lock on PostgreSQL (``statement_timeout``)."""
 PG_CONNECT_TIMEOUT_S = 5
