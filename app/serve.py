@@ -27,12 +27,11 @@ import tempfile
 from pathlib import Path
 
 from app import protocol
+from app.settings import get_settings
 
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
 """uvicorn's protocol, with bounds on what clients send (``app.protocol``)."""
-FALSE = frozenset({"0", "false", "f", "no", "n", "off"})
-"""What pydantic reads as false (``VANTAGE_LOG_JSON``)."""
 KEEP_ALIVE_S = "75"
 """How long an idle kept-alive connection stays open [s] (nginx's default), longer than the
 load balancers' (60 s on AWS's ALB and nginx's upstreams). uvicorn's 5 s closed connections a
@@ -58,12 +57,7 @@ def raise_file_limit() -> int:
     return target
 
 
-def log_json() -> bool:
-    """``VANTAGE_LOG_JSON`` as the settings read it (true unless set false)."""
-    return os.environ.get("VANTAGE_LOG_JSON", "true").strip().lower() not in FALSE
-
-
-def _log_config(port: int) -> Path:
+def _log_config(port: int, level: str) -> Path:
     """uvicorn's logging as JSON lines from its start, in the supervising process of several
     workers too, which never runs the application's own set-up (``configure_logging``):
     its lines came as plain text among the JSON ones. A file per port, as uvicorn reads it."""
@@ -79,7 +73,7 @@ def _log_config(port: int) -> Path:
             }
         },
         "loggers": {
-            "uvicorn": {"handlers": ["stderr"], "level": "INFO", "propagate": False},
+            "uvicorn": {"handlers": ["stderr"], "level": level.upper(), "propagate": False},
             # vantage.access logs each request, with its id
             "uvicorn.access": {"handlers": [], "level": "WARNING", "propagate": False},
         },
@@ -108,8 +102,10 @@ def main(argv: list[str] | None = None) -> None:
         shutil.rmtree(metrics, ignore_errors=True)
         metrics.mkdir(parents=True)
         os.environ[METRICS_DIR] = str(metrics)
-    if log_json() and not any(a.split("=")[0] == "--log-config" for a in uvicorn_args):
-        uvicorn_args = ["--log-config", str(_log_config(args.port)), *uvicorn_args]
+    settings = get_settings()  # a wrong setting stops here too, before any worker starts
+    if settings.log_json and not any(a.split("=")[0] == "--log-config" for a in uvicorn_args):
+        log_config = _log_config(args.port, settings.log_level)
+        uvicorn_args = ["--log-config", str(log_config), *uvicorn_args]
     command = [
         sys.executable,
         "-m",
