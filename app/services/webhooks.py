@@ -112,7 +112,9 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
 class _Kept:
     """Keeps the connections its handler opens (in ``made``), so that they can be cut."""
 
-    made: list[http.client.HTTPConnection]
+    def __init__(self, made: list[http.client.HTTPConnection]) -> None:
+        super().__init__()
+        self.made = made
 
     def do_open(self, http_class: Any, req: urllib.request.Request, **kwargs: Any) -> Any:
         def connection(*args: Any, **kw: Any) -> http.client.HTTPConnection:
@@ -124,15 +126,11 @@ class _Kept:
 
 
 class _KeptHTTP(_Kept, urllib.request.HTTPHandler):
-    def __init__(self, made: list[http.client.HTTPConnection]) -> None:
-        super().__init__()
-        self.made = made
+    pass
 
 
 class _KeptHTTPS(_Kept, urllib.request.HTTPSHandler):
-    def __init__(self, made: list[http.client.HTTPConnection]) -> None:
-        super().__init__()
-        self.made = made
+    pass
 
 
 class DeliveryFailed(Exception):

