@@ -16,6 +16,10 @@ Here, as a reverse proxy's ``client_header_timeout``, ``client_body_timeout`` an
 - while an answer is sent, no more than that may pass with the client reading nothing (a
   client that stops reading held the answer in memory and the connection for good: uvicorn's
   close waits for what it buffered to be sent).
+- once the process is told to stop (SIGTERM), a body still arriving has
+  ``VANTAGE_SHUTDOWN_GRACE_SECONDS`` more to come in whole: uvicorn waited for it however long
+  it took (a camera on a bad link trickling its frame held a rolling restart until the
+  orchestrator killed the process).
 Past any, the connection is closed: the endpoint reading the body sees the client gone, and
 nothing is stored. No deadline runs while the request is being answered, nor while the body
 waits for the endpoint to read it (uvicorn stops reading past 64 kB unread).
@@ -47,8 +51,11 @@ curl and cameras do not use). uvicorn parsed every one it received into a reques
 kept until answered: 1 MB of pipelined GETs made the process grow by 71 MB."""
 HEADER_TIMEOUT_ENV = "VANTAGE_REQUEST_HEADER_TIMEOUT_SECONDS"
 IDLE_TIMEOUT_ENV = "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS"
+SHUTDOWN_GRACE_ENV = "VANTAGE_SHUTDOWN_GRACE_SECONDS"
 HEADER_TIMEOUT_S = 30.0
 IDLE_TIMEOUT_S = 60.0
+SHUTDOWN_GRACE_S = 20.0
+"""Under the orchestrators' own grace before they kill (Kubernetes: 30 s)."""
 MAX_HEADER_BYTES = 64 * 1024
 """A request's line and headers at most (nginx takes 32 kB, Node 16 kB). httptools, unlike h11,
 bounds nothing: measured, one connection sent 300 MB of headers in 3 s and the process grew by
@@ -63,13 +70,15 @@ CLOSED = Counter(
 
 
 @functools.cache
-def deadlines() -> tuple[float, float]:
-    """The header and idle timeouts [s], from the environment as the settings read theirs:
-    uvicorn makes the protocol apart from the application. Read once; ``app.serve`` reads
-    them before serving, so that a wrong value stops the start, not each connection."""
+def deadlines() -> tuple[float, float, float]:
+    """The header and idle timeouts and the shutdown grace [s], from the environment as the
+    settings read theirs: uvicorn makes the protocol apart from the application. Read once;
+    ``app.serve`` reads them before serving, so that a wrong value stops the start, not each
+    connection."""
     return (
         _seconds(HEADER_TIMEOUT_ENV, HEADER_TIMEOUT_S),
         _seconds(IDLE_TIMEOUT_ENV, IDLE_TIMEOUT_S),
+        _seconds(SHUTDOWN_GRACE_ENV, SHUTDOWN_GRACE_S),
     )
 
 
@@ -94,7 +103,9 @@ class DeadlineProtocol(HttpToolsProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._header_timeout, self._idle_timeout = deadlines()
+        self._header_timeout, self._idle_timeout, self._grace = deadlines()
+        self._stopping_since: float | None = None
+        """When the server was told to stop, or None."""
         self._headers_since: float | None = None
         """When the request whose headers are awaited began (its first byte; the connection's
         opening for its first): None while no headers are awaited."""
@@ -165,6 +176,13 @@ class DeadlineProtocol(HttpToolsProtocol):
         super().resume_writing()
         self._stalled_since = None
 
+    def shutdown(self) -> None:
+        """The server stops: uvicorn closes the connection if it is between requests, else
+        lets the request finish and closes it then; a body still arriving gets the grace."""
+        self._stopping_since = self.loop.time()
+        super().shutdown()
+        self._watch()
+
     def connection_lost(self, exc: Exception | None) -> None:
         if self._timer is not None:
             self._timer.cancel()
@@ -201,7 +219,10 @@ class DeadlineProtocol(HttpToolsProtocol):
         if self.flow.read_paused:  # the endpoint has not read what came: not the client's
             self._last_byte = self.loop.time()
             return None
-        return self._last_byte + self._idle_timeout, "body"
+        idle = self._last_byte + self._idle_timeout
+        if self._stopping_since is not None and self._stopping_since + self._grace < idle:
+            return self._stopping_since + self._grace, "shutdown"
+        return idle, "body"
 
     def _watch(self) -> None:
         """Arm the one timer for the deadline that runs now (or for a look later), unless it

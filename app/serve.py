@@ -10,15 +10,20 @@ by the caller is used as it is.
 
 Connections are served by ``app.protocol`` (unless ``--http`` names another), which bounds
 what uvicorn's own did not: how long a client may take to send its request or to read the
-answer, its headers' size, and the requests it may pipeline. The process lifts its soft limit
-on open files to the hard one first, and keeps idle connections ``KEEP_ALIVE_S`` open unless
-``--timeout-keep-alive`` says otherwise. Other options are uvicorn's.
+answer, its headers' size, the requests it may pipeline, and how long a stop (SIGTERM) waits
+for a body still arriving (``VANTAGE_SHUTDOWN_GRACE_SECONDS``). uvicorn's own graceful
+shutdown, which waited for every request however long it took, is bounded ``BACKSTOP_S``
+later, for what no client holds: a request still being answered is then cancelled. The
+process lifts its soft limit on open files to the hard one first, and keeps idle connections
+``KEEP_ALIVE_S`` open unless ``--timeout-keep-alive`` says otherwise. Other options are
+uvicorn's.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import shutil
@@ -32,6 +37,10 @@ from app.settings import get_settings
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
 """uvicorn's protocol, with bounds on what clients send (``app.protocol``)."""
+BACKSTOP_S = 10
+"""How much longer than the grace a stop waits for requests still being answered [s]: each
+has a bound of its own by then (the upload's ``VANTAGE_UPLOAD_TIMEOUT_SECONDS``, a statement's
+timeout), this one is for whatever has not."""
 KEEP_ALIVE_S = "75"
 """How long an idle kept-alive connection stays open [s] (nginx's default), longer than the
 load balancers' (60 s on AWS's ALB and nginx's upstreams). uvicorn's 5 s closed connections a
@@ -94,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--port", type=int, default=8000)
     parser.add_argument("--workers", type=int, default=1)
     args, uvicorn_args = parser.parse_known_args(argv)
-    protocol.deadlines()  # a wrong value stops here, with its name
+    grace = protocol.deadlines()[2]  # a wrong value stops here, with its name
     raise_file_limit()
     if args.workers > 1 and METRICS_DIR not in os.environ:
         # one directory per port: two servers on one host never share (nor empty) it
@@ -121,6 +130,11 @@ def main(argv: list[str] | None = None) -> None:
         *_unless_given("--http", HTTP, uvicorn_args),
         *_unless_given(
             "--timeout-keep-alive", ["--timeout-keep-alive", KEEP_ALIVE_S], uvicorn_args
+        ),
+        *_unless_given(
+            "--timeout-graceful-shutdown",
+            ["--timeout-graceful-shutdown", str(math.ceil(grace) + BACKSTOP_S)],
+            uvicorn_args,
         ),
         *uvicorn_args,
     ]

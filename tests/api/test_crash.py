@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
+import subprocess
 import threading
 import time
 from datetime import UTC, datetime
@@ -169,3 +171,60 @@ def test_sigterm_while_posting_finishes_what_it_took(
     assert frames == set(map(str, acknowledged))  # the cut ones not stored
     assert set(cut) <= {"ReadError", "RemoteProtocolError"}
     assert frames == judged
+
+
+@pytest.mark.slow
+def test_sigterm_does_not_wait_for_an_upload_that_never_ends(
+    database_url: str, engine: Engine, tmp_path: Path
+) -> None:
+    """A camera on a bad link trickles its frame (a byte every 0.2 s: never idle long enough
+    to be cut). A process told to stop waits for it ``VANTAGE_SHUTDOWN_GRACE_SECONDS``, then
+    gives up on it, stores nothing of it, and exits: a rolling restart is not held (and then
+    killed) by its slowest client."""
+    _empty_tables(engine)
+    port = free_port()
+    env = server_env(database_url, tmp_path, VANTAGE_SHUTDOWN_GRACE_SECONDS="2")
+    proc = start_server(env, port)
+    base = f"http://127.0.0.1:{port}"
+    token = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN).json()[
+        "token"
+    ]
+    body = make_jpeg(160, 120, noise=20, seed=1)
+    stop = threading.Event()
+    sock = socket.create_connection(("127.0.0.1", port))
+    try:
+        sock.sendall(
+            (
+                "POST /cameras/c/frames HTTP/1.1\r\nHost: x\r\n"
+                f"Authorization: Bearer {token}\r\nContent-Type: image/jpeg\r\n"
+                f"Content-Length: {len(body)}\r\n\r\n"
+            ).encode()
+            + body[:100]
+        )
+
+        def trickle() -> None:
+            for byte in body[100:-1]:  # never the last one
+                if stop.wait(0.2):
+                    return
+                try:
+                    sock.sendall(bytes([byte]))
+                except OSError:
+                    return
+
+        sender = threading.Thread(target=trickle)
+        sender.start()
+        with httpx.Client(timeout=10) as c:
+            assert _upload(c, base, token, (160, 120), seed=2).status_code == 201
+        proc.send_signal(signal.SIGTERM)
+        try:
+            code = proc.wait(20)  # the old code waited for the trickle: minutes
+        except subprocess.TimeoutExpired:
+            pytest.fail("the process was still waiting for the trickling upload after 20 s")
+        assert code in (0, -signal.SIGTERM)  # uvicorn raises the signal again once stopped
+    finally:
+        stop.set()
+        sock.close()
+        proc.kill()
+        proc.wait(10)
+    with engine.connect() as conn:
+        assert conn.execute(text("SELECT count(*) FROM frames")).scalar_one() == 1

@@ -311,18 +311,27 @@ def test_the_server_lifts_its_soft_file_limit_to_the_hard_one(server: Server) ->
     assert hard > 256
 
 
-@pytest.mark.parametrize("value", ["abc", "0", "-5", "nan", "7200"])
-def test_a_wrong_deadline_stops_the_start_with_its_name(value: str) -> None:
+IDLE_ENV = "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS"
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        *((IDLE_ENV, v) for v in ["abc", "0", "-5", "nan", "7200"]),
+        ("VANTAGE_SHUTDOWN_GRACE_SECONDS", "-1"),
+    ],
+)
+def test_a_wrong_deadline_stops_the_start_with_its_name(name: str, value: str) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "app.serve", "--port", str(free_port())],
         cwd=ROOT,
-        env={**os.environ, "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS": value},
+        env={**os.environ, name: value},
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert proc.returncode == 1
-    assert "VANTAGE_REQUEST_IDLE_TIMEOUT_SECONDS must be" in proc.stderr
+    assert f"{name} must be" in proc.stderr
 
 
 @pytest.mark.parametrize("workers", [1, 2])
