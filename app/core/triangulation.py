@@ -276,6 +276,23 @@ class View:
     R: NDArray[np.float64]
     t: NDArray[np.float64]
 
+    @property
+    def centre(self) -> NDArray[np.float64]:
+        """The lens centre in the world frame, −Rᵀt (where x_cam = 0)."""
+        return np.asarray(-self.R.T @ self.t, dtype=np.float64)
+
+
+COINCIDENT = 1e-9
+"""Lens centres closer than this, relative to their distance from the world's origin, are one."""
+
+
+def baseline(views: list[View]) -> float:
+    """The largest distance between two lens centres. Zero (to ``COINCIDENT``) means that no
+    point can be triangulated: every view's ray through a point starts at the same centre."""
+    c = np.array([v.centre for v in views])
+    spread = float(np.linalg.norm(c[:, None] - c[None], axis=2).max())
+    return 0.0 if spread <= COINCIDENT * max(1.0, float(np.abs(c).max())) else spread
+
 
 @dataclass(frozen=True, slots=True)
 class RigResult:

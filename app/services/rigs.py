@@ -13,7 +13,13 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.core import laser_grid
-from app.core.triangulation import CrossRig, View, triangulate_cross, triangulate_views
+from app.core.triangulation import (
+    CrossRig,
+    View,
+    baseline,
+    triangulate_cross,
+    triangulate_views,
+)
 from app.db.base import utcnow
 from app.db.models import Rig
 from app.errors import Conflict, NotFound, Unprocessable
@@ -54,7 +60,13 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
             raise Unprocessable(f"camera {i}: R is not a rotation")
         if np.linalg.det(np.array(c.K)) == 0:
             raise Unprocessable(f"camera {i}: K is singular")
-    return {"cameras": [c.model_dump() for c in body.cameras]}
+    cameras = [c.model_dump() for c in body.cameras]
+    if baseline([_view(c) for c in cameras]) == 0:
+        raise Unprocessable(
+            "every camera has the same lens centre (−Rᵀt): with no baseline between them no "
+            "point can be triangulated; check each camera's t"
+        )
+    return {"cameras": cameras}
 
 
 def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
@@ -107,10 +119,11 @@ def cross_of(row: Rig) -> CrossRig:
 
 
 def views_of(row: Rig) -> list[View]:
-    return [
-        View(np.array(c["K"]), np.array(c["dist"]), np.array(c["R"]), np.array(c["t"]))
-        for c in row.spec["cameras"]
-    ]
+    return [_view(c) for c in row.spec["cameras"]]
+
+
+def _view(camera: dict[str, Any]) -> View:
+    return View(*(np.array(camera[k], dtype=np.float64) for k in ("K", "dist", "R", "t")))
 
 
 def sizes_of(row: Rig) -> list[tuple[int, int] | None]:

@@ -179,6 +179,24 @@ def test_bad_rigs_and_observations(client: TestClient, admin: dict[str, str]) ->
         ],
     }
     assert client.post("/rigs", json=bad_r, headers=admin).status_code == 422
+    # two cameras with one lens centre (the same t given twice, a pose pasted over another):
+    # no baseline, so no point could ever be triangulated
+    one_centre = {
+        "id": "one-centre",
+        "kind": "calibrated",
+        "cameras": [
+            {"K": [[800, 0, 320], [0, 800, 240], [0, 0, 1]], "R": r, "t": t}
+            for r, t in [
+                ([[1, 0, 0], [0, 1, 0], [0, 0, 1]], [0.5, 0, 2]),
+                # turned 90° about y: its centre −Rᵀt is the first's, (−0.5, 0, −2)
+                ([[0, 0, -1], [0, 1, 0], [1, 0, 0]], [-2, 0, 0.5]),
+            ]
+        ],
+    }
+    r = client.post("/rigs", json=one_centre, headers=admin)
+    assert r.status_code == 422
+    assert "centre" in r.json()["detail"]
+    assert client.get("/rigs/one-centre", headers=admin).status_code == 404
     assert (
         client.post(
             "/rigs", json={"id": "y", "kind": "cross", "f_px": 800}, headers=admin

@@ -10,6 +10,7 @@ from app.core.triangulation import (
     PAIRS,
     CrossRig,
     View,
+    baseline,
     project_views,
     triangulate_cross,
     triangulate_views,
@@ -173,3 +174,17 @@ class TestCalibratedRig:
         parts = [triangulate_views(views, obs[a : a + 10_000]) for a in (0, 10_000, 20_000)]
         np.testing.assert_array_equal(whole.points, np.concatenate([x.points for x in parts]))
         np.testing.assert_array_equal(whole.used, np.concatenate([x.used for x in parts]))
+
+
+def test_baseline_is_the_largest_distance_between_lens_centres() -> None:
+    """Known answers: centres −Rᵀt worked out by hand."""
+    k, d, i = np.eye(3), np.zeros(5), np.eye(3)
+    turned = np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])  # 90° about y
+    a = View(k, d, i, np.array([0.5, 0, 2]))  # centre (−0.5, 0, −2)
+    b = View(k, d, turned, np.array([-2, 0, 0.5]))  # centre (−0.5, 0, −2) too
+    c = View(k, d, i, np.array([-2.5, 4, 2]))  # centre (2.5, −4, −2): 5 from the others
+    assert baseline([a, b]) == 0
+    assert baseline([a, b, c]) == pytest.approx(5.0, rel=1e-12)
+    # one part in 10¹² of a centre 2 m out is rounding, not a baseline
+    assert baseline([a, View(k, d, i, np.array([0.5, 0, 2 + 2e-12]))]) == 0
+    assert baseline([a, View(k, d, i, np.array([0.5, 0, 2 + 1e-6]))]) == pytest.approx(1e-6)
