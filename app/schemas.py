@@ -429,6 +429,9 @@ class OutlineOut(Out):
     roi_offset: list[int] = Field(description="[x, y] of the ROI; coordinates include it.")
     canny_thresholds: list[float] = Field(description="[low, high] in OpenCV's units.")
     shadow_theta: float | None = Field(description="θ of the image shift (eq. 3.1), if used.")
+    part: Literal["dark", "light"] = Field(
+        description="Whether the part was taken as darker or lighter than its background."
+    )
 
 
 class AirCalibrationFromFrames(Schema):

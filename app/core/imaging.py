@@ -96,6 +96,27 @@ def otsu_level(image: Grey) -> int:
     return int(level)
 
 
+BORDER = 0.03
+"""The band along the image's edges taken for the background, as a fraction of its short side."""
+
+
+def part_is_light(image: Grey) -> bool:
+    """Whether the part is lighter than what it stands on. The dissertation's cells are dark
+    parts on a light table, and every later step looks for the part among the dark levels; a
+    light part on a dark conveyor was outlined as the table. What runs along the image's edges
+    is background: the part is light when that band's median lies below Otsu's level."""
+    band = max(1, round(BORDER * min(image.shape)))
+    edges = np.concatenate(
+        [
+            image[:band].ravel(),
+            image[-band:].ravel(),
+            image[band:-band, :band].ravel(),
+            image[band:-band, -band:].ravel(),
+        ]
+    )
+    return float(np.median(edges)) < otsu_level(image)
+
+
 MIN_SOLIDITY = 0.96
 """A region whose area is at least this fraction of its convex hull's counts as convex."""
 
@@ -400,6 +421,9 @@ class Outline:
     conditioned: NDArray[np.uint8] | None = None
     canny_thresholds: tuple[float, float] = (0.0, 0.0)
     shadow_theta: float | None = None
+    part: Literal["dark", "light"] = "dark"
+    """Which way round the part and its background were taken (``conditioned`` is of the
+    image inverted for a light part)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -421,6 +445,9 @@ class OutlineParams:
     """A contour point further than this from every side is not explained by the polygon [px]."""
     polygon_fraction: float = 0.9
     """Fraction of contour points the sides must explain for the outline to be a polygon."""
+    part: Literal["auto", "dark", "light"] = "auto"
+    """A part darker than its background (the dissertation's), lighter, or told by
+    ``part_is_light``."""
 
 
 def _points(mask: NDArray[np.uint8]) -> NDArray[np.float64]:
@@ -440,7 +467,7 @@ def _outer_contour(base: Grey, level: int | None, sigma: float) -> NDArray[np.in
     mask = np.asarray(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)), np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
-        raise ValueError("no object found: the image has no dark region on a light background")
+        raise ValueError("no object found: no region stands out from the background")
     return np.asarray(max(contours, key=cv2.contourArea), dtype=np.int32)
 
 
@@ -462,7 +489,8 @@ def _explained(
 def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     """The outline of the part in a greyscale image: corners and sides, or contour and ellipses.
 
-    Steps: stretch (4.1) → optional shadow suppression (3.1 with 4.3) → Canny → the outer
+    Steps: a light part's image inverted (``params.part``) → stretch (4.1) → optional shadow
+    suppression (3.1 with 4.3) → Canny → the outer
     contour of the part → Hough segments on the edges along that contour (inner edges between
     a part's faces are not its outline) → fragments joined (3.2–3.3) → short sides dropped →
     corners (§V.A). When the straight sides do not explain the contour (a cylinder's elliptic
@@ -472,6 +500,9 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     _check_grey(grey)
     if min(grey.shape) < 8:
         raise ValueError(f"image too small to outline: {grey.shape[1]}×{grey.shape[0]}")
+    light = params.part == "light" or (params.part == "auto" and part_is_light(grey))
+    if light:  # the steps below find a dark part on a light ground: turn it round
+        grey = np.asarray(cv2.bitwise_not(grey), dtype=np.uint8)
     base = stretch(grey) if params.stretch else grey
     work = base
     theta, level = None, None
@@ -512,6 +543,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
         conditioned=work,
         canny_thresholds=(low, high),
         shadow_theta=theta,
+        part="light" if light else "dark",
     )
     if len(sides) >= 3:
         try:

@@ -63,8 +63,19 @@ class OutlineQuery:
     roi: tuple[int, int, int, int] | None
 
 
+Part = Annotated[
+    Literal["auto", "dark", "light"],
+    Query(
+        description="The part darker than its background (the dissertation's cells), lighter "
+        "(a machined part on a black belt), or auto: the background is what runs along the "
+        "image's (or ROI's) edges."
+    ),
+]
+
+
 def outline_query(
     roi: RoiQuery = None,
+    part: Part = "auto",
     shadow: Shadow = True,
     alpha: Alpha = 1.0,
     theta: Theta = None,
@@ -75,7 +86,7 @@ def outline_query(
     ] = False,
 ) -> OutlineQuery:
     canny = CannyParams(sigma=sigma, high=0.5 if dissertation else canny_high)
-    params = OutlineParams(shadow=shadow, alpha=alpha, theta=theta, canny=canny)
+    params = OutlineParams(shadow=shadow, alpha=alpha, theta=theta, canny=canny, part=part)
     return OutlineQuery(params, _roi(roi))
 
 
@@ -118,6 +129,7 @@ async def outline(
         roi_offset=[dx, dy],
         canny_thresholds=list(o.canny_thresholds),
         shadow_theta=o.shadow_theta,
+        part=o.part,
     )
 
 

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from app.main import create_app
 from app.services import vision as vision_service
 from tests.conftest import ADMIN_TOKEN, _empty_tables
-from tests.core.scenes import PRISM_OUTLINE, cylinder_scene, prism_scene
+from tests.core.scenes import PRISM_OUTLINE, cylinder_scene, light_prism_scene, prism_scene
 from tests.core.test_imaging import corner_error
 
 
@@ -53,6 +53,17 @@ class TestOutline:
         out = r.json()
         assert out["roi_offset"] == [150, 60]
         assert corner_error(np.array(out["corners"]), PRISM_OUTLINE) <= 2.0
+
+    def test_a_light_part_on_a_dark_table(self, client: TestClient, admin: dict[str, str]) -> None:
+        data = encode(light_prism_scene())
+        out = post(client, "/vision/outline", data, admin).json()
+        assert out["part"] == "light"
+        assert corner_error(np.array(out["corners"]), PRISM_OUTLINE) <= 2.0
+        assert post(client, "/vision/outline", data, admin, part="dark").json()["corners"] == []
+        assert (
+            post(client, "/vision/outline", encode(prism_scene()), admin).json()["part"] == "dark"
+        )
+        assert post(client, "/vision/outline", data, admin, part="grey").status_code == 422
 
     def test_cylinder_is_curved(self, client: TestClient, admin: dict[str, str]) -> None:
         out = post(client, "/vision/outline", encode(cylinder_scene()), admin).json()

@@ -52,6 +52,23 @@ def prism_scene(
     return finish(low_range(image, lo, hi), noise=noise, blur=blur, seed=seed)
 
 
+def light_prism_scene(
+    *, shadow: bool = True, noise: float = 1.0, blur: float = 1.0, seed: int = 0
+) -> np.ndarray:
+    """The same box, light grey on a dark table (a machined part on a black conveyor belt),
+    its shadow darker still: the outline of ``prism_scene``, colours the other way round."""
+    p = PRISM_OUTLINE
+    image = np.full((480, 640), 50.0)
+    d = np.array([110.0, 45.0])
+    if shadow:
+        shade = [p[1], p[2], p[3], p[4], p[4] + d, p[3] + d, p[2] + d, p[1] + d * 0.6]
+        _fill(image, np.array(shade), 20.0)
+    _fill(image, np.array([p[0], p[5], p[4], _INNER]), 235.0)  # top face, lit
+    _fill(image, np.array([p[0], _INNER, p[2], p[1]]), 200.0)  # front face
+    _fill(image, np.array([_INNER, p[4], p[3], p[2]]), 160.0)  # side face
+    return finish(image, noise=noise, blur=blur, seed=seed)
+
+
 CYLINDER = {"cx": 320.0, "top": 140.0, "bottom": 330.0, "a": 90.0, "b": 30.0}
 
 

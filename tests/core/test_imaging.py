@@ -17,11 +17,18 @@ from app.core.imaging import (
     join_fragments,
     luma,
     outline,
+    part_is_light,
     shift,
     signed_area,
     stretch,
 )
-from tests.core.scenes import CYLINDER, PRISM_OUTLINE, cylinder_scene, prism_scene
+from tests.core.scenes import (
+    CYLINDER,
+    PRISM_OUTLINE,
+    cylinder_scene,
+    light_prism_scene,
+    prism_scene,
+)
 
 # Table 3.2 of the dissertation: Hough segments of Prism06.jpg
 TABLE_3_2 = [
@@ -172,6 +179,32 @@ class TestPrism:
         # σ = 2 levels in a 67-level range: σ ≈ 7.6 levels once stretched to 0–255
         o = outline(prism_scene(noise=2.0, blur=1.0, seed=seed))
         assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+
+
+class TestLightPart:
+    """A light part on a dark table: the dissertation's scenes are all dark on light."""
+
+    @pytest.mark.parametrize("shadow", [True, False])
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_corners_within_2_px(self, shadow: bool, seed: int) -> None:
+        o = outline(light_prism_scene(shadow=shadow, seed=seed))
+        assert o.part == "light"
+        assert o.shape == "polygon"
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+        assert signed_area(o.corners) < 0
+
+    def test_the_part_can_be_named(self) -> None:
+        image = light_prism_scene()
+        o = outline(image, OutlineParams(part="light"))
+        assert o.part == "light"
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+        # taken for a dark part, the outline is the dark table's
+        assert outline(image, OutlineParams(part="dark")).shape == "curved"
+
+    def test_a_dark_part_is_still_found_as_one(self) -> None:
+        assert outline(prism_scene()).part == "dark"
+        assert part_is_light(light_prism_scene())
+        assert not part_is_light(prism_scene(shadow=0.6))
 
 
 class TestCylinder:
