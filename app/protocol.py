@@ -64,7 +64,8 @@ gigabytes."""
 
 CLOSED = Counter(
     "vantage_connections_timed_out_total",
-    "Connections closed because the client sent its request, or read the answer, too slowly",
+    "Connections closed because the client sent its request, or read the answer, too slowly "
+    "(phase shutdown: its body was still arriving after the stop's grace)",
     ["phase"],
 )
 
