@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -31,6 +32,19 @@ px) at exposures from half to twice the nominal, PNG and JPEG quality 60–95: 0
 (the worst a dim dot at quality 60, its chroma halved and blocky). Views over-exposed until
 the dot had vanished (2.5–3 times, the table white) gave red patches of the part instead,
 whose best choice reprojected at 3.5–39 px."""
+
+
+Colour = Literal["red", "green", "blue"]
+_FIRST: dict[str, list[int]] = {"green": [1, 0, 2], "blue": [2, 1, 0]}
+
+
+def as_red(rgb: NDArray[np.uint8], colour: Colour) -> NDArray[np.uint8]:
+    """The image with the laser's channel first, so that the dot's and the grid's steps,
+    written for the dissertation's red laser, read a green (532 nm) or blue one as red. The
+    other two stay the channels the excess is taken over."""
+    if colour == "red":
+        return rgb
+    return np.ascontiguousarray(rgb[..., _FIRST[colour]])
 
 
 @dataclass(frozen=True, slots=True)

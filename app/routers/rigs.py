@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 from functools import partial
+from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from app.core import shapes
+from app.core import laser, shapes
 from app.db.models import Rig
 from app.db.session import release
 from app.deps import (
@@ -153,8 +154,20 @@ def _rig_released(session: Session, rig_id: str) -> Rig:
         release(session)
 
 
-def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> LaserDotOut:
-    dot = grid.locate_dot(rigs.geometry_of(row), files, max_pixels, rigs.sizes_of(row))
+LaserQuery = Annotated[
+    laser.Colour,
+    Query(
+        description="The laser's colour: red (the dissertation's), green (532 nm) or blue. "
+        "The dot and the grid are told from the scene by that channel's excess over the "
+        "other two."
+    ),
+]
+
+
+def _dot(
+    row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int, colour: laser.Colour
+) -> LaserDotOut:
+    dot = grid.locate_dot(rigs.geometry_of(row), files, max_pixels, rigs.sizes_of(row), colour)
     return LaserDotOut(
         point=dot.point.tolist(),
         pixels=[list(p) if p is not None else None for p in dot.pixels],
@@ -169,13 +182,18 @@ def _dot(row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int) -> La
     openapi_extra=multipart_body(files="files"),
 )
 async def laser_dot(
-    rig_id: RigId, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
+    rig_id: RigId,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    _: RobotOrAdmin,
+    laser: LaserQuery = "red",
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
     row, form = await _rig_and_form(rig_id, request, session, settings, "files")
     return await image_work(
-        request, partial(_dot, row, form.files_of("files"), settings.max_pixels)
+        request, partial(_dot, row, form.files_of("files"), settings.max_pixels, laser)
     )
 
 
@@ -188,7 +206,12 @@ async def laser_dot(
     ),
 )
 async def laser_grid_measure(
-    rig_id: RigId, request: Request, session: SessionDep, settings: SettingsDep, _: RobotOrAdmin
+    rig_id: RigId,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    _: RobotOrAdmin,
+    laser: LaserQuery = "red",
 ) -> LaserGridOut:
     """Measure a part under the laser grid: one grid image per camera (``files``, in camera
     order) → every node in 3-D, surface area, volume and the base plane. The dot gives the
@@ -209,6 +232,7 @@ async def laser_grid_measure(
             base_plane=form.fields.get("base_plane", []),
             max_pixels=settings.max_pixels,
             sizes=rigs.sizes_of(row),
+            colour=laser,
         ),
     )
 

@@ -37,10 +37,13 @@ def _field(raw: list[str], name: str, adapter: TypeAdapter[T]) -> T | None:
         raise Unprocessable(f"{name}{where}: {error['msg']}") from None
 
 
-def _decode(k: int, data: bytes, sizes: Sizes, max_pixels: int) -> NDArray[np.uint8]:
-    """Camera k's image, refused when it is not of the size its K was calibrated for: K in
-    pixels of another size puts every ray elsewhere (twice the pixels, twice the focal length
-    and principal point), and the figures come out confidently wrong."""
+def _decode(
+    k: int, data: bytes, sizes: Sizes, max_pixels: int, colour: laser.Colour
+) -> NDArray[np.uint8]:
+    """Camera k's image, the laser's channel first (``laser.as_red``), refused when it is not
+    of the size its K was calibrated for: K in pixels of another size puts every ray
+    elsewhere (twice the pixels, twice the focal length and principal point), and the figures
+    come out confidently wrong."""
     image = vision.decode(data, max_pixels=max_pixels)
     size = sizes[k] if k < len(sizes) else None
     h, w = image.shape[:2]
@@ -50,10 +53,16 @@ def _decode(k: int, data: bytes, sizes: Sizes, max_pixels: int) -> NDArray[np.ui
             f"{size[0]}×{size[1]}: send images of that size (or calibrate at this one)",
             code="wrong_image_size",
         )
-    return image
+    return laser.as_red(image, colour)
 
 
-def locate_dot(geo: Geometry, files: Files, max_pixels: int, sizes: Sizes = ()) -> laser.Dot:
+def locate_dot(
+    geo: Geometry,
+    files: Files,
+    max_pixels: int,
+    sizes: Sizes = (),
+    colour: laser.Colour = "red",
+) -> laser.Dot:
     """The laser dot from one dot-mode image per camera, in camera order (``/laser/dot``, and
     the grid's origin)."""
     n_cams = len(geo.f)
@@ -62,7 +71,8 @@ def locate_dot(geo: Geometry, files: Files, max_pixels: int, sizes: Sizes = ()) 
             f"send one image per camera, in camera order: {n_cams}, got {len(files)}"
         )
     spots = [
-        laser.find_spots(_decode(k, data, sizes, max_pixels)) for k, (_, data) in enumerate(files)
+        laser.find_spots(_decode(k, data, sizes, max_pixels, colour))
+        for k, (_, data) in enumerate(files)
     ]
     try:
         dot = laser.locate(spots, geo.triangulate)
@@ -80,10 +90,11 @@ def origin_from(
     n_cams: int,
     max_pixels: int,
     sizes: Sizes = (),
+    colour: laser.Colour = "red",
 ) -> tuple[np.ndarray | None, list[str]]:
     """The laser dot's 3-D point, from dot-mode images or from its pixels in each view."""
     if dot_files:
-        return locate_dot(geo, dot_files, max_pixels, sizes).point, []
+        return locate_dot(geo, dot_files, max_pixels, sizes, colour).point, []
     pixels = _field(origin, "origin", _PIXELS)
     if pixels is None:
         return None, [
@@ -113,6 +124,7 @@ def measure(
     base_plane: list[str],
     max_pixels: int,
     sizes: Sizes = (),
+    colour: laser.Colour = "red",
 ) -> LaserGridOut:
     n_cams = len(geo.f)
     if len(files) != n_cams:
@@ -123,9 +135,10 @@ def measure(
     plane = None if plane_raw is None else np.array(plane_raw)
     if plane is not None and np.linalg.norm(plane[:3]) == 0:
         raise Unprocessable("base_plane needs a non-zero normal (a, b, c)")
-    point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels, sizes)
+    point, warnings = origin_from(geo, dot_files, origin, n_cams, max_pixels, sizes, colour)
     nodes = [
-        laser_grid.detect(_decode(k, data, sizes, max_pixels)) for k, (_, data) in enumerate(files)
+        laser_grid.detect(_decode(k, data, sizes, max_pixels, colour))
+        for k, (_, data) in enumerate(files)
     ]
     blind = [k + 1 for k, n in enumerate(nodes) if len(n.uv) == 0]
     if len(blind) > n_cams - 2:

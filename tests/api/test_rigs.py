@@ -274,6 +274,34 @@ def test_laser_dot_within_1_mm_at_1_m(client: TestClient, admin: dict[str, str])
     np.testing.assert_allclose(out["pixels"], RIG.project(truth[None])[0], atol=0.2)
 
 
+def recoloured(png: bytes, order: list[int]) -> bytes:
+    """The PNG with its RGB channels taken in ``order``: [1, 0, 2] makes a red laser green."""
+    import cv2
+
+    rgb = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR_RGB)
+    return bytes(cv2.imencode(".png", np.ascontiguousarray(rgb[..., order][..., ::-1]))[1])
+
+
+def test_a_green_laser_dot(client: TestClient, admin: dict[str, str]) -> None:
+    """The same render with the dot (and the red label beside it) green: found when the
+    request says the laser is green, within 1 mm at 1 m as the red one; not by default."""
+    client.post("/rigs", json=CELL, headers=admin)
+    truth = np.array([0.05, -0.03, 1.0])
+    images = [recoloured(im, [1, 0, 2]) for im in render_views(RIG, truth, distractor=True)]
+    r = client.post(
+        "/rigs/cell/laser/dot", params={"laser": "green"}, files=as_files(images), headers=admin
+    )
+    assert r.status_code == 200, r.text
+    assert np.linalg.norm(np.array(r.json()["point"]) - truth) < 0.001
+    r = client.post("/rigs/cell/laser/dot", files=as_files(images), headers=admin)
+    assert r.status_code == 422
+    assert r.json()["code"] == "dot_not_found"
+    r = client.post(
+        "/rigs/cell/laser/dot", params={"laser": "ir"}, files=as_files(images), headers=admin
+    )
+    assert r.status_code == 422
+
+
 def test_laser_dot_not_found(client: TestClient, admin: dict[str, str]) -> None:
     client.post("/rigs", json=CELL, headers=admin)
     images = render_views(RIG, np.array([5.0, 0.0, 1.0]))  # far off every image
@@ -455,6 +483,29 @@ class TestLaserGrid:
         assert out["volume"] == pytest.approx(truth.part.volume, rel=0.02)
         assert out["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
         return out
+
+    def test_a_green_grid(self, client: TestClient, admin: dict[str, str]) -> None:
+        """The box's scene with the grid and the dot green (a 532 nm laser), measured as
+        the red one is when the request says so."""
+        truth, grid, dots = grid_scene()
+        assert client.post("/rigs", json=self.CROSS, headers=admin).status_code == 201
+        green = [np.ascontiguousarray(im[..., [1, 0, 2]]) for im in grid]
+        green_dots = [np.ascontiguousarray(im[..., [1, 0, 2]]) for im in dots]
+        r = client.post(
+            "/rigs/cell/laser/grid",
+            params={"laser": "green"},
+            files=self.png(green, "files") + self.png(green_dots, "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        assert r.json()["volume"] == pytest.approx(truth.part.volume, rel=0.02)
+        assert r.json()["surface_area"] == pytest.approx(truth.part.top_area, rel=0.02)
+        r = client.post(
+            "/rigs/cell/laser/grid",
+            files=self.png(green, "files") + self.png(green_dots, "dot_files"),
+            headers=admin,
+        )
+        assert r.status_code == 422
 
     def test_box_area_and_volume(self, client: TestClient, admin: dict[str, str]) -> None:
         truth, grid, dots = grid_scene()
