@@ -653,8 +653,8 @@ class TriangulateOut(Out):
     null_reasons: list[Literal["too_few_views", "behind_camera", "no_depth"] | None] = Field(
         default_factory=list,
         description="Per point, why it is null: seen by fewer than two cameras; its rays meet "
-        "behind a camera that saw it (mismatched pixels); no depth (no disparity: at infinity, "
-        "or the same pixel everywhere). Null for a point found.",
+        "behind (or at) a camera that saw it (mismatched pixels); no depth (no disparity: at "
+        "infinity, or the same pixel everywhere). Null for a point found.",
     )
     z_estimates: list[list[float | None]] | None = Field(
         default=None, description="Cross rigs: the ten pairwise depths (eqs. 4.14–4.41)."

@@ -286,6 +286,14 @@ COINCIDENT = 1e-9
 """Lens centres closer than this, relative to their distance from the world's origin, are one."""
 
 
+AT_LENS = 1e-3
+"""A point nearer a camera that saw it than this fraction of the rig's baseline (along the
+camera's axis) was not seen: it would show a disparity of 1000 f px. The linear solution of
+rays that diverge (pixels of two different points) comes to rest there, at the lenses where
+the rays pass closest, with a reprojection error of 10¹³ px; it is no more a point than one
+behind a camera."""
+
+
 def baseline(views: list[View]) -> float:
     """The largest distance between two lens centres. Zero (to ``COINCIDENT``) means that no
     point can be triangulated: every view's ray through a point starts at the same centre."""
@@ -401,8 +409,9 @@ def triangulate_views(
     # 100,000 points in 80 ms instead of 41)
     depth = np.einsum("nk,vk->nv", points, rig.rs[:, 2, :]) + rig.ts[:, 2]
     found = np.isfinite(points).all(axis=1)  # not: rays that never meet (parallel)
+    nearest = AT_LENS * baseline(views)
     with np.errstate(invalid="ignore"):
-        behind = found & (use & ~(depth > 0)).any(axis=1)
+        behind = found & (use & ~(depth > nearest)).any(axis=1)
     lost = ~found | behind
     points[lost], rms[lost], use[lost] = np.nan, np.nan, False
     return RigResult(points, rms, use, np.asarray(behind, dtype=np.bool_))

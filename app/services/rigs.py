@@ -145,8 +145,8 @@ def geometry_of(row: Rig) -> laser_grid.Geometry:
 
 NULL_REASONS = {
     "too_few_views": "seen by fewer than two cameras",
-    "behind_camera": "its rays meet behind a camera that saw it: the pixels are mismatched "
-    "(cameras in the wrong order, or another point's pixel)",
+    "behind_camera": "its rays meet behind (or at) a camera that saw it: the pixels are "
+    "mismatched (cameras in the wrong order, or another point's pixel)",
     "no_depth": "no depth: the views see it with no disparity (at infinity, or the same pixel "
     "in every camera)",
 }

@@ -150,6 +150,27 @@ class TestCalibratedRig:
         keep = [0, 2, 3, 4]
         np.testing.assert_allclose(r.points[keep], p[keep], rtol=1e-7)
 
+    def test_rays_that_meet_only_at_the_lenses_are_no_point(self) -> None:
+        """Two cameras side by side (baseline 0.1 along x) given pixels with no horizontal
+        disparity but 10 px of vertical: the rays diverge, and come closest at the lenses
+        themselves. The linear solution was (0.05, 0, 2e-12), returned as a point with a
+        reprojection RMS of 2e13 px. A point 1/1000 of the baseline from a lens would show a
+        disparity of 1000 f px; such a point was seen by no camera."""
+        k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+        views = [View(k, np.zeros(5), np.eye(3), np.array([x, 0.0, 0.0])) for x in (0.0, -0.1)]
+        truth = np.array([[0.2, 0.05, 2.0]])
+        obs = np.concatenate([project_views(views, truth), [[[330.0, 240.0], [330.0, 250.0]]]])
+        r = triangulate_views(views, obs)
+        np.testing.assert_allclose(r.points[0], truth[0], rtol=1e-9)
+        assert np.isnan(r.points[1]).all()
+        assert np.isnan(r.reprojection_rms[1])
+        assert r.behind.tolist() == [False, True]
+        # a real point close in, 1/50 of the baseline from the lens plane, is still a point
+        near = np.array([[0.05, 0.0, 0.002]])
+        np.testing.assert_allclose(
+            triangulate_views(views, project_views(views, near)).points, near, rtol=1e-9
+        )
+
     def test_two_gauss_newton_steps_converge(self) -> None:
         """The default steps reach the reprojection minimum: ten more move no point by more
         than a micrometre (points at 1–2 m, 0.3 px noise), and the refined points beat the
