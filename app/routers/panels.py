@@ -225,7 +225,7 @@ def _train_from_frames(
     "/panels/{panel_id}/baseline",
     status_code=201,
     response_model=BaselineOut,
-    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=_FILES_BODY,
 )
 async def train_baseline(

@@ -696,6 +696,16 @@ class TestPanelChanges:
             assert r.status_code == 409, r.text
             assert r.json()["code"] == "panel_retired"
         assert table_counts(engine) == before
+        # and each of those routes says in the schema that it may answer 409
+        paths = client.get("/openapi.json").json()["paths"]
+        for path, method in (
+            ("/panels", "post"),
+            ("/cameras", "post"),
+            ("/cameras/{camera_id}", "patch"),
+            ("/panels/{panel_id}/baseline", "post"),
+            ("/panels/{panel_id}", "patch"),
+        ):
+            assert "409" in paths[path][method]["responses"], (method, path)
         again = client.get("/panels", params={"retired": True}, headers=admin).json()[0]
         assert client.delete("/panels/p1", headers=admin).status_code == 204
         assert client.get("/panels", params={"retired": True}, headers=admin).json()[0] == again
