@@ -245,6 +245,25 @@ SKY_FEATURES = (
 )
 
 
+BAND_PIXELS = 1 << 20
+"""Pixels of the region taken at a time for its darkest channel."""
+
+
+def _darkest_histogram(sky: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """Histogram of each pixel's darkest channel, a band of rows at a time. ``cv2.min`` of the
+    channels' views copied each channel whole first: three copies of a 36 MP region at once,
+    ~100 MiB (as much again as the decoded frame), and 0.58 against 0.34 ms at 640×480."""
+    h, w = sky.shape[:2]
+    rows = max(1, BAND_PIXELS // max(w, 1))
+    hist = np.zeros(256)
+    for top in range(0, h, rows):
+        band = sky[top : top + rows]
+        lo = np.minimum(band[..., 0], band[..., 1])
+        np.minimum(lo, band[..., 2], out=lo)
+        hist += cv2.calcHist([lo], [0], None, [256], [0, 256]).ravel()
+    return hist
+
+
 def sky_features(
     sky: NDArray[np.uint8],
     below: NDArray[np.uint8] | None = None,
@@ -264,7 +283,6 @@ def sky_features(
     modes = hist.argmax(axis=1)
     means = hist @ levels / n
     spread = np.sqrt(np.maximum(hist @ levels**2 / n - means**2, 0.0)).mean()
-    lo = cv2.min(cv2.min(sky[..., 0], sky[..., 1]), sky[..., 2])
     contrast = [0.0, 0.0]
     if below is not None and below.size:
         # luma channel by channel, the second difference down the columns in place
@@ -283,7 +301,7 @@ def sky_features(
             *modes,
             *means,
             (means[2] + 1) / (means[0] + 1),
-            _median(cv2.calcHist([lo], [0], None, [256], [0, 256]).ravel().round()),
+            _median(_darkest_histogram(sky)),
             spread,
             *contrast,
         ]

@@ -21,6 +21,7 @@ from app.core.isopleths import (
     interpolate,
     uncertainty_bands,
 )
+from tests.memory import traced_peak
 
 # very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
 CLEAN = np.array([30.0, 78.0, 180.0])
@@ -519,3 +520,39 @@ def test_a_calibration_without_clusters_grades_no_modes() -> None:
     g = airquality.grade(airquality.Calibration(()), [120.0, 130.0, 180.0])
     assert (g.level, g.statistic, g.p_value) == (None, None, None)
     assert g.reason == "the calibration has no clusters to grade modes by"
+
+
+class TestSkyFeatures:
+    """``sky_features`` against NumPy's own statistics of the same pixels."""
+
+    def image(self, h: int, w: int, seed: int = 3) -> np.ndarray:
+        rng = np.random.default_rng(seed)
+        return rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+    @pytest.mark.parametrize("band_pixels", [1 << 20, 1000, 1])
+    def test_the_darkest_channel_in_bands_is_numpys(
+        self, monkeypatch: pytest.MonkeyPatch, band_pixels: int
+    ) -> None:
+        """The median of each pixel's darkest channel (feature 7), the region taken a band of
+        rows at a time (one band, bands of two rows, of one row: all the same)."""
+        monkeypatch.setattr(airquality, "BAND_PIXELS", band_pixels)
+        sky = self.image(61, 480)
+        f = airquality.sky_features(sky)
+        assert f[7] == np.median(sky.min(axis=2))
+        np.testing.assert_allclose(f[3:6], sky.reshape(-1, 3).mean(axis=0), rtol=1e-12)
+
+    def test_a_large_region_takes_little_memory_beyond_itself(self) -> None:
+        """A 24 MP region (69 MiB): the darkest channel came from ``cv2.min`` of the channels'
+        views, which copied each whole first, 69 MiB more at once."""
+        peak, n = traced_peak(
+            """
+            import numpy as np
+            from app.core import airquality
+            sky = np.random.default_rng(0).integers(0, 256, (4000, 6000, 3), dtype=np.uint8)
+            """,
+            """
+            result = len(airquality.sky_features(sky))
+            """,
+        )
+        assert n == 11
+        assert peak < 8 * 2**20, peak / 2**20

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from app.core.shapes import match
+from tests.memory import traced_peak
 
 
 def rotation(seed: int) -> np.ndarray:
@@ -140,17 +141,20 @@ def test_a_cylinder_as_tall_as_its_points_are_wide(height: float) -> None:
 def test_many_points_take_little_memory() -> None:
     """5,000 rim points (the API takes up to 10,000): the principal axes came from a full SVD
     whose unused U alone is n × n, 200 MB here and 800 MB at 10,000 points."""
-    import tracemalloc
-
-    rng = np.random.default_rng(6)
-    a = rng.uniform(0, 2 * np.pi, 5000)
-    p = np.column_stack([50 * np.cos(a), 50 * np.sin(a), rng.choice([0.0, 100.0], 5000)])
-    tracemalloc.start()
-    try:
-        best = match(p + rng.normal(0, 0.2, p.shape))[0]
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 50e6
-    assert best.shape == "cylinder"
-    assert best.dimensions["radius"] == pytest.approx(50, abs=0.3)
+    peak, (shape, radius) = traced_peak(
+        """
+        import numpy as np
+        from app.core.shapes import match
+        rng = np.random.default_rng(6)
+        a = rng.uniform(0, 2 * np.pi, 5000)
+        p = np.column_stack([50 * np.cos(a), 50 * np.sin(a), rng.choice([0.0, 100.0], 5000)])
+        p += rng.normal(0, 0.2, p.shape)
+        """,
+        """
+        best = match(p)[0]
+        result = [best.shape, best.dimensions["radius"]]
+        """,
+    )
+    assert peak < 50e6  # ~10 MB
+    assert shape == "cylinder"
+    assert radius == pytest.approx(50, abs=0.3)
