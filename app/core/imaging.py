@@ -490,12 +490,11 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     """The outline of the part in a greyscale image: corners and sides, or contour and ellipses.
 
     Steps: a light part's image inverted (``params.part``) → stretch (4.1) → optional shadow
-    suppression (3.1 with 4.3) → Canny → the outer
-    contour of the part → Hough segments on the edges along that contour (inner edges between
-    a part's faces are not its outline) → fragments joined (3.2–3.3) → short sides dropped →
-    corners (§V.A). When the straight sides do not explain the contour (a cylinder's elliptic
-    arcs), the outline is ``curved``: the contour, the straight sides, and ellipses fitted to the
-    arcs.
+    suppression (3.1 with 4.3) → Canny → the outer contour of the part → Hough segments on the
+    edges along that contour (inner edges between a part's faces are not its outline) →
+    fragments joined (3.2–3.3) → short sides dropped → corners (§V.A). When the straight sides
+    do not explain the contour (a cylinder's elliptic arcs), the outline is ``curved``: the
+    contour, the straight sides, and ellipses fitted to the arcs.
     """
     _check_grey(grey)
     if min(grey.shape) < 8:

@@ -157,9 +157,10 @@ def _rig_released(session: Session, rig_id: str) -> Rig:
 LaserQuery = Annotated[
     laser.Colour,
     Query(
+        alias="laser",
         description="The laser's colour: red (the dissertation's), green (532 nm) or blue. "
         "The dot and the grid are told from the scene by that channel's excess over the "
-        "other two."
+        "other two.",
     ),
 ]
 
@@ -187,13 +188,13 @@ async def laser_dot(
     session: SessionDep,
     settings: SettingsDep,
     _: RobotOrAdmin,
-    laser: LaserQuery = "red",
+    colour: LaserQuery = "red",
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
     dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
     row, form = await _rig_and_form(rig_id, request, session, settings, "files")
     return await image_work(
-        request, partial(_dot, row, form.files_of("files"), settings.max_pixels, laser)
+        request, partial(_dot, row, form.files_of("files"), settings.max_pixels, colour)
     )
 
 
@@ -211,7 +212,7 @@ async def laser_grid_measure(
     session: SessionDep,
     settings: SettingsDep,
     _: RobotOrAdmin,
-    laser: LaserQuery = "red",
+    colour: LaserQuery = "red",
 ) -> LaserGridOut:
     """Measure a part under the laser grid: one grid image per camera (``files``, in camera
     order) → every node in 3-D, surface area, volume and the base plane. The dot gives the
@@ -232,7 +233,7 @@ async def laser_grid_measure(
             base_plane=form.fields.get("base_plane", []),
             max_pixels=settings.max_pixels,
             sizes=rigs.sizes_of(row),
-            colour=laser,
+            colour=colour,
         ),
     )
 
