@@ -38,7 +38,7 @@ import functools
 import json
 import logging
 import os
-from typing import Any
+from typing import Any, NamedTuple
 
 from prometheus_client import Counter
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
@@ -70,13 +70,20 @@ CLOSED = Counter(
 )
 
 
+class Deadlines(NamedTuple):
+    header: float
+    idle: float
+    grace: float
+    """[s], as ``HEADER_TIMEOUT_ENV``, ``IDLE_TIMEOUT_ENV`` and ``SHUTDOWN_GRACE_ENV`` say."""
+
+
 @functools.cache
-def deadlines() -> tuple[float, float, float]:
+def deadlines() -> Deadlines:
     """The header and idle timeouts and the shutdown grace [s], from the environment as the
     settings read theirs: uvicorn makes the protocol apart from the application. Read once;
     ``app.serve`` reads them before serving, so that a wrong value stops the start, not each
     connection."""
-    return (
+    return Deadlines(
         _seconds(HEADER_TIMEOUT_ENV, HEADER_TIMEOUT_S),
         _seconds(IDLE_TIMEOUT_ENV, IDLE_TIMEOUT_S),
         _seconds(SHUTDOWN_GRACE_ENV, SHUTDOWN_GRACE_S),

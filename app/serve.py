@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--port", type=int, default=8000)
     parser.add_argument("--workers", type=int, default=1)
     args, uvicorn_args = parser.parse_known_args(argv)
-    grace = protocol.deadlines()[2]  # a wrong value stops here, with its name
+    grace = protocol.deadlines().grace  # a wrong value stops here, with its name
     raise_file_limit()
     if args.workers > 1 and METRICS_DIR not in os.environ:
         # one directory per port: two servers on one host never share (nor empty) it

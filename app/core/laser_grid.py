@@ -52,6 +52,7 @@ from app.core.triangulation import (
     CrossRig,
     RigArrays,
     View,
+    lens_centres,
     project_views,
     triangulate_cross,
     triangulate_views,
@@ -86,7 +87,7 @@ class Geometry:
 
     @property
     def centres(self) -> NDArray[np.float64]:
-        return np.asarray(-np.einsum("vji,vj->vi", self.R, self.t), dtype=np.float64)
+        return lens_centres(self.R, self.t)
 
 
 @dataclass(frozen=True, slots=True)

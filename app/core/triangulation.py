@@ -276,14 +276,16 @@ class View:
     R: NDArray[np.float64]
     t: NDArray[np.float64]
 
-    @property
-    def centre(self) -> NDArray[np.float64]:
-        """The lens centre in the world frame, −Rᵀt (where x_cam = 0)."""
-        return np.asarray(-self.R.T @ self.t, dtype=np.float64)
+
+def lens_centres(rs: NDArray[np.float64], ts: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(V, 3) lens centres in the world frame, −Rᵀt (where x_cam = 0), of stacked (V, 3, 3)
+    rotations and (V, 3) translations."""
+    return np.asarray(-np.einsum("vji,vj->vi", rs, ts), dtype=np.float64)
 
 
 COINCIDENT = 1e-9
-"""Lens centres closer than this, relative to their distance from the world's origin, are one."""
+"""Lens centres closer than this are one: a fraction of their largest distance from the
+world's origin, or of one world unit when they all lie nearer than that."""
 
 
 AT_LENS = 1e-3
@@ -294,10 +296,10 @@ the rays pass closest, with a reprojection error of 10¹³ px; it is no more a p
 behind a camera."""
 
 
-def baseline(views: list[View]) -> float:
+def baseline(rig: RigArrays) -> float:
     """The largest distance between two lens centres. Zero (to ``COINCIDENT``) means that no
     point can be triangulated: every view's ray through a point starts at the same centre."""
-    c = np.array([v.centre for v in views])
+    c = lens_centres(rig.rs, rig.ts)
     spread = float(np.linalg.norm(c[:, None] - c[None], axis=2).max())
     return 0.0 if spread <= COINCIDENT * max(1.0, float(np.abs(c).max())) else spread
 
@@ -409,7 +411,7 @@ def triangulate_views(
     # 100,000 points in 80 ms instead of 41)
     depth = np.einsum("nk,vk->nv", points, rig.rs[:, 2, :]) + rig.ts[:, 2]
     found = np.isfinite(points).all(axis=1)  # not: rays that never meet (parallel)
-    nearest = AT_LENS * baseline(views)
+    nearest = AT_LENS * baseline(rig)
     with np.errstate(invalid="ignore"):
         behind = found & (use & ~(depth > nearest)).any(axis=1)
     lost = ~found | behind

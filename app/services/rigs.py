@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session
 from app.core import laser_grid
 from app.core.triangulation import (
     CrossRig,
+    RigArrays,
     View,
     baseline,
     triangulate_cross,
@@ -61,7 +62,7 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
         if np.linalg.det(np.array(c.K)) == 0:
             raise Unprocessable(f"camera {i}: K is singular")
     cameras = [c.model_dump() for c in body.cameras]
-    if baseline([_view(c) for c in cameras]) == 0:
+    if baseline(RigArrays.of([_view(c) for c in cameras])) == 0:
         raise Unprocessable(
             "every camera has the same lens centre (−Rᵀt): with no baseline between them no "
             "point can be triangulated; check each camera's t"

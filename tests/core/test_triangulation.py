@@ -9,6 +9,7 @@ import pytest
 from app.core.triangulation import (
     PAIRS,
     CrossRig,
+    RigArrays,
     View,
     baseline,
     project_views,
@@ -204,8 +205,12 @@ def test_baseline_is_the_largest_distance_between_lens_centres() -> None:
     a = View(k, d, i, np.array([0.5, 0, 2]))  # centre (−0.5, 0, −2)
     b = View(k, d, turned, np.array([-2, 0, 0.5]))  # centre (−0.5, 0, −2) too
     c = View(k, d, i, np.array([-2.5, 4, 2]))  # centre (2.5, −4, −2): 5 from the others
-    assert baseline([a, b]) == 0
-    assert baseline([a, b, c]) == pytest.approx(5.0, rel=1e-12)
+
+    def of(*views: View) -> float:
+        return baseline(RigArrays.of(list(views)))
+
+    assert of(a, b) == 0
+    assert of(a, b, c) == pytest.approx(5.0, rel=1e-12)
     # one part in 10¹² of a centre 2 m out is rounding, not a baseline
-    assert baseline([a, View(k, d, i, np.array([0.5, 0, 2 + 2e-12]))]) == 0
-    assert baseline([a, View(k, d, i, np.array([0.5, 0, 2 + 1e-6]))]) == pytest.approx(1e-6)
+    assert of(a, View(k, d, i, np.array([0.5, 0, 2 + 2e-12]))) == 0
+    assert of(a, View(k, d, i, np.array([0.5, 0, 2 + 1e-6]))) == pytest.approx(1e-6)
