@@ -52,6 +52,7 @@ from app.core.triangulation import (
     CrossRig,
     RigArrays,
     View,
+    behind,
     lens_centres,
     project_views,
     triangulate_cross,
@@ -1014,19 +1015,18 @@ def measure(
 
 
 def _in_front(r: NDArray[np.float64], t: NDArray[np.float64], tri: Triangulator) -> Triangulator:
-    """``tri``, with NaN for a point behind any camera that saw it: a laser spot lies in front
-    of the rig, so such a point is a wrong match (of noise, or of two different spots). The
-    triangulators already refuse a point behind a view they used; this also refuses one behind
-    a view the calibrated rig's RANSAC set aside, since a candidate match must hold in every
-    view that saw its spot."""
+    """``tri``, with NaN for a point behind any camera that saw it (or at its lens, by the
+    triangulators' one rule, ``triangulation.behind``): a laser spot lies in front of the rig,
+    so such a point is a wrong match (of noise, or of two different spots). The calibrated
+    rig's triangulator already refuses a point behind a view it used; this also refuses one
+    behind a view its RANSAC set aside, since a candidate match must hold in every view that
+    saw its spot."""
 
     def checked(obs: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         points, rms = tri(obs)
-        depth = np.einsum("vj,nj->nv", r[:, 2], points) + t[None, :, 2]  # (N, V)
-        seen = np.isfinite(obs).all(axis=-1)
-        with np.errstate(invalid="ignore"):
-            behind = (seen & ~(depth > 0)).any(axis=1) & np.isfinite(points).all(axis=1)
-        return np.where(behind[:, None], np.nan, points), np.where(behind, np.nan, rms)
+        seen = np.asarray(np.isfinite(obs).all(axis=2), dtype=np.bool_)
+        back = behind(points, r, t, seen)
+        return np.where(back[:, None], np.nan, points), np.where(back, np.nan, rms)
 
     return checked
 

@@ -189,6 +189,20 @@ def test_a_spot_behind_the_rig_is_no_point() -> None:
     np.testing.assert_allclose(dot.point, front[0], rtol=1e-9)
 
 
+def test_a_spot_at_the_lenses_is_no_point() -> None:
+    """The grid's triangulator keeps the triangulators' one rule (``triangulation.behind``):
+    a point nearer the lens plane than 1/1000 of the baseline would show a disparity of 1000 f
+    px, and is no more a spot than one behind the rig. Before, only depth > 0 was asked here,
+    and such a point came back; one at 1/50 of the baseline is still a point."""
+    geo = laser_grid.cross_geometry(RIG)
+    span = float(np.ptp(RIG.centres, axis=0).max())
+    near = np.array([[0.0, 0.0, 2e-4 * span], [0.0, 0.0, span / 50]])
+    points, rms = geo.triangulate(RIG.project(near))
+    assert np.isnan(points[0]).all()
+    assert np.isnan(rms[0])
+    np.testing.assert_allclose(points[1], near[1], rtol=1e-6, atol=1e-12)
+
+
 def test_calibrated_views_match_a_lattice() -> None:
     """Three calibrated, distorted cameras see a periodic lattice of points on a wavy surface:
     every point is matched to itself across the views."""
