@@ -109,8 +109,45 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
         return None  # the 3xx then raises HTTPError
 
 
+def _connect(
+    address: tuple[str, int], timeout: float | None = None, source: Any = None
+) -> socket.socket:
+    """``socket.create_connection``, its name lookup bounded by ``TIMEOUT_S`` too. The lookup
+    runs in a thread of its own and is left behind when it does not answer in time (its
+    answer then goes nowhere: nothing is sent). Before, it was bounded only by the resolver:
+    with a name server that does not answer, glibc's 5 s × 2 attempts for each of up to 3
+    servers held the sweep 30 s an alert, beyond the POST's deadline, which starts at the
+    socket."""
+    host, port = address
+    answer: list[list[tuple[Any, ...]] | OSError] = []
+    answered = threading.Event()
+
+    def lookup() -> None:
+        try:
+            answer.append(socket.getaddrinfo(host, port, type=socket.SOCK_STREAM))
+        except OSError as exc:
+            answer.append(exc)
+        finally:
+            answered.set()
+
+    threading.Thread(target=lookup, name="webhook-lookup", daemon=True).start()
+    if not answered.wait(TIMEOUT_S):
+        raise TimeoutError(f"no address for {host!r} within {TIMEOUT_S:g} s")
+    found = answer[0]
+    if isinstance(found, OSError):
+        raise found
+    failed: OSError = OSError(f"no address for {host!r}")
+    for *_, sockaddr in found:  # in the resolver's order, as create_connection tries them
+        try:
+            return socket.create_connection((sockaddr[0], sockaddr[1]), timeout, source)
+        except OSError as exc:
+            failed = exc
+    raise failed
+
+
 class _Kept:
-    """Keeps the connections its handler opens (in ``made``), so that they can be cut."""
+    """Keeps the connections its handler opens (in ``made``), so that they can be cut, and
+    bounds their name lookup (``_connect``)."""
 
     def __init__(self, made: list[http.client.HTTPConnection]) -> None:
         super().__init__()
@@ -119,6 +156,7 @@ class _Kept:
     def do_open(self, http_class: Any, req: urllib.request.Request, **kwargs: Any) -> Any:
         def connection(*args: Any, **kw: Any) -> http.client.HTTPConnection:
             made: http.client.HTTPConnection = http_class(*args, **kw)
+            made._create_connection = _connect  # type: ignore[attr-defined]
             self.made.append(made)
             return made
 

@@ -8,6 +8,7 @@ import contextlib
 import json
 import socket
 import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -458,3 +459,43 @@ def test_an_alert_posted_late_in_a_long_sweep_is_not_due_for_another_process(
     monkeypatch.setattr(webhooks, "_post", post)
     assert webhooks.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
     assert due_elsewhere == [False, False, False]
+
+
+def test_a_name_server_that_does_not_answer_fails_the_post_in_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The receiver's name is looked up within TIMEOUT_S (0.5 s here) too. Before, the lookup
+    was bounded by the resolver alone (30 s with glibc's defaults and three silent name
+    servers), beyond the POST's deadline, and held the sweep as long. Here the lookup of
+    ``hooks.example`` never answers until the test ends; the POST fails within seconds, and
+    nothing is sent when the answer comes after all."""
+    monkeypatch.setattr(webhooks, "TIMEOUT_S", 0.5)
+    real = socket.getaddrinfo
+    released = threading.Event()
+    receiver_class, got = recorder()
+
+    def silent(host: Any, *args: Any, **kwargs: Any) -> Any:
+        if host == "hooks.example":
+            released.wait(30)
+            return real("127.0.0.1", *args, **kwargs)
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", silent)
+    with served(receiver_class) as base:
+        port = base.rsplit(":", 1)[1]
+        with ThreadPoolExecutor(1) as pool:
+            url = f"http://hooks.example:{port}/h"
+            posting = pool.submit(webhooks.send_test, url, T0, key=None)
+            try:
+                _, error = posting.result(timeout=10)
+            finally:
+                released.set()
+        assert error is not None
+        assert "no address for 'hooks.example' within 0.5 s" in error
+        time.sleep(0.2)  # the lookup answered: still nothing is sent
+        assert got == []
+        # a name that does answer is posted to, trying its addresses in the resolver's order
+        # (localhost may come as ::1 first, where nothing listens)
+        _, error = webhooks.send_test(f"http://localhost:{port}/h", T0, key=None)
+        assert error is None
+        assert len(got) == 1
