@@ -21,7 +21,8 @@ from schemathesis.specs.openapi.checks import (
 
 from tests.conftest import ADMIN_TOKEN
 
-MAX_EXAMPLES = 40
+MAX_EXAMPLES = int(os.environ.get("VANTAGE_FUZZ_EXAMPLES", "40"))
+"""Examples per operation; more with VANTAGE_FUZZ_EXAMPLES for a longer search."""
 DERANDOMIZE = os.environ.get("VANTAGE_FUZZ_RANDOM") is None
 """Deterministic examples in CI; set VANTAGE_FUZZ_RANDOM to explore new ones."""
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
