@@ -205,6 +205,32 @@ class TestIsopleths:
                 inside += 1
         assert inside > 30
 
+    @pytest.mark.parametrize("level", [2.5, 4.5, 6.5, 8.5, 1.0, 10.0])
+    def test_a_level_on_a_category_edge_is_drawn_in_its_own_category(self, level: float) -> None:
+        """Halves go up (``airquality.rounded``): a camera whose smoothed level is 4.5 reads
+        Fair, and the PNG and ``band_at`` paint it Fair. The GeoJSON's one band was Poor
+        (contourpy fills lower < z <= upper), so the same camera was Fair on its own page and
+        Poor on the dashboards' map."""
+        lon, lat = np.array([9.19]), np.array([45.46])
+        f = interpolate(lon, lat, np.array([level]), bbox=default_bbox(lon, lat))
+        assert [ft["properties"]["category"] for ft in bands(f)] == [airquality.category(level)]
+        assert band_at(f, lon, lat) == [airquality.category(level)]
+
+    @pytest.mark.parametrize("method", ["idw", "kriging", "rbf"])
+    def test_cameras_reading_alike_on_an_edge_are_one_band(self, method: str) -> None:
+        """Three cameras all at 8.5: kriging interpolated 8.5 ± 2e-15, and the noise made a
+        Good band of one polygon and a Very Good one of 209 that overlapped it by 0.4 % of
+        its area. The map is one Very Good polygon, as every camera reads."""
+        lon = np.array([9.18, 9.20, 9.19])
+        lat = np.array([45.46, 45.465, 45.48])
+        f = interpolate(
+            lon, lat, np.full(3, 8.5), bbox=default_bbox(lon, lat),
+            method=method, resolution=64, max_distance=50_000,  # type: ignore[arg-type]
+        )  # fmt: skip
+        features = bands(f)
+        assert [ft["properties"]["category"] for ft in features] == ["Very Good"]
+        assert features[0]["geometry"]["type"] == "Polygon"
+
     def test_no_vertex_lies_on_a_straight_line(self, monkeypatch: pytest.MonkeyPatch) -> None:
         """Every vertex of a band is a corner: one camera's map, a single band over the whole
         grid, is the grid's rectangle in 5 points (contourpy gave 509, a point per cell along
