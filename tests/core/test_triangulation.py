@@ -112,8 +112,37 @@ class TestCalibratedRig:
         views = calibrated_views()
         p = points(2000) + [0, 0, 1.0]
         r = triangulate_views(views, project_views(views, p))
-        np.testing.assert_allclose(r.points, p, rtol=1e-7)  # undistortion is iterative
-        assert np.nanmax(r.reprojection_rms) < 1e-3
+        np.testing.assert_allclose(r.points, p, rtol=1e-11)
+        assert np.nanmax(r.reprojection_rms) < 1e-8
+
+    def test_noise_free_to_the_corners_of_a_wide_lens(self) -> None:
+        """OpenCV's stereo sample (the intrinsics and distortion of its two cameras as the
+        data README gives them: k1 −0.27 and −0.28; baseline 3.345 squares along x), seeing
+        points out to the image corners. OpenCV's undistortion is five fixed-point steps,
+        0.15 px off in the right camera's corners; refined against it, points 40 squares away
+        came back up to 0.12 squares (3e-3 of their depth) off, with a reprojection RMS of
+        0.05 px. Refined on the pixels themselves, they are exact."""
+        left = View(
+            np.array([[536.07, 0, 342.37], [0, 536.02, 235.54], [0, 0, 1]]),
+            np.array([-0.2651, -0.0467, 0.0018, -0.0003, 0.2523]), np.eye(3), np.zeros(3),
+        )  # fmt: skip
+        r = cv2.Rodrigues(np.radians([0.0, 0.31, 0.0]))[0]
+        right = View(
+            np.array([[542.35, 0, 328.32], [0, 541.62, 246.95], [0, 0, 1]]),
+            np.array([-0.2805, 0.1043, -0.0006, 0.0013, -0.0237]), r,
+            np.array([-3.344, 0.042, 0.053]),
+        )  # fmt: skip
+        u, v = np.meshgrid(np.linspace(5, 635, 15), np.linspace(5, 475, 11))
+        depth = 40.0  # squares: both cameras see the grid
+        rays = np.column_stack([(u.ravel() - 342.37) / 536.07, (v.ravel() - 235.54) / 536.02])
+        p = np.column_stack([rays * depth, np.full(len(rays), depth)])
+        views = [left, right]
+        obs = project_views(views, p)
+        inside = ((obs >= 0) & (obs <= [640, 480])).all(axis=(1, 2))
+        assert inside.sum() > 100
+        res = triangulate_views(views, obs[inside])
+        np.testing.assert_allclose(res.points, p[inside], rtol=1e-9)
+        assert np.nanmax(res.reprojection_rms) < 1e-6
 
     def test_missing_views_and_an_outlier_view(self) -> None:
         rng = np.random.default_rng(3)
