@@ -405,10 +405,11 @@ def triangulate_views(
 ) -> RigResult:
     """Points from pixel observations (N, V, 2) of V ≥ 2 calibrated cameras; NaN for a missing
     view. Undistort (OpenCV), then per point: linear triangulation and Gauss–Newton on the
-    reprojection error in pixels, through the distortion model; a point seen by ≥ 3 views with a view off by more than ``outlier_px``
-    goes to RANSAC over all view pairs: the pair whose point agrees with most other views picks
-    the inliers, and the point is re-solved from them. The per-point work is one compiled loop
-    (numba); large batches are split over the cores (OpenCV and the loop release the GIL)."""
+    reprojection error in pixels, through the distortion model; a point seen by ≥ 3 views
+    with a view off by more than ``outlier_px`` goes to RANSAC over all view pairs: the pair
+    whose point agrees with most other views picks the inliers, and the point is re-solved
+    from them. The per-point work is one compiled loop (numba); large batches are split over
+    the cores (OpenCV and the loop release the GIL)."""
     obs = np.asarray(obs, dtype=np.float64)
     n, v = obs.shape[0], len(views)
     if obs.ndim != 3 or obs.shape[1:] != (v, 2):
