@@ -114,10 +114,10 @@ def _connect(
 ) -> socket.socket:
     """``socket.create_connection``, its name lookup bounded by ``TIMEOUT_S`` too. The lookup
     runs in a thread of its own and is left behind when it does not answer in time (its
-    answer then goes nowhere: nothing is sent). Before, it was bounded only by the resolver:
-    with a name server that does not answer, glibc's 5 s × 2 attempts for each of up to 3
-    servers held the sweep 30 s an alert, beyond the POST's deadline, which starts at the
-    socket."""
+    answer then goes nowhere: nothing is sent). Before, it was bounded only by the resolver,
+    beyond the POST's deadline, which starts at the socket: by glibc's documented defaults
+    (``timeout:5``, ``attempts:2``, up to 3 name servers), up to 30 s an alert held the
+    sweep when no name server answers."""
     host, port = address
     answer: list[list[tuple[Any, ...]] | OSError] = []
     answered = threading.Event()

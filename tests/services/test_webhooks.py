@@ -465,8 +465,8 @@ def test_a_name_server_that_does_not_answer_fails_the_post_in_time(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The receiver's name is looked up within TIMEOUT_S (0.5 s here) too. Before, the lookup
-    was bounded by the resolver alone (30 s with glibc's defaults and three silent name
-    servers), beyond the POST's deadline, and held the sweep as long. Here the lookup of
+    was bounded by the resolver alone (by glibc's documented defaults, up to 30 s with three
+    silent name servers), beyond the POST's deadline, and held the sweep as long. Here the lookup of
     ``hooks.example`` never answers until the test ends; the POST fails within seconds, and
     nothing is sent when the answer comes after all."""
     monkeypatch.setattr(webhooks, "TIMEOUT_S", 0.5)
