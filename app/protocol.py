@@ -71,10 +71,11 @@ CLOSED = Counter(
 
 
 class Deadlines(NamedTuple):
+    """[s], as ``HEADER_TIMEOUT_ENV``, ``IDLE_TIMEOUT_ENV`` and ``SHUTDOWN_GRACE_ENV`` say."""
+
     header: float
     idle: float
     grace: float
-    """[s], as ``HEADER_TIMEOUT_ENV``, ``IDLE_TIMEOUT_ENV`` and ``SHUTDOWN_GRACE_ENV`` say."""
 
 
 @functools.cache

@@ -296,13 +296,10 @@ the rays pass closest, with a reprojection error of 10¹³ px; it is no more a p
 behind a camera."""
 
 
-def baseline(rig: RigArrays) -> float:
-    """The largest distance between two lens centres. Zero (to ``COINCIDENT``) means that no
-    point can be triangulated: every view's ray through a point starts at the same centre."""
-    return _spread(rig.rs, rig.ts)
-
-
-def _spread(rs: NDArray[np.float64], ts: NDArray[np.float64]) -> float:
+def baseline(rs: NDArray[np.float64], ts: NDArray[np.float64]) -> float:
+    """The largest distance between two lens centres of stacked rotations and translations
+    (``RigArrays.rs``, ``.ts``). Zero (to ``COINCIDENT``) means that no point can be
+    triangulated: every view's ray through a point starts at the same centre."""
     c = lens_centres(rs, ts)
     spread = float(np.linalg.norm(c[:, None] - c[None], axis=2).max())
     return 0.0 if spread <= COINCIDENT * max(1.0, float(np.abs(c).max())) else spread
@@ -321,7 +318,7 @@ def behind(
     # for a while after it and take the cores from the next call's compiled loop (the bench:
     # 100,000 points in 80 ms instead of 41)
     depth = np.einsum("nk,vk->nv", points, rs[:, 2, :]) + ts[:, 2]
-    nearest = AT_LENS * _spread(rs, ts)
+    nearest = AT_LENS * baseline(rs, ts)
     found = np.isfinite(points).all(axis=1)
     with np.errstate(invalid="ignore"):
         return np.asarray(found & (seen & ~(depth > nearest)).any(axis=1), dtype=np.bool_)

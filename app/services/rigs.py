@@ -62,7 +62,8 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
         if np.linalg.det(np.array(c.K)) == 0:
             raise Unprocessable(f"camera {i}: K is singular")
     cameras = [c.model_dump() for c in body.cameras]
-    if baseline(RigArrays.of([_view(c) for c in cameras])) == 0:
+    rig = RigArrays.of([_view(c) for c in cameras])
+    if baseline(rig.rs, rig.ts) == 0:
         raise Unprocessable(
             "every camera has the same lens centre (−Rᵀt): with no baseline between them no "
             "point can be triangulated; check each camera's t"

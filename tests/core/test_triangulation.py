@@ -236,7 +236,8 @@ def test_baseline_is_the_largest_distance_between_lens_centres() -> None:
     c = View(k, d, i, np.array([-2.5, 4, 2]))  # centre (2.5, −4, −2): 5 from the others
 
     def of(*views: View) -> float:
-        return baseline(RigArrays.of(list(views)))
+        rig = RigArrays.of(list(views))
+        return baseline(rig.rs, rig.ts)
 
     assert of(a, b) == 0
     assert of(a, b, c) == pytest.approx(5.0, rel=1e-12)
