@@ -39,6 +39,7 @@ from app.deps import (
     image_work,
     link_next,
 )
+from app.direct_route import DirectRoute
 from app.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.routers.responses import (
@@ -139,21 +140,6 @@ def _form_captured_at(
     return _captured_at(value, now, settings)
 
 
-# the frame upload is the first route of its router, and the router the app's first: routes are
-# matched in order, and each one passed costs the upload a few µs (bench/README.md)
-@router.post(
-    FRAMES_PATH,
-    status_code=201,
-    response_model=FrameOut,
-    responses={
-        **AUTH_ERRORS,
-        **NOT_FOUND,
-        **CAMERA_RETIRED,
-        **UPLOAD_ERRORS,
-        **UPLOAD_UNAVAILABLE,
-    },
-    openapi_extra=_JPEG_BODY,
-)
 async def post_frame(
     request: Request,
     target: UploadTargetDep,
@@ -230,6 +216,27 @@ async def post_frame(
     body = frame_out(done.frame, done.verdict).model_dump_json()
     headers = {"Idempotent-Replay": "true"} if done.replay else None
     return Response(body, status_code=201, media_type="application/json", headers=headers)
+
+
+# the frame upload is the first route of its router, and the router the app's first: routes are
+# matched in order, and each one passed costs the upload a few µs (bench/README.md). Its
+# parameters are read from a plan made once (``DirectRoute``), not solved again per frame.
+router.add_api_route(
+    FRAMES_PATH,
+    post_frame,
+    methods=["POST"],
+    status_code=201,
+    response_model=FrameOut,
+    responses={
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+        **CAMERA_RETIRED,
+        **UPLOAD_ERRORS,
+        **UPLOAD_UNAVAILABLE,
+    },
+    openapi_extra=_JPEG_BODY,
+    route_class_override=DirectRoute,
+)
 
 
 def _out(camera: Camera, last_captured_at: datetime | None) -> CameraOut:
