@@ -84,6 +84,27 @@ def add_pool_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def cpu_set(text: str) -> set[int]:
+    """``0`` or ``0,1`` or ``0-3``: a set of CPU numbers."""
+    cpus: set[int] = set()
+    for part in text.split(","):
+        first, _, last = part.partition("-")
+        cpus.update(range(int(first), int(last or first) + 1))
+    return cpus
+
+
+def add_cpu_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--server-cpus`` and ``--client-cpus``: keep the load generator off the server's cores
+    (as a camera fleet is), so that the clients' own CPU (~0.2–0.3 ms a frame of Python HTTP)
+    and their scheduling do not land on the process measured."""
+    parser.add_argument(
+        "--server-cpus", type=cpu_set, help="CPUs the server may run on (e.g. 0); default: all"
+    )
+    parser.add_argument(
+        "--client-cpus", type=cpu_set, help="CPUs the client threads run on (e.g. 1); default: all"
+    )
+
+
 def pool_env(args: argparse.Namespace) -> dict[str, str]:
     """The server's environment for ``add_pool_arguments``' options (the bare endpoint's is
     ``bench.ingest_app.BARE_THREADS_ENV``)."""
@@ -105,6 +126,7 @@ class Server:
         rate_limit: bool = False,
         env: dict[str, str] | None = None,
         http: str = HTTP,
+        cpus: set[int] | None = None,
     ) -> None:
         env = {
             **os.environ,
@@ -146,6 +168,7 @@ class Server:
             ],
             cwd=ROOT,
             env=env,
+            preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus),
         )
         self.port = port
         for _ in range(100):
@@ -250,7 +273,15 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
     # by an order of magnitude between the two on some machines
     args.data_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.data_root, prefix="bench-") as tmp:
-        server = Server(backend, port, Path(tmp), args.workers, env=pool_env(args), http=args.http)
+        server = Server(
+            backend,
+            port,
+            Path(tmp),
+            args.workers,
+            env=pool_env(args),
+            http=args.http,
+            cpus=args.server_cpus,
+        )
         try:
             cam = server.rig_camera("bench")
             # warm-up
@@ -273,6 +304,8 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
             result: dict[str, object] = {
                 "backend": backend,
                 "workers": args.workers,
+                "server_cpus": sorted(args.server_cpus) if args.server_cpus else None,
+                "client_cpus": sorted(args.client_cpus) if args.client_cpus else None,
                 "ingest_threads": args.ingest_threads,
                 "bare_threads": args.bare_threads,
             }
@@ -312,8 +345,11 @@ def main() -> None:
         "--http", default=HTTP, help="uvicorn's protocol (auto: its own, without deadlines)"
     )
     add_pool_arguments(parser)
+    add_cpu_arguments(parser)
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")
     args = parser.parse_args()
+    if args.client_cpus:
+        os.sched_setaffinity(0, args.client_cpus)
     for backend in args.backends.split(","):
         if backend == "postgresql" and not pg_reachable():
             print("postgresql: not reachable, skipped")
