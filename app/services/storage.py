@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Generator, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -116,6 +116,9 @@ PACK_HEADER = struct.Struct(">4s32sQ")
 """Before each frame in a pack: magic, the frame's SHA-256 (raw), its length in bytes."""
 PACK_MAX_BYTES = 256 * 1024 * 1024
 """A process starts a new pack once its current one holds this much."""
+RECENT_FRAMES = 1024
+"""Frames a pack remembers by SHA-256 (``_Pack.recent``): a camera's retry comes seconds after
+the original, and 1,024 entries hold ~100 kB."""
 PACK_BUCKET = "%Y-%m-%dT%H"
 """Packs are grouped by the hour (UTC) their frames were received in: ``packs/<hour>/``."""
 _LOCATOR = re.compile(r"(packs/[0-9T-]+/[0-9a-z-]+\.pack)@(\d+)\+(\d+)")
@@ -158,6 +161,9 @@ class _Pack:
     size: int = 0
     writers: int = 0
     retired: bool = False
+    recent: dict[str, int] = field(default_factory=dict)
+    """Where the frames written whole into this pack lately begin, by SHA-256, at most
+    ``RECENT_FRAMES``: the same bytes put again point there instead of being written twice."""
 
 
 class DiskFrameStore:
@@ -226,13 +232,24 @@ class DiskFrameStore:
     def put(self, data: bytes, sha256: str, received_at: datetime) -> str:
         """Append the frame to this process's pack for its hour; return its locator.
 
+        The same bytes put again while this process writes the same pack (a camera's retry of
+        a frame it got no answer for, a frame measured again) get the locator of the copy
+        already there: a retried 550 kB frame was stored twice, and stayed so for the whole
+        retention. Only in the pack open for the same hour: that pack is locked (no sweep
+        deletes it) and expires with every frame that points into it.
+
         With ``fsync`` (off by default) the pack's data is flushed before returning: power-loss
         safety, not only a process crash's.
         """
+        bucket = bucket_of(received_at)
+        with self._lock:
+            pack = self._pack
+            if pack is not None and pack.bucket == bucket and sha256 in pack.recent:
+                return locator_in(pack.relative, pack.recent[sha256], len(data))
         record = PACK_HEADER.pack(PACK_MAGIC, bytes.fromhex(sha256), len(data)) + data
         try:
             self._make_room(len(record))
-            pack, offset = self._reserve(bucket_of(received_at), len(record))
+            pack, offset = self._reserve(bucket, len(record))
         except OSError as exc:
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
         try:
@@ -244,9 +261,12 @@ class DiskFrameStore:
             if self.fsync:
                 os.fdatasync(pack.fd)
         except OSError as exc:  # full, read-only, gone: the client should retry later
-            raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
-        finally:
             self._release(pack)
+            raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
+        except BaseException:
+            self._release(pack)
+            raise
+        self._release(pack, written=(sha256, offset + PACK_HEADER.size))
         return locator_in(pack.relative, offset + PACK_HEADER.size, len(data))
 
     def _reserve(self, bucket: str, size: int) -> tuple[_Pack, int]:
@@ -286,9 +306,15 @@ class DiskFrameStore:
         if pack.writers == 0:
             os.close(pack.fd)
 
-    def _release(self, pack: _Pack) -> None:
+    def _release(self, pack: _Pack, written: tuple[str, int] | None = None) -> None:
+        """A write into ``pack`` is over; ``written``: the SHA-256 of the frame it wrote whole
+        and where the frame begins."""
         with self._lock:
             pack.writers -= 1
+            if written is not None and not pack.retired:
+                if len(pack.recent) >= RECENT_FRAMES:
+                    del pack.recent[next(iter(pack.recent))]  # the oldest
+                pack.recent[written[0]] = written[1]
             if pack.retired and pack.writers == 0:
                 os.close(pack.fd)
 

@@ -612,6 +612,22 @@ class TestIdempotency:
         assert r3.json()["frame_id"] != r1.json()["frame_id"]
         assert table_counts(engine)["frames"] == 2
 
+    def test_a_retry_stores_no_second_copy_of_the_bytes(
+        self, client: TestClient, camera: dict[str, Any], app: Any, admin: dict[str, str]
+    ) -> None:
+        """A retried 550 kB frame was written into the pack again and kept for the whole
+        retention; the replay now points at the copy already there."""
+        store = app.state.frame_store
+        body = make_jpeg(seed=4, noise=5)
+        headers = {**cam_headers(camera), "Idempotency-Key": "once"}
+        first = client.post("/cameras/cam-1/frames", content=body, headers=headers)
+        again = client.post("/cameras/cam-1/frames", content=body, headers=headers)
+        assert again.headers["idempotent-replay"] == "true"
+        (pack,) = store.packs()
+        assert (store.root / pack).stat().st_size == PACK_HEADER.size + len(body)
+        image = client.get(f"/frames/{first.json()['frame_id']}/image", headers=admin)
+        assert image.content == body
+
     def test_concurrent_retries_store_one_frame(
         self, client: TestClient, camera: dict[str, Any], engine: Engine
     ) -> None:

@@ -249,3 +249,65 @@ def test_a_bucket_that_never_answers_fails_in_bounded_time(
         silent.close()
         for c in held:
             c.close()
+
+
+def test_the_same_bytes_put_again_in_the_same_pack_are_stored_once(tmp_path: Path) -> None:
+    """A camera's retry of a frame (or a frame measured again) points at the copy already in
+    this process's pack for the hour: the pack holds it once."""
+    store = DiskFrameStore(tmp_path)
+    a, b = frames(2)
+    first = store.put(a, digest(a), T0)
+    other = store.put(b, digest(b), T0)
+    again = store.put(a, digest(a), T0 - timedelta(minutes=5))  # the same hour
+    assert again == first != other
+    assert store.read(again) == a
+    (pack,) = store.packs()
+    assert (tmp_path / pack).stat().st_size == 2 * PACK_HEADER.size + len(a) + len(b)
+
+
+def test_the_same_bytes_in_another_hour_or_pack_are_written_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Only the open pack of the frame's own hour is pointed into: a pack expires with its
+    hour, and a retired one is no longer locked against the sweep."""
+    store = DiskFrameStore(tmp_path)
+    (a,) = frames(1)
+    in_8 = store.put(a, digest(a), T0)
+    in_9 = store.put(a, digest(a), T0 + timedelta(seconds=1))
+    assert pack_of(in_8) != pack_of(in_9)
+    store.close()  # a new pack next
+    after = store.put(a, digest(a), T0 + timedelta(seconds=2))
+    assert pack_of(after) not in {pack_of(in_8), pack_of(in_9)}
+    assert [store.read(x) for x in (in_8, in_9, after)] == [a, a, a]
+    # a pack remembers its last RECENT_FRAMES frames only
+    monkeypatch.setattr(storage, "RECENT_FRAMES", 2)
+    b, c, d = frames(3, seed=2)
+    t = T0 + timedelta(seconds=3)
+    first_b = store.put(b, digest(b), t)
+    store.put(c, digest(c), t)
+    first_d = store.put(d, digest(d), t)  # b is forgotten
+    assert store.put(d, digest(d), t) == first_d
+    again_b = store.put(b, digest(b), t)
+    assert again_b != first_b  # written again
+    assert store.read(first_b) == store.read(again_b) == b
+
+
+def test_a_failed_write_is_not_pointed_at(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    store = DiskFrameStore(tmp_path)
+    (a,) = frames(1)
+    real = os.pwrite
+    calls = 0
+
+    def failing(fd: int, data: object, offset: int) -> int:
+        nonlocal calls
+        calls += 1
+        if calls == 1:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd, data, offset)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "pwrite", failing)
+    with pytest.raises(StoreUnavailable):
+        store.put(a, digest(a), T0)
+    locator = store.put(a, digest(a), T0)  # written, not pointed at the failed write's place
+    assert store.read(locator) == a
+    assert calls == 2
