@@ -288,12 +288,14 @@ def test_a_disk_down_to_the_space_kept_for_the_database_refuses_frames(
     assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
     assert client.get("/health").json()["frame_store"] == "ok"
 
-    free[0] = store.keep_free_bytes + len(body)  # a frame's header more would cross it
+    # a new frame: the same bytes again would take no space, pointing at the copy stored
+    other = panel_jpeg(CLEAN_RGB, seed=6)
+    free[0] = store.keep_free_bytes + len(other)  # a frame's header more would cross it
     before = table_counts(engine)
     packs = sorted((app.state.settings.data_dir / "packs").rglob("*.pack"))
     assert packs  # the first frame's
     sizes = [p.stat().st_size for p in packs]
-    r = client.post("/cameras/c/frames", content=body, headers=headers)
+    r = client.post("/cameras/c/frames", content=other, headers=headers)
     assert r.status_code == 503, r.text
     assert r.headers["content-type"] == "application/problem+json"
     assert r.headers["retry-after"] == "60"
@@ -313,7 +315,7 @@ def test_a_disk_down_to_the_space_kept_for_the_database_refuses_frames(
 
     free[0] = store.keep_free_bytes + store.largest_frame_bytes + 1  # retention freed some
     assert client.get("/health").status_code == 200
-    assert client.post("/cameras/c/frames", content=body, headers=headers).status_code == 201
+    assert client.post("/cameras/c/frames", content=other, headers=headers).status_code == 201
 
 
 def test_a_database_whose_disk_is_full_says_so(settings: Settings, tmp_path: Path) -> None:
