@@ -34,6 +34,12 @@ log = logging.getLogger("vantage.writer")
 
 T = TypeVar("T")
 
+GATHER_S = 0.002
+"""How long a batch waits for the jobs of preparations still under way [s]. A batch costs the
+writer ~350 µs whatever its size and ~80 µs more a frame (SQLite, bench/writer_batches.py):
+under load, where frames reach the writer every few ms, a batch of 2–3 paid the fixed part
+once per 2–3 frames. Never waited for when no preparation is under way (a lone upload)."""
+
 PREPARERS = 32
 """Frames decoding and storing at once, per process, unless told (``submit_after``; the wait for
 the commit takes no thread). The service sets it from ``Settings.effective_ingest_threads``."""
@@ -148,6 +154,7 @@ class GroupCommitWriter:
         sessions: sessionmaker[Session],
         *,
         max_batch: int = 64,
+        gather_s: float = GATHER_S,
         preparers: int = PREPARERS,
         check: Check | None = None,
     ) -> None:
@@ -161,6 +168,11 @@ class GroupCommitWriter:
         401), and a camera moved to another panel would go on judging the old one (those jobs
         get ``CameraChanged``, and are measured again)."""
         self._max_batch = max_batch
+        self._gather_s = gather_s
+        self._preparing = 0
+        """Preparations submitted and not yet over (queued for a preparing thread or running):
+        their jobs are on their way to the writer."""
+        self._preparing_lock = threading.Lock()
         self._preparers = preparers
         self._pool: _Preparers | None = None
         """Threads that run ``submit_after``'s preparation (decoding, the file write)."""
@@ -263,19 +275,28 @@ class GroupCommitWriter:
             try:
                 preparation = waiting.pop()
             except IndexError:  # the request has its answer already
+                self._prepared()
                 return
             try:
                 job = preparation()
             except Exception as exc:
+                self._prepared()
                 outcome: Outcome = (None, exc)
                 with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
                     loop.call_soon_threadsafe(_settle, future, outcome)
                 return
+            self._prepared()  # before the job is queued: a batch taking it waits for no one
             if not future.done():  # a read only: the loop alone settles or cancels it
                 self._queue.put(_Job(job, future, loop, credential))
 
+        with self._preparing_lock:
+            self._preparing += 1
         pool.submit(work)
         return future
+
+    def _prepared(self) -> None:
+        with self._preparing_lock:
+            self._preparing -= 1
 
     def _take_batch(self) -> list[_Job] | None:
         """The next jobs, at most ``max_batch``, leaving out those whose request gave up
@@ -287,11 +308,19 @@ class GroupCommitWriter:
             if first is None:
                 return None
             batch = [first] if not first.future.cancelled() else []
+            until = time.monotonic() + self._gather_s
             while len(batch) < self._max_batch:
                 try:
                     job = self._queue.get_nowait()
                 except queue.Empty:
-                    break
+                    # the jobs of preparations under way, for a moment (``GATHER_S``)
+                    wait = until - time.monotonic()
+                    if not batch or self._preparing <= 0 or wait <= 0:
+                        break
+                    try:
+                        job = self._queue.get(timeout=wait)
+                    except queue.Empty:
+                        break
                 if job is None:
                     self._queue.put(None)  # stop after this batch
                     break

@@ -357,6 +357,73 @@ def test_jobs_prepared_in_the_writers_threads_are_committed_and_answered(
         assert s.scalar(select(func.count()).select_from(Frame)) == 60
 
 
+def _batch_sizes(writer: GroupCommitWriter, monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    sizes: list[int] = []
+    write = writer._write
+
+    def counting(batch: list[_Job], **kw: Any) -> Any:
+        sizes.append(len(batch))
+        return write(batch, **kw)
+
+    monkeypatch.setattr(writer, "_write", counting)
+    return sizes
+
+
+@pytest.mark.parametrize("gather_s", [0.0, 60.0])
+def test_a_batch_waits_for_the_jobs_of_preparations_under_way(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch, gather_s: float
+) -> None:
+    """A frame whose job reaches the writer while another's preparation is still running is
+    committed with it, in one batch (``GATHER_S``), not in a batch of its own; a batch stops
+    waiting as soon as no preparation is under way (the 60 s are never waited out: the test
+    would time out)."""
+    writer = GroupCommitWriter(sessions, preparers=2, gather_s=gather_s)
+    sizes = _batch_sizes(writer, monkeypatch)
+    first_queued = threading.Event()
+
+    def first() -> Any:
+        return _storing(1)
+
+    def second() -> Any:
+        first_queued.wait(10)
+        time.sleep(0.05)  # the first job is with the writer by now
+        return _storing(2)
+
+    async def post() -> list[str]:
+        a = writer.submit_after(first)
+        b = writer.submit_after(second)
+        loop = asyncio.get_running_loop()
+        loop.call_later(0.02, first_queued.set)
+        return list(await asyncio.wait_for(asyncio.gather(a, b), 30))
+
+    try:
+        done = asyncio.run(post())
+    finally:
+        writer.stop()
+    assert done == ["f0001", "f0002"]
+    assert sizes == ([2] if gather_s else [1, 1])
+
+
+def test_a_lone_frame_is_not_held_for_others(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With no other preparation under way, a batch waits for nothing: a lone camera's frame
+    is not held back by ``GATHER_S`` (here 60 s, which the 30 s bound would catch)."""
+    writer = GroupCommitWriter(sessions, preparers=2, gather_s=60.0)
+    sizes = _batch_sizes(writer, monkeypatch)
+
+    async def post(n: int) -> str:
+        result: str = await asyncio.wait_for(writer.submit_after(lambda: _storing(n)), 30)
+        return result
+
+    try:
+        assert asyncio.run(post(1)) == "f0001"
+        assert asyncio.run(post(2)) == "f0002"
+    finally:
+        writer.stop()
+    assert sizes == [1, 1]
+
+
 def test_a_failed_preparation_reaches_its_caller_and_stores_nothing(
     sessions: sessionmaker[Session],
 ) -> None:
