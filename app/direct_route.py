@@ -3,8 +3,8 @@
 FastAPI works each request's parameters out from the endpoint's signature anew: which of them
 are models, which sequences, which aliases apply, for every parameter of the endpoint and of
 its dependencies. For the frame upload (a path parameter, a query parameter, a header and the
-camera dependency) that took 5 to 6 times the CPU of the bare endpoint's one ``Request``
-(bench/README.md, "Parameters read from a plan"). ``DirectRoute`` makes that plan when the
+camera dependency) that took about 6 times the CPU of the bare endpoint's one ``Request``
+(yappi; bench/README.md, "Parameters read from a plan"). ``DirectRoute`` makes that plan when the
 route is built and, per request, only looks each value up and has its own field validate it,
 as FastAPI does: values, defaults, error messages and their order are FastAPI's, and the
 OpenAPI document (and everything read from it, ``app.query``'s rules) is the route's own.
@@ -12,7 +12,12 @@ OpenAPI document (and everything read from it, ``app.query``'s rules) is the rou
 It takes endpoints whose parameters are the ``Request`` and path, query and header parameters
 of one value each, and dependencies (plain functions or coroutine functions) of the same kind,
 returning a ``Response`` themselves; a route it cannot serve so is refused when it is built.
-With ``app.dependency_overrides`` set (tests), FastAPI's own handler serves it.
+With ``app.dependency_overrides`` set (tests), FastAPI's own handler serves it. A dependency
+used twice (which FastAPI calls once a request) is refused too.
+
+It reads FastAPI's own fields and errors (``fastapi._compat``) and the route's inclusion context,
+as FastAPI's handler does, in the pinned FastAPI version; ``tests/api/test_direct_route.py``
+compares its answers with FastAPI's, so an upgrade that changes either fails there first.
 """
 
 from __future__ import annotations
@@ -107,6 +112,7 @@ def _plan(dependant: Dependant) -> _Plan:
         if sub.name is None:
             raise UnsupportedRoute(f"{sub.call!r} is a dependency without a parameter")
         subs.append((sub.name, _plan(sub)))
+
     return _Plan(
         dependant.call,
         inspect.iscoroutinefunction(call),
@@ -114,6 +120,11 @@ def _plan(dependant: Dependant) -> _Plan:
         tuple(_param(f) for f in fields),
         tuple(subs),
     )
+
+
+def _dependencies(plan: _Plan) -> list[Callable[..., Any]]:
+    """Every dependency's callable in ``plan``'s tree, as often as it is used."""
+    return [c for _, sub in plan.dependencies for c in (sub.call, *_dependencies(sub))]
 
 
 async def _solve(plan: _Plan, request: Request, errors: list[Any]) -> dict[str, Any] | None:
@@ -167,6 +178,9 @@ class DirectRoute(APIRoute):
         plan = _plan(route.dependant)
         if not plan.is_coroutine:
             raise UnsupportedRoute(f"{self.endpoint!r} is not a coroutine function")
+        used = [inspect.unwrap(call) for call in _dependencies(plan)]
+        if len(set(used)) < len(used):  # FastAPI calls it once a request and shares the value
+            raise UnsupportedRoute(f"{self.endpoint!r} uses a dependency twice")
         overrides = route.dependency_overrides_provider
 
         async def handler(request: Request) -> Response:

@@ -138,7 +138,15 @@ def not_a_coroutine(request: Request) -> Response:
     return Response()
 
 
-@pytest.mark.parametrize("fn", [with_body, with_list, with_generator, not_a_coroutine])
+async def with_a_dependency_twice(
+    a: Annotated[int, Depends(counter)], b: Annotated[int, Depends(counter)]
+) -> Response:
+    return Response()
+
+
+@pytest.mark.parametrize(
+    "fn", [with_body, with_list, with_generator, not_a_coroutine, with_a_dependency_twice]
+)
 def test_a_route_it_cannot_read_is_refused_when_built(fn: object) -> None:
     app = FastAPI()
     with pytest.raises(UnsupportedRoute):
