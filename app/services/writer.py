@@ -280,12 +280,12 @@ class GroupCommitWriter:
             try:
                 job = preparation()
             except Exception as exc:
-                self._prepared()
                 outcome: Outcome = (None, exc)
                 with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
                     loop.call_soon_threadsafe(_settle, future, outcome)
                 return
-            self._prepared()  # before the job is queued: a batch taking it waits for no one
+            finally:  # before the job is queued: a batch taking it waits for no one
+                self._prepared()
             if not future.done():  # a read only: the loop alone settles or cancels it
                 self._queue.put(_Job(job, future, loop, credential))
 
