@@ -112,7 +112,6 @@ def _plan(dependant: Dependant) -> _Plan:
         if sub.name is None:
             raise UnsupportedRoute(f"{sub.call!r} is a dependency without a parameter")
         subs.append((sub.name, _plan(sub)))
-
     return _Plan(
         dependant.call,
         inspect.iscoroutinefunction(call),

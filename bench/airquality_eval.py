@@ -98,16 +98,15 @@ def within_place(
     level less the mean of its place's training photos; the test photos' predicted deviations
     from their place's level (NaN for a place the training folds lack)."""
     f_tr, lv_tr, f_te = f_tr.copy(), lv_tr.astype(np.float64), f_te.copy()
-    out = np.full(len(f_te), np.nan)
     for place in set(place_tr):
         here_tr, here_te = place_tr == place, place_te == place
         centre = f_tr[here_tr].mean(axis=0)
         f_tr[here_tr] -= centre
         f_te[here_te] -= centre
         lv_tr[here_tr] -= lv_tr[here_tr].mean()
-        out[here_te] = 0.0
     model.fit(f_tr, lv_tr)  # type: ignore[attr-defined]
-    return np.where(np.isfinite(out), model.predict(f_te), np.nan)  # type: ignore[attr-defined]
+    known = np.isin(place_te, place_tr)
+    return np.where(known, model.predict(f_te), np.nan)  # type: ignore[attr-defined]
 
 
 def deviations(values: np.ndarray, place: np.ndarray) -> np.ndarray:

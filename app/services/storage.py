@@ -252,6 +252,8 @@ class DiskFrameStore:
             pack, offset = self._reserve(bucket, len(record))
         except OSError as exc:
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
+        start = offset + PACK_HEADER.size
+        whole: tuple[str, int] | None = None  # set once the frame is written whole
         try:
             view = memoryview(record)
             at = offset
@@ -260,14 +262,12 @@ class DiskFrameStore:
                 view, at = view[written:], at + written
             if self.fsync:
                 os.fdatasync(pack.fd)
+            whole = (sha256, start)
         except OSError as exc:  # full, read-only, gone: the client should retry later
-            self._release(pack)
             raise StoreUnavailable(f"{self.root}: storing the frame failed: {exc}") from exc
-        except BaseException:
-            self._release(pack)
-            raise
-        self._release(pack, written=(sha256, offset + PACK_HEADER.size))
-        return locator_in(pack.relative, offset + PACK_HEADER.size, len(data))
+        finally:
+            self._release(pack, whole)
+        return locator_in(pack.relative, start, len(data))
 
     def _reserve(self, bucket: str, size: int) -> tuple[_Pack, int]:
         """The pack to append ``size`` bytes to, and where; a new pack for a new hour or when
