@@ -106,9 +106,10 @@ class Settings(BaseSettings):
     ingest_threads: int = Field(
         default=0,
         ge=0,
-        description="Frames decoded and stored at once per process. 0: twice the CPUs the "
-        "process may use with the disk store (more threads than cores only contend for them), "
-        "32 with the S3 store (each upload then waits on the network).",
+        description="Frames decoded and stored at once per process. 0: as many as the CPUs the "
+        "process may use (at least 2) with the disk store (more threads than cores only "
+        "contend for them and for the GIL), 32 with the S3 store (each upload then waits on "
+        "the network).",
     )
     image_threads: int = Field(
         default=0,
@@ -207,7 +208,9 @@ class Settings(BaseSettings):
             return self.ingest_threads
         if self.frame_store == "s3":
             return 32
-        return 2 * usable_cpus()
+        # one a core: with twice that, the threads' hand-offs of the GIL cost more than the
+        # extra decoding in parallel gains (bench/README.md, "One preparing thread a core")
+        return max(2, usable_cpus())
 
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> Settings:
