@@ -28,3 +28,33 @@ def test_ids_of_later_milliseconds_sort_after_and_never_repeat() -> None:
     assert len(set(stamps)) >= 5
     # as text (the column is a string), they sort by time too
     assert [uuid.UUID(i).int >> 80 for i in sorted(ids)] == stamps
+
+
+def test_ids_of_threads_at_once_never_repeat() -> None:
+    # the random bits come from a pool shared by the threads: each byte is handed out once
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(8) as pool:
+        chunks = list(pool.map(lambda _: [time_ordered_id() for _ in range(500)], range(8)))
+    ids = [i for chunk in chunks for i in chunk]
+    assert len(set(ids)) == len(ids) == 4000
+    randoms = {uuid.UUID(i).int & ((1 << 62) - 1) for i in ids}
+    assert len(randoms) == 4000
+
+
+def test_a_forked_process_draws_other_random_bits_than_its_parent() -> None:
+    import os
+
+    time_ordered_id()  # the pool now holds unread bytes, which a child would inherit
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its next id, then out at once
+        os.write(write, time_ordered_id().encode())
+        os._exit(0)
+    os.close(write)
+    os.waitpid(pid, 0)
+    child = uuid.UUID(os.read(read, 64).decode())
+    os.close(read)
+    parent = uuid.UUID(time_ordered_id())
+    low = (1 << 62) - 1  # the random bits after the variant
+    assert child.int & low != parent.int & low
