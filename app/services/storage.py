@@ -119,6 +119,13 @@ PACK_MAX_BYTES = 256 * 1024 * 1024
 RECENT_FRAMES = 1024
 """Frames a pack remembers by SHA-256 (``_Pack.recent``): a camera's retry comes seconds after
 the original, and 1,024 entries hold ~100 kB."""
+FREE_SPACE_READ_S = 1.0
+"""How long a reading of the disk's free space (statvfs), less the frames this process wrote
+since, stands in for a new one. Each ``statvfs`` lets go of the GIL, and under load every
+upload then waited to take it back. Other processes' writes go unseen for at most this long."""
+FREE_SPACE_MARGIN = 64 * 2**20
+"""Nearer than this to the space kept free, the disk is asked before every frame [bytes]."""
+
 PACK_BUCKET = "%Y-%m-%dT%H"
 """Packs are grouped by the hour (UTC) their frames were received in: ``packs/<hour>/``."""
 _LOCATOR = re.compile(r"(packs/[0-9T-]+/[0-9a-z-]+\.pack)@(\d+)\+(\d+)")
@@ -208,17 +215,33 @@ class DiskFrameStore:
         /health "ok"."""
         self._lock = threading.Lock()
         self._pack: _Pack | None = None
+        self._free: tuple[float, int] | None = None
+        """(when read, bytes free then less the frames written since): ``_make_room``."""
 
     def free_bytes(self) -> int:
         """Bytes free on the store's disk for this process (statvfs: ~0.6 µs)."""
         st = os.statvfs(self.root)
         return st.f_bavail * st.f_frsize
 
-    def _make_room(self, size: int) -> None:
+    def _make_room(self, size: int, *, ask: bool = False) -> None:
+        """Refuse (``DiskFull``) ``size`` bytes more that would eat into the space kept free.
+        The disk is asked (``ask``, or when the last reading is old or near the limit), else
+        the last reading less the bytes let through since stands in."""
         if not self.keep_free_bytes:
             return
-        free = self.free_bytes()
-        if free - size < self.keep_free_bytes:
+        now = time.monotonic()
+        last = self._free
+        if (
+            ask
+            or last is None
+            or now - last[0] > FREE_SPACE_READ_S
+            or last[1] - size < self.keep_free_bytes + FREE_SPACE_MARGIN
+        ):
+            last = (now, self.free_bytes())
+        read_at, free = last
+        fits = free - size >= self.keep_free_bytes
+        self._free = (read_at, free - size) if fits and not ask else last
+        if not fits:
             raise DiskFull(
                 f"{self.root}: {free / 2**20:.1f} MiB free, and "
                 f"{self.keep_free_bytes / 2**20:.1f} MiB are kept for the database "
@@ -449,7 +472,7 @@ class DiskFrameStore:
         if not (self.root.is_dir() and os.access(self.root, os.W_OK)):
             raise StoreUnavailable(f"{self.root} is missing or not writable")
         try:
-            self._make_room(self.largest_frame_bytes)
+            self._make_room(self.largest_frame_bytes, ask=True)
             # A file made and written, as a frame is: neither the mount's flags nor
             # os.access say that the kernel has stopped the filesystem's writes. ext4 with
             # errors=remount-ro does so after an I/O error ("emergency_ro"), its mount still

@@ -311,3 +311,62 @@ def test_a_failed_write_is_not_pointed_at(tmp_path: Path, monkeypatch: pytest.Mo
     locator = store.put(a, digest(a), T0)  # written, not pointed at the failed write's place
     assert store.read(locator) == a
     assert calls == 2
+
+
+def test_the_disk_s_free_space_is_read_once_a_second_far_from_the_limit_and_at_every_frame_near_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    keep = 100 * 2**20
+    store = DiskFrameStore(tmp_path, keep_free_bytes=keep)
+    clock = [1000.0]
+    monkeypatch.setattr(storage.time, "monotonic", lambda: clock[0])
+    disk = [keep + 10 * storage.FREE_SPACE_MARGIN]  # what statvfs says
+    reads = []
+
+    def free_bytes() -> int:
+        reads.append(disk[0])
+        return disk[0]
+
+    monkeypatch.setattr(store, "free_bytes", free_bytes)
+    bodies = frames(20, seed=3)
+    for body in bodies[:10]:
+        store.put(body, digest(body), T0)
+    assert len(reads) == 1  # far from the limit: the first reading, less the frames since
+
+    # another process filled the disk meanwhile: seen once the reading is a second old
+    disk[0] = keep + 1000
+    store.put(bodies[10], digest(bodies[10]), T0)  # the old reading still stands
+    clock[0] += storage.FREE_SPACE_READ_S + 0.01
+    with pytest.raises(storage.DiskFull):
+        store.put(bodies[11], digest(bodies[11]), T0)
+    assert len(reads) == 2
+
+    # near the limit every frame asks the disk
+    disk[0] = keep + storage.FREE_SPACE_MARGIN // 2
+    for body in bodies[12:15]:
+        store.put(body, digest(body), T0)
+    assert len(reads) == 5
+
+
+def test_this_process_s_own_frames_count_against_the_last_reading(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Between readings the frames written are taken off the last one: enough of them reach
+    the margin, and the disk is asked again before the next."""
+    keep = 2**20
+    store = DiskFrameStore(tmp_path, keep_free_bytes=keep)
+    monkeypatch.setattr(storage.time, "monotonic", lambda: 5.0)  # the clock stands still
+    reads = []
+
+    def free_bytes() -> int:
+        reads.append(1)
+        return keep + storage.FREE_SPACE_MARGIN + 120_000
+
+    monkeypatch.setattr(store, "free_bytes", free_bytes)
+    bodies = frames(10, seed=4)  # up to 50 kB each: three or more pass the margin
+    for body in bodies:
+        store.put(body, digest(body), T0)
+    assert 2 <= len(reads) < 10
+    before = len(reads)
+    store.check()  # /health asks the disk whatever the last reading
+    assert len(reads) == before + 1
