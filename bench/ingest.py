@@ -263,6 +263,12 @@ def drive(
     return time.perf_counter() - t0, latencies, errors
 
 
+def idle_jiffies() -> tuple[int, int]:
+    """The machine's (idle + iowait, total) CPU time so far (/proc/stat), all cores."""
+    values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return values[3] + values[4], sum(values)
+
+
 def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q))
 
@@ -291,9 +297,10 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
             n = 10**6
             for _ in range(args.rounds):
                 for name, path in (("bare", "/bare"), ("ingest", "/cameras/bench/frames")):
-                    cpu0 = server.cpu_seconds()
+                    cpu0, (idle0, all0) = server.cpu_seconds(), idle_jiffies()
                     secs, lat, err = drive(port, path, cam, jpeg, n, args.requests, args.clients)
                     cpu = (server.cpu_seconds() - cpu0) / args.requests * 1000
+                    idle1, all1 = idle_jiffies()
                     n += args.requests
                     assert err == 0, f"{err} errors on {path}"
                     r = rows[name]
@@ -301,6 +308,10 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
                     r.setdefault("p50", []).append(pct(lat, 50) * 1000)
                     r.setdefault("p99", []).append(pct(lat, 99) * 1000)
                     r.setdefault("server_cpu_ms_per_frame", []).append(cpu)
+                    # the share of the machine's CPU time nobody used: where it grows, threads
+                    # wait on one another (the GIL, hand-offs), not on the cores
+                    idle = 100 * (idle1 - idle0) / (all1 - all0)
+                    r.setdefault("machine_idle_pct", []).append(idle)
             result: dict[str, object] = {
                 "backend": backend,
                 "workers": args.workers,
