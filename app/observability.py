@@ -52,6 +52,11 @@ HTTP_SECONDS = Histogram(
     ["method", "route"],
     buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0),
 )
+WRITER_BATCH_FRAMES = Histogram(
+    "vantage_writer_batch_frames",
+    "Uploads committed per write transaction of the group-commit writer.",
+    buckets=(1, 2, 4, 8, 16, 32, 64),
+)
 UNMATCHED = "unmatched"
 """The route label of requests no route took (404s of any path): one series, not one each."""
 

@@ -196,6 +196,20 @@ class Server:
         token = json.loads(answer)["token"]
         return {"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"}
 
+    def mean_batch(self) -> float | None:
+        """Frames per write transaction so far (``vantage_writer_batch_frames``), as the
+        process answering /metrics counted them (with several workers, one of them)."""
+        status, text = self.request("GET", "/metrics", b"", {"Authorization": f"Bearer {ADMIN}"})
+        if status != 200:
+            return None
+        found = {}
+        for line in text.decode().splitlines():
+            name, _, value = line.partition(" ")
+            if name in ("vantage_writer_batch_frames_sum", "vantage_writer_batch_frames_count"):
+                found[name] = float(value)
+        count = found.get("vantage_writer_batch_frames_count")
+        return round(found["vantage_writer_batch_frames_sum"] / count, 2) if count else None
+
     def pids(self) -> list[int]:
         """The server process and, with several workers, its worker processes."""
         pid = self.proc.pid
@@ -322,6 +336,7 @@ def bench_backend(backend: str, args: argparse.Namespace, port: int) -> dict[str
             }
             for name, r in rows.items():
                 result[name] = {k: round(statistics.median(v), 2) for k, v in r.items()}
+            result["frames_per_write_batch"] = server.mean_batch()
             bare_fps = statistics.median(rows["bare"]["fps"])
             ingest_fps = statistics.median(rows["ingest"]["fps"])
             result["ratio"] = round(ingest_fps / bare_fps, 3)

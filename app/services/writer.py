@@ -29,6 +29,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.rows import deferred_inserts
 from app.errors import Unauthorized, database_unavailable
+from app.observability import WRITER_BATCH_FRAMES
 
 log = logging.getLogger("vantage.writer")
 
@@ -354,6 +355,7 @@ class GroupCommitWriter:
 
     def _loop(self) -> None:
         while (batch := self._take_batch()) is not None:
+            WRITER_BATCH_FRAMES.observe(len(batch))
             outcomes = self._write(batch)
             to_loops: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future[Any], Outcome]]]
             to_loops = {}

@@ -179,6 +179,41 @@ def test_metrics_exposes_ingest_counters(client: TestClient, admin: dict[str, st
     assert "vantage_ingest_seconds_bucket" in text
 
 
+def test_metrics_count_the_writer_s_batches_and_their_frames(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    from prometheus_client.parser import text_string_to_metric_families
+
+    def batches() -> dict[str, float]:
+        text = client.get("/metrics", headers=admin).text
+        return {
+            s.name: s.value
+            for family in text_string_to_metric_families(text)
+            for s in family.samples
+            if s.name in ("vantage_writer_batch_frames_count", "vantage_writer_batch_frames_sum")
+        }
+
+    cam = client.post("/cameras", json={"id": "m", "kind": "rig"}, headers=admin).json()
+    before = batches()
+    for seed in range(2):  # one after the other: a batch each
+        r = client.post(
+            "/cameras/m/frames",
+            content=make_jpeg(noise=5.0, seed=seed),
+            headers={"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+    after = batches()
+    assert (
+        after["vantage_writer_batch_frames_count"]
+        - before.get("vantage_writer_batch_frames_count", 0)
+        == 2
+    )
+    assert (
+        after["vantage_writer_batch_frames_sum"] - before.get("vantage_writer_batch_frames_sum", 0)
+        == 2
+    )
+
+
 def _samples(client: TestClient, admin: dict[str, str]) -> dict[tuple[str, Any], float]:
     from prometheus_client.parser import text_string_to_metric_families
 
