@@ -209,7 +209,8 @@ class Settings(BaseSettings):
         if self.frame_store == "s3":
             return 32
         # one a core: with twice that, the threads' hand-offs of the GIL cost more than the
-        # extra decoding in parallel gains (bench/README.md, "One preparing thread a core")
+        # extra decoding in parallel gains (bench/README.md, "Batches that gather for 20 ms,
+        # and one preparing thread a core")
         return max(2, usable_cpus())
 
     @model_validator(mode="after")

@@ -216,7 +216,9 @@ class DiskFrameStore:
         self._lock = threading.Lock()
         self._pack: _Pack | None = None
         self._free: tuple[float, int] | None = None
-        """(when read, bytes free then less the frames written since): ``_make_room``."""
+        """(when read, bytes free then less the frames written since): ``_make_room``. Read
+        and replaced without the store's lock: two frames at once may be taken off as one,
+        which the margin and the one-second bound absorb."""
 
     def free_bytes(self) -> int:
         """Bytes free on the store's disk for this process (statvfs: ~0.6 µs)."""

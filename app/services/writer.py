@@ -41,8 +41,8 @@ writer ~350 µs whatever its size and ~80 µs more a frame (SQLite, bench/writer
 and under load more than that in the server, where each of its statements lets go of the GIL
 and waits to take it back. In bench/ingest.py (16 clients, one process) a batch held 3.6 frames
 on SQLite and 5.2 on PostgreSQL at 2 ms, 15.4 at 20 ms, and the server's CPU a frame fell
-from 2.43 to 2.13 ms and from 2.25 to 2.16 ms (bench/README.md, "How long a batch
-gathers"). Never waited for when no preparation is under way (a lone upload): the
+from 2.43 to 2.13 ms and from 2.25 to 2.16 ms (bench/README.md, "Batches that
+gather for 20 ms"). Never waited for when no preparation is under way (a lone upload): the
 wait adds at most this much to an upload's answer, and only while others are being
 prepared."""
 
