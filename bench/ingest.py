@@ -199,14 +199,17 @@ class Server:
     def mean_batch(self) -> float | None:
         """Frames per write transaction so far (``vantage_writer_batch_frames``), as the
         process answering /metrics counted them (with several workers, one of them)."""
+        from prometheus_client.parser import text_string_to_metric_families
+
         status, text = self.request("GET", "/metrics", b"", {"Authorization": f"Bearer {ADMIN}"})
         if status != 200:
             return None
-        found = {}
-        for line in text.decode().splitlines():
-            name, _, value = line.partition(" ")
-            if name in ("vantage_writer_batch_frames_sum", "vantage_writer_batch_frames_count"):
-                found[name] = float(value)
+        found = {
+            s.name: s.value
+            for family in text_string_to_metric_families(text.decode())
+            if family.name == "vantage_writer_batch_frames"
+            for s in family.samples
+        }
         count = found.get("vantage_writer_batch_frames_count")
         return round(found["vantage_writer_batch_frames_sum"] / count, 2) if count else None
 

@@ -182,19 +182,8 @@ def test_metrics_exposes_ingest_counters(client: TestClient, admin: dict[str, st
 def test_metrics_count_the_writer_s_batches_and_their_frames(
     client: TestClient, admin: dict[str, str]
 ) -> None:
-    from prometheus_client.parser import text_string_to_metric_families
-
-    def batches() -> dict[str, float]:
-        text = client.get("/metrics", headers=admin).text
-        return {
-            s.name: s.value
-            for family in text_string_to_metric_families(text)
-            for s in family.samples
-            if s.name in ("vantage_writer_batch_frames_count", "vantage_writer_batch_frames_sum")
-        }
-
     cam = client.post("/cameras", json={"id": "m", "kind": "rig"}, headers=admin).json()
-    before = batches()
+    before = _samples(client, admin, "vantage_writer_batch_frames_")
     for seed in range(2):  # one after the other: a batch each
         r = client.post(
             "/cameras/m/frames",
@@ -202,19 +191,15 @@ def test_metrics_count_the_writer_s_batches_and_their_frames(
             headers={"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"},
         )
         assert r.status_code == 201, r.text
-    after = batches()
-    assert (
-        after["vantage_writer_batch_frames_count"]
-        - before.get("vantage_writer_batch_frames_count", 0)
-        == 2
-    )
-    assert (
-        after["vantage_writer_batch_frames_sum"] - before.get("vantage_writer_batch_frames_sum", 0)
-        == 2
-    )
+    after = _samples(client, admin, "vantage_writer_batch_frames_")
+    for name in ("vantage_writer_batch_frames_count", "vantage_writer_batch_frames_sum"):
+        assert after[name, ()] - before.get((name, ()), 0) == 2
 
 
-def _samples(client: TestClient, admin: dict[str, str]) -> dict[tuple[str, Any], float]:
+def _samples(
+    client: TestClient, admin: dict[str, str], prefix: str = "vantage_http_"
+) -> dict[tuple[str, Any], float]:
+    """The /metrics samples whose names start with ``prefix``, by (name, sorted labels)."""
     from prometheus_client.parser import text_string_to_metric_families
 
     text = client.get("/metrics", headers=admin).text
@@ -222,7 +207,7 @@ def _samples(client: TestClient, admin: dict[str, str]) -> dict[tuple[str, Any],
         (s.name, tuple(sorted(s.labels.items()))): s.value
         for family in text_string_to_metric_families(text)
         for s in family.samples
-        if s.name.startswith("vantage_http_")
+        if s.name.startswith(prefix)
     }
 
 

@@ -30,18 +30,6 @@ def test_ids_of_later_milliseconds_sort_after_and_never_repeat() -> None:
     assert [uuid.UUID(i).int >> 80 for i in sorted(ids)] == stamps
 
 
-def test_ids_of_threads_at_once_never_repeat() -> None:
-    # the random bits come from a pool shared by the threads: each byte is handed out once
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(8) as pool:
-        chunks = list(pool.map(lambda _: [time_ordered_id() for _ in range(500)], range(8)))
-    ids = [i for chunk in chunks for i in chunk]
-    assert len(set(ids)) == len(ids) == 4000
-    randoms = {uuid.UUID(i).int & ((1 << 62) - 1) for i in ids}
-    assert len(randoms) == 4000
-
-
 def test_a_forked_process_draws_other_random_bits_than_its_parent() -> None:
     import os
 
