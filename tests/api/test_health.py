@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import shutil
 import threading
+import uuid
 from typing import Any
 
 import pytest
@@ -171,6 +173,25 @@ def test_request_id_is_echoed_and_logged(
     ]
     access = [line for line in lines if line["logger"] == "vantage.access"]
     assert {"request_id": "abc-123", "path": "/health", "status": 200}.items() <= access[0].items()
+
+
+def test_generated_request_ids_are_random_uuids_without_a_system_call_each(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # os.urandom lets go of the GIL: on the event loop's thread, under load, each call then
+    # waits to take it back. Request ids come from a pool read a few kB at a time.
+    reads: list[int] = []
+    urandom = os.urandom
+
+    def counted(n: int) -> bytes:
+        reads.append(n)
+        return urandom(n)
+
+    monkeypatch.setattr(os, "urandom", counted)
+    ids = [client.get("/health").headers["x-request-id"] for _ in range(50)]
+    assert len(set(ids)) == 50
+    assert all(uuid.UUID(i).version == 4 and uuid.UUID(i).hex == i for i in ids)
+    assert len(reads) <= 1
 
 
 def test_metrics_exposes_ingest_counters(client: TestClient, admin: dict[str, str]) -> None:
