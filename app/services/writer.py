@@ -179,6 +179,9 @@ class GroupCommitWriter:
         """Preparations submitted and not yet over (queued for a preparing thread or running):
         their jobs are on their way to the writer."""
         self._preparing_lock = threading.Lock()
+        self._quiet = threading.Event()
+        """Set when the last preparation under way is over: a batch gathering wakes then, or
+        when its time is up, and not at each job queued (``_take_batch``)."""
         self._preparers = preparers
         self._pool: _Preparers | None = None
         """Threads that run ``submit_after``'s preparation (decoding, the file write)."""
@@ -284,16 +287,17 @@ class GroupCommitWriter:
                 self._prepared()
                 return
             try:
-                job = preparation()
-            except Exception as exc:
-                outcome: Outcome = (None, exc)
-                with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
-                    loop.call_soon_threadsafe(_settle, future, outcome)
-                return
-            finally:  # before the job is queued: a batch taking it waits for no one
+                try:
+                    job = preparation()
+                except Exception as exc:
+                    outcome: Outcome = (None, exc)
+                    with contextlib.suppress(RuntimeError):  # the loop has closed: nobody waits
+                        loop.call_soon_threadsafe(_settle, future, outcome)
+                    return
+                if not future.done():  # a read only: the loop alone settles or cancels it
+                    self._queue.put(_Job(job, future, loop, credential))
+            finally:  # after the job is queued: a batch waiting for the last one wakes now
                 self._prepared()
-            if not future.done():  # a read only: the loop alone settles or cancels it
-                self._queue.put(_Job(job, future, loop, credential))
 
         with self._preparing_lock:
             self._preparing += 1
@@ -303,6 +307,8 @@ class GroupCommitWriter:
     def _prepared(self) -> None:
         with self._preparing_lock:
             self._preparing -= 1
+            if self._preparing <= 0:
+                self._quiet.set()
 
     def _take_batch(self) -> list[_Job] | None:
         """The next jobs, at most ``max_batch``, leaving out those whose request gave up
@@ -320,13 +326,12 @@ class GroupCommitWriter:
                     job = self._queue.get_nowait()
                 except queue.Empty:
                     # the jobs of preparations under way, for a moment (``GATHER_S``)
+                    self._quiet.clear()
                     wait = until - time.monotonic()
                     if not batch or self._preparing <= 0 or wait <= 0:
                         break
-                    try:
-                        job = self._queue.get(timeout=wait)
-                    except queue.Empty:
-                        break
+                    self._quiet.wait(wait)
+                    continue
                 if job is None:
                     self._queue.put(None)  # stop after this batch
                     break
