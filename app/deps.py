@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import binascii
 import hmac
@@ -20,12 +21,20 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db.models import Camera, Panel, Robot
-from app.errors import Forbidden, NotFound, TooManyRequests, Unauthorized, Unprocessable
+from app.errors import (
+    Forbidden,
+    NotFound,
+    ServiceUnavailable,
+    TooManyRequests,
+    Unauthorized,
+    Unprocessable,
+)
 from app.security import hash_token
 from app.services import panels, rate_limit, registry
 from app.services.camera_info import CameraInfo, TokenCache
 from app.services.policy import Policy
 from app.services.registry import FrameKey
+from app.services.writer import GroupCommitWriter
 from app.settings import Settings
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
@@ -404,16 +413,17 @@ async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo
     return found
 
 
-def _reserve(request: Request, camera_id: str, minute: datetime, limit: int) -> int:
-    with get_sessionmaker(request)() as session:
-        return rate_limit.reserve(session, camera_id, minute, limit)
-
-
 async def _check_rate(request: Request, camera_id: str) -> None:
     """At most ``rate_limit_per_minute`` frames per camera in each clock minute, over all
     processes: budget reserved in the database in blocks (``app.services.rate_limit``), spent
     here without a round trip. A camera flooding is refused before its body is read and cannot
-    crowd out the others."""
+    crowd out the others.
+
+    A block is reserved in the frame writer's next batch, committed with its frames: in a
+    transaction of its own, from a thread of the shared pool, it cost ~0.8 ms of CPU (a
+    session, a pooled connection's ping, BEGIN, the statement, COMMIT; PostgreSQL), a third of
+    a frame's, once every block of frames, and for a camera posting once a minute once every
+    frame."""
     limit: int = request.app.state.settings.rate_limit_per_minute
     if limit <= 0:
         return
@@ -423,7 +433,17 @@ async def _check_rate(request: Request, camera_id: str) -> None:
     budgets: rate_limit.LocalBudgets = request.app.state.rate_budgets
     if budgets.take(camera_id, minute):
         return
-    granted = await run_in_threadpool(_reserve, request, camera_id, minute, limit)
+    writer: GroupCommitWriter = request.app.state.writer
+    seconds: float = request.app.state.settings.upload_timeout_seconds
+    reservation = partial(rate_limit.reserve, camera_id=camera_id, minute=minute, limit=limit)
+    try:
+        granted: int = await asyncio.wait_for(writer.submit(reservation), seconds)
+    except TimeoutError:
+        raise ServiceUnavailable(
+            f"camera {camera_id}'s frame budget could not be reserved within {seconds:g} s "
+            "(the database is not answering, or the service is overloaded): send it again",
+            code="upload_timeout",
+        ) from None
     if granted <= 0:
         wait = 60 - (now - minute).total_seconds()
         raise TooManyRequests(

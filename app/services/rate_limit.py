@@ -57,9 +57,15 @@ class LocalBudgets:
             self._left[camera_id] = (minute, frames)
 
 
-def reserve(session: Session, camera_id: str, minute: datetime, limit: int) -> int:
-    """Reserve a block of the camera's budget for ``minute`` (committed at once); how many
-    frames were granted, 0 when the minute's budget is spent."""
+def reserve(
+    session: Session, camera_id: str, minute: datetime, limit: int, *, retry: bool = False
+) -> int:
+    """Reserve a block of the camera's budget for ``minute``; how many frames were granted, 0
+    when the minute's budget is spent. In the session's transaction, which the caller commits
+    before spending the block: the ingest path runs it in the frame writer's next batch
+    (``GroupCommitWriter.submit``), which commits it with that batch's frames. ``retry``: run
+    again alone after its batch failed, as any of the writer's jobs may be (it changes
+    nothing here)."""
     block = block_size(limit)
     table = RateBudget.__table__
     dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite
@@ -72,5 +78,4 @@ def reserve(session: Session, camera_id: str, minute: datetime, limit: int) -> i
         },
     ).returning(table.c.used)
     used = int(session.execute(stmt).scalar_one())
-    session.commit()
     return max(0, min(block, limit - (used - block)))

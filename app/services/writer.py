@@ -77,6 +77,8 @@ class _Job:
     """The event loop an asyncio ``future`` belongs to; None for a thread's future."""
     credential: Credential | None = None
     """Checked again inside the job's batch (``GroupCommitWriter``'s ``check``)."""
+    frame: bool = False
+    """An upload's job (``submit_after``): counted by ``vantage_writer_batch_frames``."""
 
 
 Outcome = tuple[Any, BaseException | None]
@@ -295,13 +297,27 @@ class GroupCommitWriter:
                         loop.call_soon_threadsafe(_settle, future, outcome)
                     return
                 if not future.done():  # a read only: the loop alone settles or cancels it
-                    self._queue.put(_Job(job, future, loop, credential))
+                    self._queue.put(_Job(job, future, loop, credential, frame=True))
             finally:  # after the job is queued: a batch waiting for the last one wakes now
                 self._prepared()
 
         with self._preparing_lock:
             self._preparing += 1
         pool.submit(work)
+        return future
+
+    def submit(self, fn: Callable[..., T]) -> asyncio.Future[T]:
+        """Run ``fn(session)`` in the next batch, with nothing to prepare first; await the
+        returned future for its result once the batch committed. For a request's short database
+        work that must be committed before the request goes on (a camera's rate-limit
+        reservation): it takes no thread, nor a transaction and a commit of its own. Must be
+        called on the loop; ``fn`` must also accept ``retry=True``, as in ``run``. A future
+        cancelled before its batch is taken (a deadline) runs nothing."""
+        if self._thread is None:
+            self.start()
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+        self._queue.put(_Job(fn, future, loop))
         return future
 
     def _prepared(self) -> None:
@@ -365,7 +381,8 @@ class GroupCommitWriter:
 
     def _loop(self) -> None:
         while (batch := self._take_batch()) is not None:
-            WRITER_BATCH_FRAMES.observe(len(batch))
+            if frames := sum(job.frame for job in batch):
+                WRITER_BATCH_FRAMES.observe(frames)
             outcomes = self._write(batch)
             to_loops: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future[Any], Outcome]]]
             to_loops = {}

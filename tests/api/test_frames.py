@@ -719,6 +719,35 @@ class TestRateLimit:
             r = two.post("/cameras/across/frames", content=make_jpeg(seed=99), headers=headers)
             assert r.status_code == 201
 
+    def test_a_budget_not_reserved_in_time_is_a_503_and_stores_nothing(
+        self, settings: Any, engine: Engine, admin: dict[str, str]
+    ) -> None:
+        """A camera's budget is reserved in the frame writer's next batch: with that batch
+        hanging in the database, the upload waiting for its budget gets 503 after
+        ``upload_timeout_seconds``, before its body is read, and no frame is stored."""
+        from app.main import create_app
+        from tests.conftest import _empty_tables
+
+        _empty_tables(engine)
+        limited = settings.model_copy(
+            update={"rate_limit_per_minute": 40, "upload_timeout_seconds": 1.0}
+        )
+        app = create_app(limited)
+        with TestClient(app, raise_server_exceptions=False) as client:
+            r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
+            headers = cam_headers(r.json())
+            with stalled_writer(app.state.writer) as stall:
+                r = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=1), headers=headers)
+                assert stall.batches == [1]  # the reservation's batch, which hangs
+            assert r.status_code == 503
+            assert r.headers["content-type"] == "application/problem+json"
+            assert r.json()["code"] == "upload_timeout"
+            assert "budget" in r.json()["detail"]
+            assert table_counts(engine)["frames"] == 0
+            again = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=2), headers=headers)
+            assert again.status_code == 201
+            assert table_counts(engine)["frames"] == 1
+
 
 def test_a_stalled_database_does_not_starve_the_other_endpoints(
     client: TestClient, app: Any, camera: dict[str, Any], admin: dict[str, str]
