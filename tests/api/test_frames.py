@@ -719,34 +719,45 @@ class TestRateLimit:
             r = two.post("/cameras/across/frames", content=make_jpeg(seed=99), headers=headers)
             assert r.status_code == 201
 
-    def test_a_budget_not_reserved_in_time_is_a_503_and_stores_nothing(
-        self, settings: Any, engine: Engine, admin: dict[str, str]
+    @pytest.mark.parametrize("cached", [False, True])
+    def test_a_camera_not_looked_up_or_budget_not_reserved_in_time_is_a_503(
+        self, settings: Any, engine: Engine, admin: dict[str, str], cached: bool
     ) -> None:
-        """A camera's budget is reserved in the frame writer's next batch: with that batch
-        hanging in the database, the upload waiting for its budget gets 503 after
-        ``upload_timeout_seconds``, before its body is read, and no frame is stored."""
+        """An upload's camera, when not cached, is looked up, and a block of its budget
+        reserved, in the frame writer's next batch: with that batch hanging in the database,
+        the upload gets 503 after ``upload_timeout_seconds``, before its body is read, and no
+        frame is stored."""
         from app.main import create_app
         from tests.conftest import _empty_tables
 
         _empty_tables(engine)
         limited = settings.model_copy(
-            update={"rate_limit_per_minute": 40, "upload_timeout_seconds": 1.0}
+            update={"rate_limit_per_minute": 40, "upload_timeout_seconds": 1.0}  # blocks of 2
         )
         app = create_app(limited)
         with TestClient(app, raise_server_exceptions=False) as client:
             r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
             headers = cam_headers(r.json())
+            app.state.camera_tokens.forget("cam-1")
+            sent = 0
+            if cached:  # the camera looked up, its block of 2 spent: the next needs another
+                for seed in (1, 2):
+                    r = client.post(
+                        "/cameras/cam-1/frames", content=make_jpeg(seed=seed), headers=headers
+                    )
+                    assert r.status_code == 201
+                sent = 2
             with stalled_writer(app.state.writer) as stall:
-                r = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=1), headers=headers)
-                assert stall.batches == [1]  # the reservation's batch, which hangs
+                r = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=3), headers=headers)
+                assert stall.batches == [1]  # the lookup's or the reservation's, which hangs
             assert r.status_code == 503
             assert r.headers["content-type"] == "application/problem+json"
             assert r.json()["code"] == "upload_timeout"
-            assert "budget" in r.json()["detail"]
-            assert table_counts(engine)["frames"] == 0
-            again = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=2), headers=headers)
+            assert ("budget" if cached else "looked up") in r.json()["detail"]
+            assert table_counts(engine)["frames"] == sent
+            again = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=4), headers=headers)
             assert again.status_code == 201
-            assert table_counts(engine)["frames"] == 1
+            assert table_counts(engine)["frames"] == sent + 1
 
 
 def test_a_stalled_database_does_not_starve_the_other_endpoints(
@@ -805,6 +816,9 @@ def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
     with TestClient(app, raise_server_exceptions=False) as client:
         r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
         headers = cam_headers(r.json())
+        # the camera looked up (and cached) first: here only its frames' batches hang
+        warm = client.post("/cameras/cam-1/frames", content=make_jpeg(seed=98), headers=headers)
+        assert warm.status_code == 201
 
         def upload(i: int) -> Any:
             return client.post(
@@ -827,12 +841,12 @@ def test_an_upload_the_database_does_not_take_in_time_is_a_503_and_left_out(
             "/cameras/cam-1/frames", content=make_jpeg(seed=99, noise=5), headers=headers
         )
         assert again.status_code == 201  # written after everything queued before it
-        assert table_counts(engine)["frames"] == stall.batches[0] + 1
+        assert table_counts(engine)["frames"] == 1 + stall.batches[0] + 1
         # the cameras send them again: each frame stored once, the first answered as a replay
         retried = [upload(i) for i in range(8)]
         assert [r.status_code for r in retried] == [201] * 8
         assert retried[0].headers.get("idempotent-replay") == "true"
-        assert table_counts(engine)["frames"] == 8 + 1
+        assert table_counts(engine)["frames"] == 1 + 8 + 1
 
 
 def test_a_cameras_frames_page_by_cursor(
