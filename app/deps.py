@@ -347,11 +347,8 @@ def _info(session: Session, camera: Camera) -> CameraInfo:
     return replace(info, panel_has_baseline=True)
 
 
-def _token_owner(
-    session: Session, digest: str, *, retry: bool = False
-) -> CameraInfo | Principal | None:
-    """The camera (or robot) a token belongs to; a job of the frame writer (``retry``: run
-    again alone after its batch failed; it changes nothing here)."""
+def _token_owner(session: Session, digest: str) -> CameraInfo | Principal | None:
+    """The camera (or robot) a token belongs to (run in the frame writer's batch)."""
     camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
     if camera is not None:
         return replace(_info(session, camera), token_hash=digest)
@@ -359,7 +356,7 @@ def _token_owner(
     return Principal("robot", robot_id) if robot_id is not None else None
 
 
-async def _in_next_batch(request: Request, job: Callable[..., T], what: str) -> T:
+async def _in_next_batch(request: Request, job: Callable[[Session], T], what: str) -> T:
     """``job(session)`` run in the frame writer's next batch (``GroupCommitWriter.submit``),
     or 503 after ``upload_timeout_seconds``. The upload's own reads and writes before its body
     is read (its camera looked up, a block of its budget reserved) go there rather than to a

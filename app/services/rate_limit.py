@@ -57,15 +57,11 @@ class LocalBudgets:
             self._left[camera_id] = (minute, frames)
 
 
-def reserve(
-    session: Session, camera_id: str, minute: datetime, limit: int, *, retry: bool = False
-) -> int:
+def reserve(session: Session, camera_id: str, minute: datetime, limit: int) -> int:
     """Reserve a block of the camera's budget for ``minute``; how many frames were granted, 0
     when the minute's budget is spent. In the session's transaction, which the caller commits
     before spending the block: the ingest path runs it in the frame writer's next batch
-    (``GroupCommitWriter.submit``), which commits it with that batch's frames. ``retry``: run
-    again alone after its batch failed, as any of the writer's jobs may be (it changes
-    nothing here)."""
+    (``GroupCommitWriter.submit``), which commits it with that batch's frames."""
     block = block_size(limit)
     table = RateBudget.__table__
     dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite
