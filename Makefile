@@ -38,7 +38,7 @@ check: $(VENV)/.installed
 # a consistent copy of the running service's data: make backup DEST=/backups/vantage-$(date +%F)
 backup: $(VENV)/.installed
 	@test -n "$(DEST)" || { echo "usage: make backup DEST=<new directory>"; exit 1; }
-	$(BIN)/python -m app.backup "$(DEST)"
+	$(BIN)/python -m app.platform.backup "$(DEST)"
 
 bench: $(VENV)/.installed
 	$(BIN)/python bench/ingest.py

@@ -7,7 +7,7 @@ camera dependency) that took about 6 times the CPU of the bare endpoint's one ``
 (yappi; bench/README.md, "Parameters read from a plan"). ``DirectRoute`` makes that plan when the
 route is built and, per request, only looks each value up and has its own field validate it,
 as FastAPI does: values, defaults, error messages and their order are FastAPI's, and the
-OpenAPI document (and everything read from it, ``app.query``'s rules) is the route's own.
+OpenAPI document (and everything read from it, ``app.platform.http.query``'s rules) is the route's own.
 
 It takes endpoints whose parameters are the ``Request`` and path, query and header parameters
 of one value each, and dependencies (plain functions or coroutine functions) of the same kind,

@@ -15,38 +15,33 @@ from fastapi import FastAPI
 from fastapi_offline import FastAPIOffline
 
 from app import __version__
-from app.compression import CompressedReads
-from app.core import triangulation
-from app.cors import PublicReadCors
-from app.db import schema
-from app.db.session import make_engine, make_read_engine, make_sessionmaker
-from app.errors import database_unavailable, install_error_handlers
-from app.head import HeadAsGet
-from app.observability import RequestIdMiddleware, configure_logging
-from app.query import CheckedQuery
-from app.routers import (
-    air,
-    calibrations,
-    cameras,
-    cleaning,
-    fleet,
-    health,
-    panels,
-    rigs,
-    robots,
-    vision,
-)
-from app.routers.responses import DATABASE_UNAVAILABLE
-from app.security import admin_token_hash, hash_token
-from app.services import rate_limit, registry, retention, webhooks
-from app.services.bounded_store import BoundedStore
-from app.services.camera_info import TokenCache
-from app.services.isopleth_cache import MapCache
-from app.services.policy import Policy
-from app.services.storage import StoreUnavailable, frame_store
-from app.services.writer import GroupCommitWriter
-from app.settings import Settings, get_settings
-from app.uploads import BodyLimitMiddleware
+from app.air import alerts as webhooks
+from app.air import router as air
+from app.air.isopleth_cache import MapCache
+from app.cells.core import triangulation
+from app.cells.routers import calibrations, rigs, vision
+from app.platform import health
+from app.platform.auth import admin_token_hash, hash_token
+from app.platform.db import schema
+from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
+from app.platform.frames import cameras as registry
+from app.platform.frames import rate_limit, retention
+from app.platform.frames import router as cameras
+from app.platform.frames.bounded_store import BoundedStore
+from app.platform.frames.camera_info import TokenCache
+from app.platform.frames.storage import StoreUnavailable, frame_store
+from app.platform.frames.writer import GroupCommitWriter
+from app.platform.http.compression import CompressedReads
+from app.platform.http.cors import PublicReadCors
+from app.platform.http.errors import database_unavailable, install_error_handlers
+from app.platform.http.head import HeadAsGet
+from app.platform.http.query import CheckedQuery
+from app.platform.http.responses import DATABASE_UNAVAILABLE
+from app.platform.http.uploads import BodyLimitMiddleware
+from app.platform.observability import RequestIdMiddleware, configure_logging
+from app.platform.policy import Policy
+from app.platform.settings import Settings, get_settings
+from app.solar.routers import cleaning, fleet, panels, robots
 
 log = logging.getLogger("vantage")
 

@@ -32,7 +32,7 @@ import tempfile
 from pathlib import Path
 
 from app import protocol
-from app.settings import get_settings
+from app.platform.settings import get_settings
 
 METRICS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 HTTP = ["--http", "app.protocol:DeadlineProtocol"]
@@ -73,7 +73,7 @@ def _log_config(port: int, level: str) -> Path:
     config = {
         "version": 1,
         "disable_existing_loggers": False,
-        "formatters": {"json": {"()": "app.observability.JsonFormatter"}},
+        "formatters": {"json": {"()": "app.platform.observability.JsonFormatter"}},
         "handlers": {
             "stderr": {
                 "class": "logging.StreamHandler",

@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.services import air  # noqa: E402
+from app.air import service as air  # noqa: E402
 from bench.air_trends import city_parser, scratch_city  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
 

@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.services import air  # noqa: E402
+from app.air import service as air  # noqa: E402
 from tests.api.test_air_trends import store  # noqa: E402
 from tests.conftest import migrate  # noqa: E402
 

@@ -38,10 +38,11 @@ from sklearn.model_selection import GroupKFold, LeaveOneOut
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from app.core import airquality, soiling
-from app.core.jpeg import decode_rgb
-from app.core.stats import channel_stats
-from app.services.air import fit_regression
+from app.air.core import airquality
+from app.air.service import fit_regression
+from app.platform.frames import hotelling as soiling
+from app.platform.frames.jpeg import decode_rgb
+from app.platform.frames.stats import channel_stats
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = {

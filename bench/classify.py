@@ -21,13 +21,14 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from app.core import fleet, soiling
-from app.core.jpeg import decode_rgb
-from app.core.quality import unusable_reason
-from app.core.stats import channel_stats
-from app.db.models import CameraKind
-from app.services.camera_info import CameraInfo
-from app.services.ingest import analyse
+from app.platform.db.models import CameraKind
+from app.platform.frames import hotelling as soiling
+from app.platform.frames.camera_info import CameraInfo
+from app.platform.frames.ingest import analyse
+from app.platform.frames.jpeg import decode_rgb
+from app.platform.frames.quality import unusable_reason
+from app.platform.frames.stats import channel_stats
+from app.solar.core import fleet
 
 CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
 WITH_BASELINE = CameraInfo(

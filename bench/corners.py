@@ -3,7 +3,7 @@
 Renders the test suite's board (tests/core/test_calibration.py: 9×6 inner corners in
 perspective, rendered at 4× and area-averaged, exact corners) at several photo sizes, the
 same with sensor grain (uniform 0–15 grey levels), and an image of noise (no board) of each
-size, and times ``app.core.calibration.find_corners`` as it
+size, and times ``app.cells.core.calibration.find_corners`` as it
 is (boards looked for at ``DETECT_SIDE`` px, corners refined at full size) against the same
 function searching the full image (``DETECT_SIDE`` raised above the size), side by side in one
 run. Reports the time and the corner error against the exact corners [px].
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.core import calibration  # noqa: E402
+from app.cells.core import calibration
 from tests.core.test_calibration import rendered_board  # noqa: E402
 
 

@@ -23,13 +23,14 @@ import numpy as np
 from sklearn.metrics import balanced_accuracy_score
 from sklearn.model_selection import StratifiedGroupKFold
 
-from app.core import fleet, soiling
-from app.core.jpeg import decode_rgb
-from app.db.models import CameraKind
-from app.services.camera_info import CameraInfo
-from app.services.ingest import analyse
-from app.services.panels import as_core_model
-from app.services.training import fit_fleet
+from app.platform.db.models import CameraKind
+from app.platform.frames import hotelling as soiling
+from app.platform.frames.camera_info import CameraInfo
+from app.platform.frames.ingest import analyse
+from app.platform.frames.jpeg import decode_rgb
+from app.solar.core import fleet
+from app.solar.panels import as_core_model
+from app.solar.training import fit_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = CameraInfo(id="eval", kind=CameraKind.panel, panel_id=None, roi=None)

@@ -23,7 +23,7 @@ import psycopg
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.db.ids import time_ordered_id  # noqa: E402
+from app.platform.db.ids import time_ordered_id  # noqa: E402
 
 ADMIN_URL = "postgresql://postgres@127.0.0.1:5432/postgres"
 URL = "postgresql://postgres@127.0.0.1:5432/vantage_keys"

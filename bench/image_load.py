@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.main import create_app  # noqa: E402
-from app.settings import Settings  # noqa: E402
+from app.platform.settings import Settings  # noqa: E402
 
 TOKEN = "bench-admin-token-0123456789abcdef"
 

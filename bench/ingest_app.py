@@ -9,10 +9,10 @@ from concurrent.futures import ThreadPoolExecutor
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 
-from app.core.jpeg import decode_rgb
-from app.core.stats import channel_stats
 from app.main import create_app
-from app.uploads import read_capped
+from app.platform.frames.jpeg import decode_rgb
+from app.platform.frames.stats import channel_stats
+from app.platform.http.uploads import read_capped
 
 BARE_THREADS_ENV = "VANTAGE_BENCH_BARE_THREADS"
 """Threads the bare endpoint decodes on: unset, as many as the ingest's preparing threads (the

@@ -35,15 +35,15 @@ sys.path.insert(0, str(ROOT))
 from sqlalchemy import Engine  # noqa: E402
 from sqlalchemy.orm import Session, sessionmaker  # noqa: E402
 
-from app.core.jpeg import decode_rgb  # noqa: E402
-from app.core.stats import channel_stats  # noqa: E402
-from app.db.models import Camera, CameraKind  # noqa: E402
-from app.db.session import make_engine, make_sessionmaker  # noqa: E402
-from app.services import ingest  # noqa: E402
-from app.services.camera_info import CameraInfo  # noqa: E402
-from app.services.policy import Policy  # noqa: E402
-from app.services.storage import DiskFrameStore  # noqa: E402
-from app.services.writer import GroupCommitWriter  # noqa: E402
+from app.platform.db.models import Camera, CameraKind  # noqa: E402
+from app.platform.db.session import make_engine, make_sessionmaker  # noqa: E402
+from app.platform.frames import ingest  # noqa: E402
+from app.platform.frames.camera_info import CameraInfo  # noqa: E402
+from app.platform.frames.jpeg import decode_rgb  # noqa: E402
+from app.platform.frames.stats import channel_stats  # noqa: E402
+from app.platform.frames.storage import DiskFrameStore  # noqa: E402
+from app.platform.frames.writer import GroupCommitWriter  # noqa: E402
+from app.platform.policy import Policy  # noqa: E402
 from bench.ingest import jpeg_640x480, prepare_pg, unique  # noqa: E402
 
 MAX_PIXELS = 40_000_000

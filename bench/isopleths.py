@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def case(n: int, method: str) -> dict[str, object]:
     sys.path.insert(0, str(ROOT))
-    from app.core.isopleths import bands, default_bbox, interpolate
+    from app.air.core.isopleths import bands, default_bbox, interpolate
 
     rng = np.random.default_rng(n)
     # a city of ~30 km: cameras clustered along streets, a smooth pollution field

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.core import laser, laser_grid  # noqa: E402
-from app.core.triangulation import CrossRig  # noqa: E402
+from app.cells.core import laser, laser_grid
+from app.cells.core.triangulation import CrossRig  # noqa: E402
 from tests.core.laser_scenes import RIG, Part, Scene, photographed, render  # noqa: E402
 
 SCENES = [

@@ -2,7 +2,7 @@
 
 Renders the test suite's prism scene (tests/core/scenes.py: a matt box, its cast shadow,
 Gaussian noise and blur) at several dynamic ranges and shadow strengths, runs
-``app.core.imaging.outline`` with and without the shadow step, and reports the largest corner
+``app.cells.core.imaging.outline`` with and without the shadow step, and reports the largest corner
 error [px] (median over seeds), the same for a light part on a dark table, and the median time
 of the whole pipeline (luma already given: the part's side told → stretch → shadow step →
 Canny → Hough → joining → corners).
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.core.imaging import OutlineParams, outline  # noqa: E402
+from app.cells.core.imaging import OutlineParams, outline  # noqa: E402
 from tests.core.scenes import PRISM_OUTLINE, light_prism_scene, prism_scene  # noqa: E402
 
 

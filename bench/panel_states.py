@@ -26,9 +26,9 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.core.panel_state import PanelState  # noqa: E402
-from app.services import panels  # noqa: E402
-from app.services.policy import Policy  # noqa: E402
+from app.platform.policy import Policy  # noqa: E402
+from app.solar import panels  # noqa: E402
+from app.solar.core.panel_state import PanelState  # noqa: E402
 from bench.air_trends import PG_ADMIN, analyze, database  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
 from tests.api.test_solar import TASK_FACTS, Facts, store_farm  # noqa: E402

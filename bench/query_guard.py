@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx2 as httpx  # noqa: E402
 
-from app.query import CheckedQuery  # noqa: E402
+from app.platform.http.query import CheckedQuery  # noqa: E402
 
 
 def service(guarded: bool) -> FastAPI:

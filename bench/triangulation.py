@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.core.triangulation import (  # noqa: E402
+from app.cells.core.triangulation import (  # noqa: E402
     PAIRS,
     CrossRig,
     View,

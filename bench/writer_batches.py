@@ -24,11 +24,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.db.models import CameraKind  # noqa: E402
-from app.services import ingest, registry  # noqa: E402
-from app.services.camera_info import CameraInfo  # noqa: E402
-from app.services.policy import Policy  # noqa: E402
-from app.services.writer import GroupCommitWriter, _Job  # noqa: E402
+from app.platform.db.models import CameraKind  # noqa: E402
+from app.platform.frames import cameras as registry  # noqa: E402
+from app.platform.frames import ingest  # noqa: E402
+from app.platform.frames.camera_info import CameraInfo  # noqa: E402
+from app.platform.frames.writer import GroupCommitWriter, _Job  # noqa: E402
+from app.platform.policy import Policy  # noqa: E402
 from bench.ingest import PG_BENCH_URL, jpeg_640x480, unique  # noqa: E402
 from bench.ingest_parts import bench_database  # noqa: E402
 
@@ -54,7 +55,7 @@ def main() -> None:
     if views:
         writer = GroupCommitWriter(sessions, check=registry.refusals)
         # the view as this checkout writes it (with the kind since the kind may change)
-        from app.services import camera_info
+        from app.platform.frames import camera_info
 
         kinds = "kind" in inspect.signature(camera_info.view_of).parameters
         view = '["rig",null,null]' if kinds else "[null,null]"

@@ -7,9 +7,8 @@ from logging.config import fileConfig
 from alembic import context
 from sqlalchemy import create_engine, pool
 
-from app.db import models  # noqa: F401  (registers the tables)
-from app.db.base import Base
-from app.settings import get_settings
+from app.platform.db.base import Base
+from app.platform.settings import get_settings
 
 config = context.config
 if config.config_file_name is not None and config.attributes.get("configure_logger", True):

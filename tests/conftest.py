@@ -23,9 +23,9 @@ from alembic.config import Config
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, inspect, make_url, text
 
-from app.db.base import Base
 from app.main import create_app
-from app.settings import Settings
+from app.platform.db.base import Base
+from app.platform.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-import app.db.base
+import app.platform.db.base
 
 
 revision: str = '1a9515afabae'
@@ -26,14 +26,14 @@ def upgrade() -> None:
     sa.Column('name', sa.String(length=200), nullable=True),
     sa.Column('lat', sa.Float(), nullable=True),
     sa.Column('lon', sa.Float(), nullable=True),
-    sa.Column('created_at', app.db.base.UTCDateTime(timezone=True), nullable=False),
+    sa.Column('created_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=False),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_panels'))
     )
     op.create_table('robots',
     sa.Column('id', sa.String(length=64), nullable=False),
     sa.Column('name', sa.String(length=200), nullable=True),
     sa.Column('token_hash', sa.String(length=64), nullable=False),
-    sa.Column('created_at', app.db.base.UTCDateTime(timezone=True), nullable=False),
+    sa.Column('created_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=False),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_robots')),
     sa.UniqueConstraint('token_hash', name=op.f('uq_robots_token_hash'))
     )
@@ -46,7 +46,7 @@ def upgrade() -> None:
     sa.Column('panel_id', sa.String(length=64), nullable=True),
     sa.Column('roi', sa.JSON(), nullable=True),
     sa.Column('token_hash', sa.String(length=64), nullable=False),
-    sa.Column('created_at', app.db.base.UTCDateTime(timezone=True), nullable=False),
+    sa.Column('created_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=False),
     sa.ForeignKeyConstraint(['panel_id'], ['panels.id'], name=op.f('fk_cameras_panel_id_panels')),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_cameras')),
     sa.UniqueConstraint('token_hash', name=op.f('uq_cameras_token_hash'))
@@ -57,8 +57,8 @@ def upgrade() -> None:
     op.create_table('frames',
     sa.Column('id', sa.String(length=36), nullable=False),
     sa.Column('camera_id', sa.String(length=64), nullable=False),
-    sa.Column('captured_at', app.db.base.UTCDateTime(timezone=True), nullable=False),
-    sa.Column('received_at', app.db.base.UTCDateTime(timezone=True), nullable=False),
+    sa.Column('captured_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=False),
+    sa.Column('received_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=False),
     sa.Column('width', sa.Integer(), nullable=False),
     sa.Column('height', sa.Integer(), nullable=False),
     sa.Column('size_bytes', sa.BigInteger(), nullable=False),

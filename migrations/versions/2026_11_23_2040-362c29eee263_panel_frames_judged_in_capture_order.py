@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-import app.db.base
+import app.platform.db.base
 
 
 revision: str = '362c29eee263'
@@ -24,7 +24,7 @@ def upgrade() -> None:
         batch_op.add_column(sa.Column('late', sa.Boolean(), server_default=sa.false(), nullable=False))
 
     with op.batch_alter_table('panels', schema=None) as batch_op:
-        batch_op.add_column(sa.Column('last_judged_at', app.db.base.UTCDateTime(timezone=True), nullable=True))
+        batch_op.add_column(sa.Column('last_judged_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=True))
 
 
 def downgrade() -> None:

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-import app.db.base
+import app.platform.db.base
 
 
 revision: str = '74b0f14b7e71'
@@ -21,7 +21,7 @@ depends_on: str | Sequence[str] | None = None
 
 def upgrade() -> None:
     with op.batch_alter_table('panels', schema=None) as batch_op:
-        batch_op.add_column(sa.Column('retired_at', app.db.base.UTCDateTime(timezone=True), nullable=True))
+        batch_op.add_column(sa.Column('retired_at', app.platform.db.base.UTCDateTime(timezone=True), nullable=True))
 
 
 def downgrade() -> None:

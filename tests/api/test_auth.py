@@ -10,8 +10,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.main import create_app
-from app.security import ADMIN_TOKEN_FILE, hash_token
-from app.settings import Settings
+from app.platform.auth import ADMIN_TOKEN_FILE, hash_token
+from app.platform.settings import Settings
 from tests.conftest import make_jpeg
 
 

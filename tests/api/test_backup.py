@@ -1,4 +1,4 @@
-"""``python -m app.backup``: a consistent copy of a running service's data that restores into a
+"""``python -m app.platform.backup``: a consistent copy of a running service's data that restores into a
 service serving the same frames."""
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.backup import BackupError, backup, main
 from app.main import create_app
-from app.security import ADMIN_TOKEN_FILE, admin_token_hash
-from app.settings import Settings
+from app.platform.auth import ADMIN_TOKEN_FILE, admin_token_hash
+from app.platform.backup import BackupError, backup, main
+from app.platform.settings import Settings
 from tests.conftest import make_jpeg, table_counts
 
 ON_SQLITE = not os.environ.get("VANTAGE_TEST_DATABASE_URL", "").startswith("postgresql")
@@ -131,7 +131,7 @@ def test_the_command_reports_as_json(
     capsys: Any,
 ) -> None:
     _post(client, _camera(client, admin), seed=1)
-    monkeypatch.setattr("app.backup.get_settings", lambda: settings)
+    monkeypatch.setattr("app.platform.backup.get_settings", lambda: settings)
     assert main([str(tmp_path / "backup")]) == 0
     assert '"missing": []' in capsys.readouterr().out
     assert main([str(tmp_path / "backup")]) == 1  # not empty now

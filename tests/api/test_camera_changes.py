@@ -12,9 +12,9 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, update
 
-from app.db.models import Camera, CameraKind
-from app.security import hash_token
-from app.services.camera_info import CameraInfo, TokenCache
+from app.platform.auth import hash_token
+from app.platform.db.models import Camera, CameraKind
+from app.platform.frames.camera_info import CameraInfo, TokenCache
 from tests.conftest import make_jpeg, table_counts
 
 LEFT, RIGHT = (200, 40, 40), (40, 40, 200)
@@ -402,7 +402,7 @@ def test_the_token_cache_forgets_one_camera() -> None:
 
 def test_a_cache_time_of_zero_keeps_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
     # the clock stands still: an entry kept for 0 s would still be in date when read
-    monkeypatch.setattr("app.services.camera_info.time.monotonic", lambda: 100.0)
+    monkeypatch.setattr("app.platform.frames.camera_info.time.monotonic", lambda: 100.0)
     cache = TokenCache(ttl=0)
     cache.put("h1", CameraInfo("a", CameraKind.rig, None, None))
     assert cache.get("h1") is None

@@ -16,7 +16,7 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine, text
 
-from app.services.storage import DiskFrameStore, digest, pack_of
+from app.platform.frames.storage import DiskFrameStore, digest, pack_of
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
 from tests.servers import free_port, server_env, start_server
 

@@ -25,9 +25,9 @@ from sqlalchemy import Engine, create_engine, make_url, text
 from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
-from app.errors import database_unavailable
 from app.main import create_app
-from app.settings import Settings
+from app.platform.http.errors import database_unavailable
+from app.platform.settings import Settings
 from tests.conftest import (
     ADMIN_TOKEN,
     _empty_tables,
@@ -440,7 +440,7 @@ def test_tables_locked_past_the_statement_timeout(engine: Engine, tmp_path: Path
 
 
 def test_the_database_urls_own_timeouts_win() -> None:
-    from app.db.session import _pg_timeouts
+    from app.platform.db.session import _pg_timeouts
 
     ours = _pg_timeouts("postgresql+psycopg://u@db/v")
     assert ours["connect_timeout"] == 5
@@ -503,7 +503,7 @@ def test_every_operation_documents_its_503(client: TestClient) -> None:
 @pytest.mark.skipif(
     PG_URL.startswith("postgresql"),
     reason="database_down patches the dialect; on PostgreSQL a batch's statements all go to the "
-    "driver itself (its SELECT and COPY, app.db.rows; no BEGIN is sent), past the dialect. "
+    "driver itself (its SELECT and COPY, app.platform.db.rows; no BEGIN is sent), past the dialect. "
     "test_a_real_postgresql_outage cuts PostgreSQL itself",
 )
 def test_a_batch_meeting_an_outage_fails_at_once(

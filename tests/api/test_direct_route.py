@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse, Response
 from fastapi.testclient import TestClient
 
 from app.direct_route import DirectRoute, UnsupportedRoute
-from app.errors import install_error_handlers
+from app.platform.http.errors import install_error_handlers
 
 CALLS: list[str] = []
 
@@ -26,7 +26,7 @@ async def owner(
 ) -> str:
     CALLS.append(item_id)
     if authorization == "refuse":
-        from app.errors import Unauthorized
+        from app.platform.http.errors import Unauthorized
 
         raise Unauthorized("refused")
     return f"{item_id}@{request.method}"

@@ -26,9 +26,9 @@ from moto.server import ThreadedMotoServer
 from sqlalchemy import Engine, event
 
 from app.main import create_app
-from app.services import retention
-from app.services.storage import S3FrameStore, digest
-from app.settings import Settings
+from app.platform.frames import retention
+from app.platform.frames.storage import S3FrameStore, digest
+from app.platform.settings import Settings
 from tests.api.test_solar import CLEAN_RGB, Clock, panel_jpeg
 from tests.conftest import ADMIN_TOKEN, _empty_tables, migrate, table_counts
 from tests.servers import free_port, server_env, start_server

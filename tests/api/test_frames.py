@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.services.storage import PACK_HEADER
+from app.platform.frames.storage import PACK_HEADER
 from tests.conftest import make_jpeg, stalled_writer, table_counts
 
 DAY = (datetime.now(UTC) - timedelta(days=2)).date().isoformat()

@@ -16,8 +16,8 @@ from pydantic import SecretStr
 
 from app import __version__
 from app.main import create_app
-from app.routers import health as health_router
-from app.settings import Settings
+from app.platform import health as health_router
+from app.platform.settings import Settings
 from tests.conftest import make_jpeg
 
 
@@ -325,7 +325,7 @@ def test_a_body_that_is_not_json_is_a_problem_with_a_title(
 def test_triangulation_warm_up_at_start_is_a_setting(
     settings: Settings, monkeypatch: pytest.MonkeyPatch, warm: bool
 ) -> None:
-    from app.core import triangulation
+    from app.cells.core import triangulation
 
     calls: list[int] = []
     monkeypatch.setattr(triangulation, "warm_up", lambda: calls.append(1))

@@ -17,8 +17,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app.routers import rigs
-from app.services import training
+from app.cells.routers import rigs
+from app.solar import training
 from tests.api.test_air import calibrate
 from tests.api.test_solar import clean_set
 from tests.conftest import make_jpeg

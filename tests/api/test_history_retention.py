@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
-from app.settings import Settings
+from app.platform.settings import Settings
 from tests.api.test_air import calibrate, sky_jpeg
 from tests.api.test_air import city as city  # a fixture
 from tests.conftest import table_counts

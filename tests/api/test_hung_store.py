@@ -19,8 +19,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from app.main import create_app
-from app.services.storage import FrameStore
-from app.settings import Settings
+from app.platform.frames.storage import FrameStore
+from app.platform.settings import Settings
 from tests.api.test_frame_store import rig_camera
 from tests.conftest import ADMIN_TOKEN, _empty_tables, make_jpeg
 
@@ -200,7 +200,7 @@ STOP_SCRIPT = """
 import sys, threading
 from fastapi.testclient import TestClient
 from app.main import create_app
-from app.settings import Settings
+from app.platform.settings import Settings
 from tests.conftest import make_jpeg
 
 data_dir, database_url, token = sys.argv[1:]

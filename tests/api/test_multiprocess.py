@@ -15,7 +15,7 @@ import httpx2 as httpx
 import pytest
 from sqlalchemy import Engine
 
-from app.core import airquality
+from app.air.core import airquality
 from tests.api.test_air import calibrate, sky_jpeg
 from tests.api.test_camera_changes import LEFT, RIGHT, halves, near
 from tests.api.test_solar import CLEAN_RGB, DUST, clean_set, panel_jpeg

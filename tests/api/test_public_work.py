@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.services import air
+from app.air import service as air
 from tests.api.test_air_trends import store
 from tests.conftest import make_jpeg
 

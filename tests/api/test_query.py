@@ -9,7 +9,7 @@ from datetime import UTC, datetime, timedelta, timezone
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.query import counted, rules
+from app.platform.http.query import counted, rules
 from tests.conftest import make_jpeg, table_counts
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from app.routers.responses import not_modified
+from app.platform.http.responses import not_modified
 
 
 def test_if_none_match() -> None:

@@ -9,8 +9,8 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
-from app.services import retention
-from app.services.storage import DiskFrameStore, digest, pack_of, relative_path
+from app.platform.frames import retention
+from app.platform.frames.storage import DiskFrameStore, digest, pack_of, relative_path
 from tests.api.test_solar import CLEAN_RGB, Clock, clean_set, panel_jpeg
 from tests.conftest import table_counts
 

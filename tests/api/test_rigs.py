@@ -14,8 +14,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, insert
 
-from app.core.triangulation import CrossRig, View, project_views
-from app.db.models import Rig
+from app.cells.core.triangulation import CrossRig, View, project_views
+from app.platform.db.models import Rig
 from tests.core.test_triangulation import RIG, calibrated_views, points
 
 

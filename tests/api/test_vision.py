@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app.cells import vision as vision_service
 from app.main import create_app
-from app.services import vision as vision_service
 from tests.conftest import ADMIN_TOKEN, _empty_tables
 from tests.core.scenes import PRISM_OUTLINE, cylinder_scene, light_prism_scene, prism_scene
 from tests.core.test_imaging import corner_error

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.core.triangulation import CrossRig
+from app.cells.core.triangulation import CrossRig
 
 RIG = CrossRig(f=1000.0, ax=0.3, ay=0.2, cx=320.0, cy=240.0)
 

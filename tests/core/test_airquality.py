@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, shape
 
-from app.core import airquality, soiling
-from app.core.isopleths import (
+from app.air.core import airquality
+from app.air.core.isopleths import (
     EARTH_RADIUS,
     IsoplethError,
     band_at,
@@ -21,6 +21,7 @@ from app.core.isopleths import (
     interpolate,
     uncertainty_bands,
 )
+from app.platform.frames import hotelling as soiling
 from tests.memory import traced_peak
 
 # very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
@@ -573,7 +574,7 @@ class TestSkyFeatures:
         peak, n = traced_peak(
             """
             import numpy as np
-            from app.core import airquality
+            from app.air.core import airquality
             sky = np.random.default_rng(0).integers(0, 256, (4000, 6000, 3), dtype=np.uint8)
             """,
             """

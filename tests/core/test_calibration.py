@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.core.calibration import CalibrationError, board_points, calibrate, find_corners
+from app.cells.core.calibration import CalibrationError, board_points, calibrate, find_corners
 
 K_TRUE = np.array([[800.0, 0.0, 320.0], [0.0, 790.0, 240.0], [0.0, 0.0, 1.0]])
 DIST_TRUE = np.array([-0.2, 0.05, 0.001, -0.0005, 0.0])

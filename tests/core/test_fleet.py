@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.core.fleet import FEATURES, LogisticModel, features, reduce
+from app.solar.core.fleet import FEATURES, LogisticModel, features, reduce
 from tests.core.test_quality import panel
 
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.core.imaging import (
+from app.cells.core.imaging import (
     CannyParams,
     OutlineParams,
     canny,

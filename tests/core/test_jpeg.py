@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.core.jpeg import (
+from app.platform.frames.jpeg import (
     CorruptJpegError,
     NotJpegError,
     TooManyPixelsError,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.core.laser import Spot, find_spots, locate
+from app.cells.core.laser import Spot, find_spots, locate
 
 
 def test_spot_centroid_is_sub_pixel() -> None:

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from app.core import laser, laser_grid
-from app.core.triangulation import CrossRig, View, project_views
+from app.cells.core import laser, laser_grid
+from app.cells.core.triangulation import CrossRig, View, project_views
 from tests.core.laser_scenes import RIG, Part, Scene, _intersect, photographed, render
 
 GEO = laser_grid.cross_geometry(RIG)

@@ -7,7 +7,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from app.core.panel_state import (
+from app.solar.core.panel_state import (
     PanelFacts,
     PanelState,
     TaskAction,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.core.pantilt import (
+from app.cells.core.pantilt import (
     Mount,
     perspective,
     project_dissertation,

@@ -9,9 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.core.jpeg import decode_rgb
-from app.core.quality import DEFAULT_LIMITS, SKY_LIMITS, obstruction_reason, unusable_reason
-from app.core.stats import channel_stats
+from app.platform.frames.jpeg import decode_rgb
+from app.platform.frames.quality import (
+    DEFAULT_LIMITS,
+    SKY_LIMITS,
+    obstruction_reason,
+    unusable_reason,
+)
+from app.platform.frames.stats import channel_stats
 from tests.conftest import SHARED_DATA
 
 

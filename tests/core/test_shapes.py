@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from app.core.shapes import match
+from app.cells.core.shapes import match
 from tests.memory import traced_peak
 
 
@@ -144,7 +144,7 @@ def test_many_points_take_little_memory() -> None:
     peak, (shape, radius) = traced_peak(
         """
         import numpy as np
-        from app.core.shapes import match
+        from app.cells.core.shapes import match
         rng = np.random.default_rng(6)
         a = rng.uniform(0, 2 * np.pi, 5000)
         p = np.column_stack([50 * np.cos(a), 50 * np.sin(a), rng.choice([0.0, 100.0], 5000)])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.core.stats import bounding_box, channel_stats, crop, polygon_pixels
+from app.platform.frames.stats import bounding_box, channel_stats, crop, polygon_pixels
 
 
 def image_with_histogram(counts: dict[int, int], width: int = 10) -> np.ndarray:

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.core.triangulation import (
+from app.cells.core.triangulation import (
     PAIRS,
     CrossRig,
     RigArrays,

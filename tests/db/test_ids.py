@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 import uuid
 
-from app.db.ids import time_ordered_id
+from app.platform.db.ids import time_ordered_id
 
 
 def test_a_version_7_uuid_carrying_the_time_in_milliseconds() -> None:

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 
 from app.main import create_app
-from app.settings import Settings
+from app.platform.settings import Settings
 from tests.api import test_air, test_calibrations, test_solar
 from tests.conftest import ADMIN_TOKEN, alembic_config, migrate, postgres_database, table_counts
 

@@ -10,9 +10,9 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 
-from app.db.schema import SchemaBehind, _scripts
 from app.main import create_app
-from app.settings import Settings
+from app.platform.db.schema import SchemaBehind, _scripts
+from app.platform.settings import Settings
 from tests.conftest import migrate
 
 

@@ -15,13 +15,13 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import AirAlert
-from app.db.session import make_engine, make_sessionmaker
+from app.air import alerts as webhooks
 from app.main import create_app
-from app.services import webhooks
-from app.services.background import in_thread
-from app.services.policy import Policy
-from app.settings import Settings
+from app.platform.background import in_thread
+from app.platform.db.models import AirAlert
+from app.platform.db.session import make_engine, make_sessionmaker
+from app.platform.policy import Policy
+from app.platform.settings import Settings
 from tests.services.test_webhooks import T0, seed_alerts
 
 

@@ -14,8 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from app.services import storage
-from app.services.storage import PACK_HEADER, DiskFrameStore, StoreUnavailable, digest, pack_of
+from app.platform.frames import storage
+from app.platform.frames.storage import (
+    PACK_HEADER,
+    DiskFrameStore,
+    StoreUnavailable,
+    digest,
+    pack_of,
+)
 
 T0 = datetime(2026, 6, 1, 8, 59, 59, tzinfo=UTC)
 
@@ -138,7 +144,7 @@ def test_a_pack_is_idle_once_its_process_is_gone_and_it_has_aged(tmp_path: Path)
             sys.executable,
             "-c",
             "import sys; from datetime import datetime, UTC; "
-            "from app.services.storage import DiskFrameStore, digest; "
+            "from app.platform.frames.storage import DiskFrameStore, digest; "
             f"s = DiskFrameStore(__import__('pathlib').Path({str(tmp_path)!r})); "
             "s.put(b'frame', digest(b'frame'), datetime.now(UTC)); "
             "print('written', flush=True); sys.stdin.read()",
@@ -213,7 +219,7 @@ def test_a_bucket_that_never_answers_fails_in_bounded_time(
     import threading
     import time
 
-    from app.services.storage import S3FrameStore, S3Timeouts
+    from app.platform.frames.storage import S3FrameStore, S3Timeouts
 
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "test")
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "test")

@@ -22,11 +22,11 @@ from pydantic import ValidationError
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db.models import AirAlert, Camera, CameraKind, Frame
-from app.db.session import make_engine, make_sessionmaker
-from app.services import webhooks
-from app.services.policy import Policy
-from app.settings import Settings
+from app.air import alerts as webhooks
+from app.platform.db.models import AirAlert, Camera, CameraKind, Frame
+from app.platform.db.session import make_engine, make_sessionmaker
+from app.platform.policy import Policy
+from app.platform.settings import Settings
 from tests.conftest import _empty_tables
 
 T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)

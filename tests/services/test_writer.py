@@ -19,8 +19,8 @@ import pytest
 from sqlalchemy import Engine, event, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import rows
-from app.db.models import (
+from app.platform.db import rows
+from app.platform.db.models import (
     AirAlert,
     Camera,
     CameraKind,
@@ -30,12 +30,12 @@ from app.db.models import (
     SkyVerdict,
     Verdict,
 )
-from app.db.rows import deferred_inserts, insert_rows
-from app.db.session import make_engine, make_sessionmaker
-from app.errors import Unauthorized
-from app.services import registry
-from app.services.camera_info import view_of
-from app.services.writer import CameraChanged, Credential, GroupCommitWriter, Refusal, _Job
+from app.platform.db.rows import deferred_inserts, insert_rows
+from app.platform.db.session import make_engine, make_sessionmaker
+from app.platform.frames import cameras as registry
+from app.platform.frames.camera_info import view_of
+from app.platform.frames.writer import CameraChanged, Credential, GroupCommitWriter, Refusal, _Job
+from app.platform.http.errors import Unauthorized
 from tests.conftest import _empty_tables
 
 T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)
@@ -239,7 +239,7 @@ def test_a_cameras_view_as_the_driver_reads_it_is_its_view_as_cached(
     """The check compares the view the snapshot was built from (the ORM's JSON) with the one
     the driver reads (JSON text on SQLite, parsed on PostgreSQL): equal for every kind of
     region, or every frame would be measured again."""
-    from app.services.camera_info import CameraInfo
+    from app.platform.frames.camera_info import CameraInfo
 
     regions: list[Any] = [None, [0, 60, 640, 300], [[0, 0], [640, 0], [640, 200], [0, 300]]]
     with sessions() as s:

@@ -1,0 +1,334 @@
+"""Air quality from the sky: dissertation chapter 6.
+
+Street cameras photograph the sky; haze raises the red and green modes of the sky region and
+lowers the blue one. Labelled images (levels 1–10 measured by reference instruments) make one
+cluster per level — its mean mode vector and covariance (eqs. 6.12–6.13) — and a new frame falls
+in the level whose T² test accepts it (6.19–6.22; as in chapter 5, eq. 6.23 is not equivalent
+to 6.22 and is not used). The statistics are ``app.platform.frames.hotelling``'s: the same Theorem 2.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from app.platform.frames import hotelling as soiling
+from app.platform.frames.stats import channel_histograms
+
+LEVELS = range(1, 11)
+CATEGORIES = (
+    (9, "Very Good"),
+    (7, "Good"),
+    (5, "Fair"),
+    (3, "Poor"),
+    (1, "Very Poor"),
+)
+"""Lowest level of each category: 9–10 Very Good, 7–8 Good, 5–6 Fair, 3–4 Poor, 1–2 Very Poor."""
+MIN_CLUSTER = 5
+"""A level needs this many images for its own cluster (F(3, n − 3) with n − 3 ≥ 2)."""
+
+
+def rounded(level: float) -> int:
+    """A fractional level (a smoothed one) as the level 1–10 it is reported as: halves up."""
+    if not np.isfinite(level) or not 0.5 <= level < 10.5:
+        raise ValueError(f"level must lie in 1–10; got {level}")
+    return int(np.floor(level + 0.5))
+
+
+def category(level: float) -> str:
+    """The category of a level 1–10 (fractional levels are rounded first)."""
+    return next(name for lowest, name in CATEGORIES if rounded(level) >= lowest)
+
+
+ALERT_CATEGORIES = ("Poor", "Very Poor")
+
+
+ALERT_REARM = 0.5
+"""Hysteresis of alerts [level]: once a camera's smoothed level has entered an alert category,
+entering it again alerts only after the level has climbed this far above the category's upper
+edge (to 5.0 for Poor, 3.0 for Very Poor). Air hovering on an edge — readings alternating 4 and
+5 smooth to 4.3–4.5, and 4.5 is Fair — otherwise crosses it every hour or so, and each crossing
+was a new alert and webhook for the same episode."""
+
+
+CLEAR_LEVEL = 4.5 + ALERT_REARM
+"""A camera's raised alert is cleared when its smoothed level reaches this (Fair, clear of
+Poor by ``ALERT_REARM``): the level at which entering Poor alerts again."""
+
+
+def alert_category(smoothed: float, earlier: Iterable[float]) -> str | None:
+    """The category to raise an alert for when a camera's smoothed level becomes ``smoothed``
+    after ``earlier`` (its earlier smoothed levels, newest first): entering Poor or Very Poor
+    from a better category (Poor from Fair, Very Poor from Poor or better); None otherwise.
+
+    Judged by ``category`` alone, so an alert never names a category it is not about (a level
+    of exactly 4.5 is Fair). "From a better category" is the newest earlier level outside the
+    dead band [edge, edge + ``ALERT_REARM``) above the category: at or above it, the camera
+    came from clearer air; below the edge, it was already in the category (or worse) and this
+    is the same episode. No earlier level outside the band (a camera's first): an alert."""
+    now = category(smoothed)
+    if now not in ALERT_CATEGORIES:
+        return None
+    lowest = next(lowest for lowest, name in CATEGORIES if name == now)
+    edge = next(lo for lo, _ in reversed(CATEGORIES) if lo > lowest) - 0.5  # 4.5 for Poor
+    for level in earlier:
+        if level >= edge + ALERT_REARM:
+            return now
+        if level < edge:
+            return None
+    return now
+
+
+def message(name: str) -> str:
+    return f"Today's Air Quality is {name}"
+
+
+@dataclass(frozen=True, slots=True)
+class Cluster:
+    levels: tuple[int, ...]
+    """The calibration levels pooled into this cluster (one, unless too few images)."""
+    level: int
+    """The level the cluster reports (the median of its images' levels)."""
+    baseline: soiling.Baseline
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    clusters: tuple[Cluster, ...]
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+
+def calibrate(
+    modes: ArrayLike, levels: ArrayLike, *, significance: float = 0.05, shrinkage: float = 0.0
+) -> Calibration:
+    """One cluster per level (eqs. 6.12–6.13); levels with fewer than ``MIN_CLUSTER`` images are
+    pooled with their nearest neighbour (a warning says which).
+
+    Raises soiling.BaselineError when a (pooled) cluster's covariance is singular.
+    """
+    x = np.asarray(modes, dtype=np.float64)
+    lv = np.asarray(levels, dtype=np.int64)
+    if x.ndim != 2 or x.shape[1] != 3 or len(lv) != len(x):
+        raise ValueError(f"need modes (n, 3) and n levels; got {x.shape} and {lv.shape}")
+    if not set(lv.tolist()) <= set(LEVELS):
+        raise ValueError("levels must be integers 1–10")
+    groups: list[list[int]] = [[int(v)] for v in sorted(set(lv.tolist()))]
+    warnings = []
+    while True:
+        sizes = [int(np.isin(lv, g).sum()) for g in groups]
+        small = [i for i, n in enumerate(sizes) if n < MIN_CLUSTER]
+        if not small or len(groups) == 1:
+            break
+        i = small[0]
+        # pool with the neighbour whose levels are closest (ties: the smaller group)
+        cands = [j for j in (i - 1, i + 1) if 0 <= j < len(groups)]
+        j = min(cands, key=lambda k: (abs(np.mean(groups[k]) - np.mean(groups[i])), sizes[k]))
+        warnings.append(
+            f"level(s) {groups[i]} had {sizes[i]} images (< {MIN_CLUSTER}); pooled with {groups[j]}"
+        )
+        a, b = sorted((i, j))
+        groups[a : b + 1] = [sorted(groups[a] + groups[b])]
+    clusters = []
+    for g in groups:
+        members = np.isin(lv, g)
+        try:
+            baseline = soiling.fit_baseline(
+                x[members], significance=significance, shrinkage=shrinkage
+            )
+        except soiling.BaselineError as exc:  # say which of up to ten clusters it is
+            named = f"level {g[0]}" if len(g) == 1 else f"levels {g} (pooled)"
+            raise soiling.BaselineError(f"{named}: {exc}") from exc
+        clusters.append(Cluster(tuple(g), int(np.median(lv[members])), baseline))
+    return Calibration(tuple(clusters), tuple(warnings))
+
+
+@dataclass(frozen=True, slots=True)
+class Grade:
+    level: int | None
+    statistic: float | None
+    """F of the chosen cluster (eq. 6.20)."""
+    p_value: float | None
+    reason: str | None = None
+
+
+def grade(calibration: Calibration, modes: ArrayLike) -> Grade:
+    """The level whose cluster's T² test accepts the mode vector (eqs. 6.19–6.22); of several,
+    the smallest F; of none, no level ("outside calibration") rather than a guess."""
+    if not calibration.clusters:  # a regression's, made without them
+        return Grade(None, None, None, "the calibration has no clusters to grade modes by")
+    results = [(c, soiling.classify(c.baseline, modes)) for c in calibration.clusters]
+    accepted = [(c, r) for c, r in results if r.clean]  # F < F₍₃,ₙ₋₃,ς₎ (6.21–6.22)
+    if not accepted:
+        best = min(results, key=lambda cr: cr[1].f_stat)[1]
+        return Grade(
+            None, best.f_stat, best.p_value, "outside calibration: no level's test accepts"
+        )
+    c, r = min(accepted, key=lambda cr: cr[1].f_stat)
+    return Grade(c.level, r.f_stat, r.p_value)
+
+
+NOWCAST_HOURS = 12
+FRESH = timedelta(hours=3)
+"""A smoothed level needs a reading this recent (the official NowCast wants two of the last
+three hours); a camera's latest reading older than this is not today's air."""
+
+
+_MICROSECOND = timedelta(microseconds=1)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+
+def _microseconds(times: Iterable[datetime]) -> NDArray[np.int64]:
+    """Exact integers, so that a reading exactly k hours old falls in hour k as it does in
+    datetime arithmetic (float seconds round at the microseconds of today's epochs)."""
+    return np.array([(t - _EPOCH) // _MICROSECOND for t in times], dtype=np.int64)
+
+
+def nowcasts(
+    times: Sequence[datetime], levels: Sequence[float], at: Sequence[datetime]
+) -> list[float | None]:
+    """A NowCast-style smoothed level at each of ``at`` from the readings (``times``,
+    ``levels``) taken up to it: hourly means of the 12 hours before weighted wᵏ for the hour k
+    ago, w = max(min/max of the hourly means, 0.5) — steady air weighs history, changing air
+    weighs the latest hours (as the official NowCast for PM2.5). None without a reading in the
+    3 hours before (the official rule wants two of the last three).
+
+    All at once, so that a reading taken late re-smooths the readings after it: the hour k
+    before ``a`` holds the readings
+    taken in (a − (k+1) h, a − k h], so each hour's count and sum are differences of the
+    sorted readings' running count and sum at 13 boundaries: O((m + n) log n) for m times and
+    n readings, not m × n."""
+    if len(times) != len(levels):
+        raise ValueError(f"{len(times)} times but {len(levels)} levels")
+    if not at:
+        return []
+    t = _microseconds(times)
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    v = np.asarray(levels, dtype=np.float64)[order]
+    running = np.concatenate(([0.0], np.cumsum(v)))
+    hour = timedelta(hours=1) // _MICROSECOND
+    bounds = _microseconds(at)[:, None] - hour * np.arange(NOWCAST_HOURS + 1)  # m × 13
+    upto = np.searchsorted(t, bounds, side="right")  # readings taken at or before each bound
+    counts = upto[:, :-1] - upto[:, 1:]  # m × 12: hour k is (bound k+1, bound k]
+    sums = running[upto[:, :-1]] - running[upto[:, 1:]]
+    fresh = counts[:, : int(FRESH / timedelta(hours=1))].any(axis=1)
+    out: list[float | None] = [None] * len(at)
+    powers = np.arange(NOWCAST_HOURS)
+    for i in np.flatnonzero(fresh):
+        present = counts[i] > 0
+        means = sums[i, present] / counts[i, present]
+        lo, hi = means.min(), means.max()
+        w = max(lo / hi if hi > 0 else 1.0, 0.5)
+        weights = w ** powers[present]
+        out[i] = float(weights @ means / weights.sum())
+    return out
+
+
+SKY_FEATURES = (
+    "mode_r",
+    "mode_g",
+    "mode_b",
+    "mean_r",
+    "mean_g",
+    "mean_b",
+    "blue_red_ratio",
+    "darkest_median",
+    "spread",
+    "skyline_std",
+    "skyline_laplacian",
+)
+
+
+BAND_PIXELS = 1 << 20
+"""Pixels of the region taken at a time for its darkest channel."""
+
+
+def _darkest_histogram(sky: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """Histogram of each pixel's darkest channel, a band of rows at a time. ``cv2.min`` of the
+    channels' views copied each channel whole first: three copies of a 36 MP region at once,
+    ~100 MiB (as much again as the decoded frame), and 0.58 against 0.34 ms at 640×480."""
+    h, w = sky.shape[:2]
+    rows = max(1, BAND_PIXELS // max(w, 1))
+    hist = np.zeros(256)
+    for top in range(0, h, rows):
+        band = sky[top : top + rows]
+        lo = np.minimum(band[..., 0], band[..., 1])
+        np.minimum(lo, band[..., 2], out=lo)
+        hist += cv2.calcHist([lo], [0], None, [256], [0, 256]).ravel()
+    return hist
+
+
+def sky_features(
+    sky: NDArray[np.uint8],
+    below: NDArray[np.uint8] | None = None,
+    histograms: NDArray[np.int64] | None = None,
+) -> NDArray[np.float64]:
+    """Features of a sky region (RGB, uint8) and of the strip below it (the skyline) for the
+    regression across levels that improves on the clusters: modes, means, blue-to-red ratio,
+    median of the darkest channel, spread; the skyline's contrast (0 without a strip).
+
+    ``histograms``: the region's channel histograms (3, 256) when already computed. Everything
+    comes from histograms and uint8 or float32 single-channel arrays: a float64 copy of a 36 MP
+    region and its temporaries took ~2 GB of memory.
+    """
+    hist = channel_histograms(sky) if histograms is None else histograms
+    levels = np.arange(256, dtype=np.float64)
+    n = float(hist[0].sum())
+    modes = hist.argmax(axis=1)
+    means = hist @ levels / n
+    spread = np.sqrt(np.maximum(hist @ levels**2 / n - means**2, 0.0)).mean()
+    contrast = [0.0, 0.0]
+    if below is not None and below.size:
+        # luma channel by channel, the second difference down the columns in place
+        grey = below[..., 0] * np.float32(0.299)
+        grey += below[..., 1] * np.float32(0.587)
+        grey += below[..., 2] * np.float32(0.114)
+        lap = 0.0
+        if grey.shape[0] > 2:
+            d = grey[2:] - grey[1:-1]
+            d -= grey[1:-1]
+            d += grey[:-2]
+            lap = float(np.abs(d, out=d).mean())
+        contrast = [float(grey.std()), lap]
+    return np.array(
+        [
+            *modes,
+            *means,
+            (means[2] + 1) / (means[0] + 1),
+            _median(_darkest_histogram(sky)),
+            spread,
+            *contrast,
+        ]
+    )
+
+
+def _median(hist: NDArray[Any]) -> float:
+    """``np.median`` of the values a histogram of 0–255 counts (the mean of the two middle ones
+    for an even count)."""
+    cdf = np.cumsum(hist)
+    n = int(cdf[-1])
+    upper = int(np.searchsorted(cdf, n // 2 + 1))  # the value at sorted position n // 2
+    if n % 2:
+        return float(upper)
+    lower = int(np.searchsorted(cdf, n // 2))  # at position n // 2 − 1
+    return (lower + upper) / 2
+
+
+@dataclass(frozen=True, slots=True)
+class Regression:
+    """Standardised ridge regression of the level on ``SKY_FEATURES``."""
+
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    coef: NDArray[np.float64]
+    intercept: float
+
+    def level(self, features: ArrayLike) -> int:
+        z = float(((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) @ self.coef)
+        return int(np.clip(np.rint(z + self.intercept), 1, 10))

@@ -1,0 +1,823 @@
+"""Air quality: calibration (admin); latest, readings, alerts and isopleths (public)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from functools import partial
+from typing import Annotated, Any, Literal
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+import numpy as np
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
+from pydantic import StringConstraints
+from sqlalchemy.orm import Session
+
+from app.air import alerts as webhooks
+from app.air import service as air
+from app.air.core import airquality, isopleths
+from app.air.isopleth_cache import MapCache
+from app.platform.db.models import Frame, SkyVerdict
+from app.platform.db.session import release
+from app.platform.http.compression import accepts_gzip
+from app.platform.http.deps import (
+    ID_PATTERN,
+    Admin,
+    CameraId,
+    FrameCursor,
+    IdFilter,
+    IdsFilter,
+    Limit,
+    Offset,
+    OptionalPrincipal,
+    PolicyDep,
+    SessionDep,
+    SettingsDep,
+    TimeRangeQuery,
+    UtcTime,
+    image_work,
+    link_next,
+    public_work,
+)
+from app.platform.http.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
+from app.platform.http.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+    not_modified,
+)
+from app.platform.http.uploads import content_type, read_form, read_json
+from app.platform.policy import Policy
+from app.platform.schemas import (
+    AirAggregate,
+    AirAlertOut,
+    AirCalibrationFromFrames,
+    AirCalibrationOut,
+    AirLatest,
+    AirReading,
+    WebhookTestOut,
+)
+from app.solar import training
+
+router = APIRouter(prefix="/air", tags=["air quality"])
+
+Significance = Annotated[float, Query(ge=1e-6, le=0.05, description="ς (eq. 6.21).")]
+PUBLIC_MAX_OFFSET = 100_000
+"""The deepest ``offset`` of a public listing: each row skipped is read, and a deeper page of
+a city's readings is a cursor's job."""
+Shrinkage = Annotated[
+    float,
+    Query(
+        ge=0,
+        le=100,
+        description="Variance added to the diagonal of each level's Σ̂ of modes [grey level²]; "
+        "0.0833 when a channel's mode is the same in all of a level's images.",
+    ),
+]
+
+
+def _calibration_out(row: Any) -> AirCalibrationOut:
+    return AirCalibrationOut.model_validate(row)
+
+
+def _from_files(
+    session: Session,
+    files: list[tuple[str | None, bytes]],
+    levels: list[int],
+    camera_id: str | None,
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+    policy: Policy,
+    method: str,
+    applies_to: list[str],
+) -> AirCalibrationOut:
+    camera, warnings = air.upload_region(session, camera_id, applies_to)
+    release(session)  # while decoding
+    decoded = training.decode_all(files, camera, max_pixels=max_pixels)
+    feats = np.array([d.features for d in decoded], dtype=np.float64)
+    row = air.calibrate(
+        session,
+        training.modes_of(decoded),
+        levels,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=None,
+        now=policy.now(),
+        method=method,
+        features=feats,
+        camera_ids=applies_to,
+        warnings=warnings,
+    )
+    return _calibration_out(row)
+
+
+def _from_frames(
+    session: Session,
+    body: AirCalibrationFromFrames,
+    significance: float,
+    shrinkage: float,
+    policy: Policy,
+    method: str,
+    applies_to: list[str],
+) -> AirCalibrationOut:
+    if len(body.frame_ids) != len(body.levels):
+        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
+    stored = air.of_frames(session, body.frame_ids)
+    row = air.calibrate(
+        session,
+        stored.modes,
+        body.levels,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=body.frame_ids,
+        now=policy.now(),
+        method=method,
+        features=stored.features,
+        camera_ids=applies_to,
+        regions=stored.regions,
+    )
+    return _calibration_out(row)
+
+
+@router.post(
+    "/calibration",
+    status_code=201,
+    response_model=AirCalibrationOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(json=AirCalibrationFromFrames, files="files", levels="texts"),
+)
+async def calibrate(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+    camera_id: Annotated[
+        str | None,
+        Query(
+            description="The sky camera whose region (ROI) the uploads are measured in: they "
+            "are its full frames. Default: the region of the cameras in applies_to when they "
+            "all have the same one, else the whole image (a warning names the cameras graded "
+            "that measure another region)."
+        ),
+    ] = None,
+    applies_to: Annotated[
+        list[Annotated[str, StringConstraints(pattern=ID_PATTERN)]] | None,
+        Query(
+            max_length=10_000,
+            description="Sky cameras this calibration grades from now on (repeat the "
+            "parameter). Without it, it is the city-wide calibration of every camera that has "
+            "none of its own: calibrate a camera from its own labelled frames where its view "
+            "or white balance differs from the rest.",
+        ),
+    ] = None,
+    method: Annotated[
+        Literal["clusters", "regression"],
+        Query(
+            description="Grade by the T² level clusters (the dissertation, eqs. 6.19–6.22) or "
+            "by a ridge regression on richer sky features (better on real photos)."
+        ),
+    ] = "clusters",
+) -> AirCalibrationOut:
+    """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
+
+    Multipart: repeated ``files`` and ``levels`` (1–10, same order); or JSON
+    ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames.
+    """
+    kind = content_type(request)
+    if kind == "multipart/form-data":
+        form = await read_form(
+            request, settings.max_upload_bytes, max_files=5000, parts=("files", "levels")
+        )
+        files, raw = form.files_of("files"), form.fields.get("levels", [])
+        if len(files) != len(raw):
+            raise Unprocessable(f"{len(files)} files but {len(raw)} levels; give one level each")
+        try:
+            levels = [int(v) for v in raw]
+        except ValueError:
+            raise Unprocessable("levels must be integers 1–10") from None
+        if any(not 1 <= v <= 10 for v in levels):
+            raise Unprocessable("levels must be integers 1–10")
+        return await image_work(
+            request,
+            partial(
+                _from_files,
+                session,
+                files,
+                levels,
+                camera_id,
+                significance,
+                shrinkage,
+                settings.max_pixels,
+                policy,
+                method,
+                applies_to or [],
+            ),
+        )
+    if kind == "application/json":
+        body = await read_json(request, AirCalibrationFromFrames, settings.max_body_bytes)
+        return await run_in_threadpool(  # stored features, no image: no image_work
+            partial(
+                _from_frames,
+                session,
+                body,
+                significance,
+                shrinkage,
+                policy,
+                method,
+                applies_to or [],
+            ),
+        )
+    raise UnsupportedMediaType(
+        "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"
+    )
+
+
+@router.get("/calibration", response_model=AirCalibrationOut, responses=NOT_FOUND)
+def current_calibration(session: SessionDep, camera_id: IdFilter = None) -> AirCalibrationOut:
+    """The calibration in use: the city-wide one, or the one that grades ``camera_id``'s
+    frames (its own, else the city-wide one)."""
+    if camera_id is not None:
+        air.sky_camera(session, camera_id)
+    row = air.calibration_for(session, camera_id)
+    if row is None:
+        raise NotFound("no air-quality calibration yet")
+    return _calibration_out(air.with_cameras(session, row))
+
+
+@router.delete(
+    "/cameras/{camera_id}/calibration",
+    status_code=204,
+    response_class=Response,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def release_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> Response:
+    """Grade the sky camera by the city-wide calibration again, not by one made for it."""
+    air.release_camera(session, camera_id)
+    return Response(status_code=204)
+
+
+@router.get(
+    "/calibrations",
+    response_model=list[AirCalibrationOut],
+    responses={**NOT_FOUND, **UNPROCESSABLE},
+)
+def list_calibrations(
+    session: SessionDep,
+    camera_id: IdFilter = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
+) -> list[AirCalibrationOut]:
+    """Every calibration, newest first, with the cameras each was made for (none: city-wide);
+    with ``camera_id``, those made for that sky camera."""
+    if camera_id is not None:
+        air.sky_camera(session, camera_id)
+    rows = air.calibrations(session, camera_id=camera_id, limit=limit, offset=offset)
+    return [_calibration_out(r) for r in rows]
+
+
+@router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
+def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLatest:
+    """A sky camera's latest reading: level, category, message, and the smoothed level; the
+    message and the smoothed level only while the reading is current (taken in the last 3 h)."""
+    place, found = air.latest(session, camera_id)
+    return _latest_out(place, found, policy.now())
+
+
+@router.get("/latest", response_model=list[AirLatest], responses={**NOT_FOUND, **UNPROCESSABLE})
+async def latest_of_every_camera(
+    request: Request,
+    policy: PolicyDep,
+    camera_id: IdsFilter = None,
+    limit: Limit = 1000,
+    offset: Offset = 0,
+) -> list[AirLatest]:
+    """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
+    gives it (a dashboard's list of the city's cameras in one request, not one per camera);
+    with ``camera_id``, those cameras (a district's)."""
+    rows = await public_work(
+        request, partial(air.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id)
+    )
+    now = policy.now()
+    return [_latest_out(place, found, now) for place, found in rows]
+
+
+def _latest_out(
+    place: air.Place, found: tuple[Frame, SkyVerdict] | None, now: datetime
+) -> AirLatest:
+    if found is None:
+        return AirLatest(
+            camera_id=place.camera_id,
+            name=place.name,
+            lat=place.lat,
+            lon=place.lon,
+            level=None,
+            category=None,
+            message=None,
+            captured_at=None,
+            smoothed_level=None,
+            smoothed_category=None,
+            frame_level=None,
+            frame_category=None,
+            reason="no frames yet",
+            current=False,
+        )
+    frame, v = found
+    age = now - frame.captured_at
+    current = age < airquality.FRESH  # else a camera gone quiet: not today's air
+    # the public level is the smoothed one (the map's and the alerts'), not the latest
+    # frame's: one hazy frame said "Today's Air Quality is Poor" while the map, from the
+    # same readings, drew the camera Fair
+    public = v.smoothed_level
+    level = airquality.rounded(public) if public is not None else None
+    category = airquality.category(public) if public is not None else None
+    return AirLatest(
+        camera_id=place.camera_id,
+        name=place.name,
+        lat=place.lat,
+        lon=place.lon,
+        level=level,
+        category=category,
+        message=airquality.message(category) if current and category else None,
+        captured_at=frame.captured_at,
+        smoothed_level=public if current else None,
+        smoothed_category=category if current else None,
+        frame_level=v.level,
+        frame_category=v.category,
+        reason=v.reason
+        if current
+        else f"no reading in the last 3 hours: the latest was taken "
+        f"{age / timedelta(hours=1):.0f} h ago",
+        current=current,
+    )
+
+
+CSV_CONTENT = {
+    "text/csv": {
+        "schema": {"type": "string"},
+        "example": "camera_id,frame_id,captured_at,level,category,smoothed_level,reason\r\n",
+    }
+}
+
+
+@router.get(
+    "/readings",
+    response_model=list[AirReading] | list[AirAggregate],
+    responses={200: {"content": CSV_CONTENT}, **NOT_FOUND, **UNPROCESSABLE},
+)
+async def readings(
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    span: TimeRangeQuery,
+    camera_id: IdsFilter = None,
+    aggregate: Annotated[Literal["none", "hourly", "daily"], Query()] = "none",
+    tz: Annotated[
+        str,
+        Query(
+            max_length=64,
+            description="IANA time zone of the hourly and daily buckets (Asia/Kolkata).",
+        ),
+    ] = "UTC",
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 100,
+    offset: Annotated[
+        int,
+        Query(
+            ge=0,
+            le=PUBLIC_MAX_OFFSET,
+            description="Rows to skip (at most 100,000: page further with `cursor`).",
+        ),
+    ] = 0,
+    cursor: FrameCursor = None,
+    format: Annotated[
+        Literal["json", "csv"],
+        Query(
+            description="csv: the same rows as a CSV table with a header (for a spreadsheet: "
+            "Google Sheets' IMPORTDATA, Excel's From Web), paged alike."
+        ),
+    ] = "json",
+) -> list[AirReading] | list[AirAggregate] | Response:
+    """Readings newest first, paginated; or their hourly or daily means, over every reading
+    in the range, in the time zone ``tz`` (its local hours and days; UTC by default).
+
+    A full page of readings names the next in its ``Link: <…>; rel="next"`` header (a
+    ``cursor``): each page then costs the same however deep, and readings arriving meanwhile
+    shift nothing (with ``offset`` they push rows onto the next page again)."""
+    since, until = span.since, span.until
+    zone = _zone(tz)
+    if cursor is not None and aggregate != "none":
+        raise Unprocessable("cursor pages readings, not aggregates: use offset")
+    if aggregate == "none":
+        rows = await run_in_threadpool(
+            partial(
+                air.readings,
+                session,
+                camera_ids=camera_id,
+                since=since,
+                until=until,
+                limit=limit,
+                offset=offset,
+                cursor=cursor,
+            )
+        )
+        link_next(request, response, rows, limit)
+        out = [
+            AirReading(
+                camera_id=r.camera_id,
+                frame_id=r.id,
+                captured_at=r.captured_at,
+                level=r.level,
+                category=r.category,
+                smoothed_level=r.smoothed_level,
+                reason=r.reason,
+            )
+            for r in rows
+        ]
+        if format == "csv":
+            return _csv_response(out, list(AirReading.model_fields), response)
+        return out
+    buckets = await public_work(  # every reading of the range: seconds for a city's month
+        request,
+        air.aggregate,
+        camera_ids=camera_id,
+        since=since,
+        until=until,
+        bucket=aggregate,
+        tz=zone,
+    )
+    means = [AirAggregate(**b) for b in buckets[offset : offset + limit]]
+    if format == "csv":
+        return _csv_response(means, list(AirAggregate.model_fields), response)
+    return means
+
+
+def _csv_response(
+    rows: list[AirReading] | list[AirAggregate], fields: list[str], response: Response
+) -> Response:
+    """``rows`` as CSV with a header of ``fields``, each value as in the JSON answer (RFC 3339
+    times in UTC; an empty cell for null), with the page's Link header."""
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(r.model_dump(mode="json") for r in rows)
+    link = {"Link": response.headers["link"]} if "link" in response.headers else {}
+    return Response(out.getvalue(), media_type="text/csv; charset=utf-8", headers=link)
+
+
+def _zone(name: str) -> ZoneInfo:
+    try:
+        return ZoneInfo(name)
+    except (ZoneInfoNotFoundError, ValueError):
+        raise Unprocessable(
+            f"unknown time zone {name!r}: give an IANA name such as Europe/Rome or Asia/Kolkata"
+        ) from None
+
+
+@router.post(
+    "/alerts/test",
+    response_model=WebhookTestOut,
+    responses={**AUTH_ERRORS, 409: {"description": "No webhook is configured."}},
+)
+def try_alert_webhook(
+    request: Request, settings: SettingsDep, policy: PolicyDep, _: Admin
+) -> WebhookTestOut:
+    """POST a test alert (``kind: "test"``, recorded nowhere) to ``VANTAGE_ALERT_WEBHOOK_URL``
+    now, signed as every alert is, and say whether the receiver took it (a 2xx) or why not: a
+    receiver and its signing secret can be checked before the air turns Poor."""
+    if settings.alert_webhook_url is None:
+        raise Conflict("no webhook is configured: set VANTAGE_ALERT_WEBHOOK_URL", code="no_webhook")
+    key = request.app.state.webhook_key
+    msg_id, error = webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
+    return WebhookTestOut(
+        webhook_id=msg_id, delivered=error is None, error=error, signed=key is not None
+    )
+
+
+@router.get(
+    "/alerts",
+    response_model=list[AirAlertOut],
+    responses={**NOT_FOUND, **UNPROCESSABLE, 401: AUTH_ERRORS[401]},
+)
+def alerts(
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    span: TimeRangeQuery,
+    caller: OptionalPrincipal,
+    camera_id: IdsFilter = None,
+    kind: Annotated[
+        Literal["raised", "cleared"] | None, Query(description="Only alerts of this kind.")
+    ] = None,
+    limit: Limit = 100,
+    offset: Offset = 0,
+) -> list[AirAlertOut]:
+    """Alerts, newest first, made in [``since``, ``until``): ``raised`` when a camera's smoothed
+    level entered Poor or Very Poor, ``cleared`` when, after that, it came back to 5.0 or
+    better; with where each one's webhook delivery stands. Why the last delivery failed
+    (``last_error``: the receiver's answer, a redirect's address) is the operator's to read:
+    null without the admin token."""
+    operator = caller is not None and caller.role == "admin"
+    rows = air.alerts(
+        session,
+        camera_ids=camera_id,
+        limit=limit,
+        offset=offset,
+        since=span.since,
+        until=span.until,
+        kind=kind,
+    )
+    now = policy.now()
+    retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None
+    return [
+        AirAlertOut(
+            id=a.id,
+            camera_id=a.camera_id,
+            frame_id=a.frame_id,
+            created_at=a.created_at,
+            kind=a.kind,
+            smoothed_level=a.smoothed_level,
+            category=a.category,
+            delivered=a.delivered,
+            attempts=a.attempts,
+            delivery=webhooks.delivery(a, now, retry_for=retry_for),
+            last_error=a.last_error if operator else None,
+            next_attempt_at=a.next_attempt_at,
+        )
+        for a in rows
+    ]
+
+
+def _bbox(value: str | None) -> tuple[float, float, float, float] | None:
+    if value is None:
+        return None
+    try:
+        parts = tuple(float(v) for v in value.split(","))
+        isopleths.check_bbox(parts)
+    except isopleths.IsoplethError as exc:
+        raise Unprocessable(str(exc)) from None
+    except ValueError:
+        raise Unprocessable("bbox must be minlon,minlat,maxlon,maxlat") from None
+    x0, y0, x1, y1 = parts
+    return x0, y0, x1, y1
+
+
+Method = Annotated[Literal["idw", "kriging", "rbf"], Query(description="Interpolation.")]
+Bbox = Annotated[str | None, Query(description="minlon,minlat,maxlon,maxlat [°].")]
+Window = Annotated[int, Query(ge=60, le=30 * 86400, description="Readings of the last … [s].")]
+Resolution = Annotated[int, Query(ge=8, le=512, description="Grid cells per side.")]
+MaxDistance = Annotated[
+    float,
+    Query(
+        gt=0, le=200_000, description="Leave cells farther than this from every camera empty [m]."
+    ),
+]
+
+
+@dataclass(frozen=True)
+class MapQuery:
+    """What a map is of: the query parameters both renderings take (and their cache key)."""
+
+    bbox: tuple[float, float, float, float] | None
+    window: int
+    method: Literal["idw", "kriging", "rbf"]
+    resolution: int
+    max_distance: float
+    at: datetime | None
+    """The time the map is of; None: now."""
+    layer: Literal["levels", "uncertainty"] = "levels"
+
+
+At = Annotated[
+    UtcTime | None,
+    Query(
+        description="The map as it was at this time (RFC 3339): each camera's latest reading "
+        "in the window before it. Default: now."
+    ),
+]
+
+
+Layer = Annotated[
+    Literal["levels", "uncertainty"],
+    Query(
+        description="levels: the category bands; uncertainty: how far to trust them, as bands "
+        "of kriging's standard deviation [level] (method=kriging) or of the distance to the "
+        "nearest camera [m] (idw, rbf)."
+    ),
+]
+
+
+def _map_query(
+    bbox: Bbox = None,
+    window: Window = 3600,
+    method: Method = "idw",
+    resolution: Resolution = 128,
+    max_distance: MaxDistance = 5000.0,
+    at: At = None,
+    layer: Layer = "levels",
+) -> MapQuery:
+    return MapQuery(_bbox(bbox), window, method, resolution, max_distance, at, layer)
+
+
+MapQueryDep = Annotated[MapQuery, Depends(_map_query)]
+
+
+def _window_start(at: datetime, window: int) -> datetime:
+    """``window`` seconds before ``at``; the first instant of year 1 for a window reaching
+    before it (``at=0001-01-01T00:00:00Z`` overflowed: a 500)."""
+    try:
+        return at - timedelta(seconds=window)
+    except OverflowError:
+        return datetime.min.replace(tzinfo=UTC)
+
+
+@dataclass(frozen=True)
+class MapData:
+    """What a map is drawn from: the cameras' levels in the window [since, at], the field
+    interpolated from them (None without any) over ``box``."""
+
+    stations: list[air.Station]
+    field: isopleths.Field | None
+    box: tuple[float, float, float, float] | None
+    since: datetime
+    at: datetime
+
+
+def _field(session: Session, policy: Policy, q: MapQuery) -> MapData:
+    now = policy.now()
+    if q.at is not None and q.at > now:
+        raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
+    at = q.at or now
+    since = _window_start(at, q.window)
+    st = air.stations(session, since=since, until=at)
+    if not st:
+        return MapData(st, None, q.bbox, since, at)
+    lon = np.array([s.lon for s in st])
+    lat = np.array([s.lat for s in st])
+    box = q.bbox or isopleths.default_bbox(lon, lat)
+    try:
+        f = isopleths.interpolate(
+            lon,
+            lat,
+            np.array([s.level for s in st]),
+            bbox=box,
+            method=q.method,
+            resolution=q.resolution,
+            max_distance=q.max_distance,
+        )
+    except isopleths.IsoplethError as exc:
+        raise Unprocessable(str(exc), code="bad_field") from None
+    return MapData(st, f, box, since, at)
+
+
+async def _cached_map(
+    request: Request,
+    key: tuple[object, ...],
+    compute: Callable[[Session], bytes],
+    media_type: str,
+    *,
+    compress: bool = False,
+) -> Response:
+    """The map for ``key``, computed at most once per ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (as
+    ``public_work``, one at a time; a kept map waits for none); 304 when the client's
+    ``If-None-Match`` names it. With ``compress``, kept gzipped too, and sent so to clients
+    that take it (compressed once, not at every poll)."""
+    cache: MapCache = request.app.state.isopleth_cache
+    kept = cache.kept(key)
+    if kept is None:
+        kept = await public_work(
+            request, lambda session: cache.get(key, partial(compute, session), compress=compress)
+        )
+    headers = {"ETag": kept.etag, "Cache-Control": f"public, max-age={int(cache.ttl)}"}
+    # Vary as the 200 would carry it (app.platform.http.compression adds it to a body sent as it is)
+    varies = {"Vary": "Accept-Encoding"} if kept.gzipped is not None else {}
+    if not_modified(request.headers.get("if-none-match"), kept.etag):
+        return Response(status_code=304, headers={**headers, **varies})
+    if kept.gzipped is not None and accepts_gzip(request.headers):
+        # app.platform.http.compression passes a body already encoded as it is
+        encoded = {**headers, **varies, "Content-Encoding": "gzip"}
+        return Response(kept.gzipped, media_type=media_type, headers=encoded)
+    return Response(kept.body, media_type=media_type, headers=headers)
+
+
+MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **UNPROCESSABLE,
+    304: {"description": "Not modified: the map named by If-None-Match is current."},
+}
+
+
+@router.get(
+    "/isopleths",
+    response_class=Response,
+    responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
+)
+async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
+    """City-wide category bands (RFC 7946 GeoJSON), one feature per category present: now,
+    or as they were at ``at`` (``at`` in the answer says which).
+
+    Kept for ``VANTAGE_ISOPLETH_CACHE_SECONDS`` (30): ``computed_at`` says when it was made,
+    and its ETag answers ``If-None-Match`` with 304."""
+
+    def compute(session: Session) -> bytes:
+        m = _field(session, policy, q)
+        off_map = air.unplaced(session, since=m.since, until=m.at)
+        body = _geojson(m, off_map, policy.now(), q)
+        return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+
+    return await _cached_map(
+        request, ("geojson", q), compute, "application/geo+json", compress=True
+    )
+
+
+def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[str, Any]:
+    """The collection: the bands (or the uncertainty layer), the cameras, and warnings of
+    cameras drawn in another category's band and of graded cameras with no place."""
+    st, f, box, at = m.stations, m.field, m.box, m.at
+    features = []
+    if f is not None:
+        features = isopleths.bands(f) if q.layer == "levels" else isopleths.uncertainty_bands(f)
+    own = [airquality.category(s.level) for s in st]
+    drawn: list[str | None] = [None] * len(st)
+    warnings = []
+    cell = None
+    if f is not None:
+        drawn = isopleths.band_at(f, np.array([s.lon for s in st]), np.array([s.lat for s in st]))
+        cell = [round(v, 1) for v in isopleths.cell_size_m(f)]
+        off = sum(1 for o, d in zip(own, drawn, strict=True) if d is not None and d != o)
+        if off:
+            warnings.append(
+                f"{off} of {len(st)} cameras lie in the band of another category than their"
+                f" own reading, with cells of {cell[0]:.0f} × {cell[1]:.0f} m: ask for a"
+                " smaller bbox or a larger resolution (up to 512); cameras close together"
+                " that disagree stay so at any resolution"
+            )
+    if off_map:
+        named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
+        some = (
+            "1 sky camera with readings has"
+            if len(off_map) == 1
+            else f"{len(off_map)} sky cameras with readings have"
+        )
+        warnings.append(
+            f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
+            " with both)"
+        )
+    return {
+        "type": "FeatureCollection",
+        "features": features,
+        "bbox": list(box) if box else None,
+        "method": q.method,
+        "layer": q.layer,
+        "computed_at": now.isoformat(),
+        "at": at.isoformat(),
+        "window_s": q.window,
+        "max_distance_m": q.max_distance,
+        "cameras": [
+            {
+                "camera_id": s.camera_id,
+                "name": s.name,
+                "lon": s.lon,
+                "lat": s.lat,
+                "level": s.level,
+                "category": category,
+                "band": band,
+                "captured_at": s.captured_at.isoformat(),
+            }
+            for s, category, band in zip(st, own, drawn, strict=True)
+        ],
+        "cell_m": cell,
+        "warnings": warnings,
+        "uncertainty": None
+        if f is None
+        else {
+            "kind": f.uncertainty_kind,
+            "max": float(np.nanmax(f.uncertainty)),
+            "mean": float(np.nanmean(f.uncertainty)),
+        },
+    }
+
+
+@router.get(
+    "/isopleths.png",
+    response_class=Response,
+    responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
+)
+async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
+    """The bands drawn, with the camera positions and a legend (kept as the GeoJSON is)."""
+    from app.air.airmap import render
+
+    def compute(session: Session) -> bytes:
+        m = _field(session, policy, q)
+        return render(m.field, m.stations, m.box, m.at, q.layer)
+
+    return await _cached_map(request, ("png", q), compute, "image/png")

@@ -1,0 +1,199 @@
+"""Measuring rigs: their geometry as registered, kept, replaced and read back as core objects."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from app.cells import calibrations
+from app.cells.core import laser_grid
+from app.cells.core.triangulation import (
+    CrossRig,
+    RigArrays,
+    View,
+    baseline,
+    triangulate_cross,
+    triangulate_views,
+)
+from app.platform.db.base import utcnow
+from app.platform.db.models import Rig
+from app.platform.http.errors import Conflict, NotFound, Unprocessable
+from app.platform.schemas import RigSpec
+
+
+def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
+    """The geometry a rig keeps, checked: a cross's f_px, ax, ay, principal point; or the
+    calibrated cameras, given or from a stereo calibration."""
+    if body.kind == "cross":
+        if body.cameras is not None or body.calibration_id is not None:
+            raise Unprocessable("a cross rig takes f_px, ax, ay and principal_point")
+        if body.f_px is None or body.ax is None or body.ay is None:
+            raise Unprocessable("a cross rig needs f_px, ax and ay")
+        cx, cy = body.principal_point or [0.0, 0.0]
+        return {
+            "f_px": body.f_px,
+            "ax": body.ax,
+            "ay": body.ay,
+            "principal_point": [cx, cy],
+            "image_size": body.image_size,
+        }
+    if body.image_size is not None:
+        raise Unprocessable("a calibrated rig gives image_size per camera (cameras[i].image_size)")
+    if body.calibration_id is not None:
+        if body.cameras is not None:
+            raise Unprocessable("give the cameras or a calibration_id, not both")
+        cameras = calibrations.stereo_cameras(session, body.calibration_id)
+        return {"cameras": cameras, "calibration_id": body.calibration_id}
+    if not body.cameras or len(body.cameras) < 2:
+        raise Unprocessable(
+            "a calibrated rig needs at least 2 cameras, or the calibration_id of a stereo pair"
+        )
+    for i, c in enumerate(body.cameras):
+        r = np.array(c.R)
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+            raise Unprocessable(f"camera {i}: R is not a rotation")
+        if np.linalg.det(np.array(c.K)) == 0:
+            raise Unprocessable(f"camera {i}: K is singular")
+    cameras = [c.model_dump() for c in body.cameras]
+    rig = RigArrays.of([_view(c) for c in cameras])
+    if baseline(rig.rs, rig.ts) == 0:
+        raise Unprocessable(
+            "every camera has the same lens centre (−Rᵀt): with no baseline between them no "
+            "point can be triangulated; check each camera's t"
+        )
+    return {"cameras": cameras}
+
+
+def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
+    if session.get(Rig, rig_id) is not None:
+        raise Conflict(f"a rig with id {rig_id!r} already exists")
+    row = Rig(id=rig_id, kind=body.kind, spec=spec_of(session, body), created_at=utcnow())
+    session.add(row)
+    try:
+        session.flush()
+    except IntegrityError:  # a concurrent request inserted the same id first
+        raise Conflict(f"a rig with id {rig_id!r} already exists") from None
+    return row
+
+
+def get(session: Session, rig_id: str, *, lock: bool = False) -> Rig:
+    q = select(Rig).where(Rig.id == rig_id)
+    row = session.scalars(q.with_for_update() if lock else q).one_or_none()
+    if row is None:
+        raise NotFound(f"no rig {rig_id!r}")
+    return row
+
+
+def replace(session: Session, rig_id: str, body: RigSpec) -> Rig:
+    """New geometry for a rig (the cameras were moved or calibrated again): every measurement
+    from now on uses it. Nothing measured is kept with a rig, so nothing else changes."""
+    row = get(session, rig_id, lock=True)
+    row.kind, row.spec, row.updated_at = body.kind, spec_of(session, body), utcnow()
+    session.flush()
+    return row
+
+
+def delete(session: Session, rig_id: str) -> None:
+    session.delete(get(session, rig_id, lock=True))
+    session.flush()
+
+
+def listed(session: Session, *, limit: int, offset: int) -> Sequence[Rig]:
+    return session.scalars(select(Rig).order_by(Rig.id).limit(limit).offset(offset)).all()
+
+
+def cameras(row: Rig) -> int:
+    return 4 if row.kind == "cross" else len(row.spec["cameras"])
+
+
+def cross_of(row: Rig) -> CrossRig:
+    s = row.spec
+    return CrossRig(
+        f=s["f_px"], ax=s["ax"], ay=s["ay"], cx=s["principal_point"][0], cy=s["principal_point"][1]
+    )
+
+
+def views_of(row: Rig) -> list[View]:
+    return [_view(c) for c in row.spec["cameras"]]
+
+
+def _view(camera: dict[str, Any]) -> View:
+    return View(*(np.array(camera[k], dtype=np.float64) for k in ("K", "dist", "R", "t")))
+
+
+def sizes_of(row: Rig) -> list[tuple[int, int] | None]:
+    """Per camera, the image size its K was calibrated for, when known."""
+    if row.kind == "cross":
+        size = row.spec.get("image_size")  # none on rigs registered before it was asked
+        return [(int(size[0]), int(size[1])) if size else None] * 4
+    return [
+        (int(c["image_size"][0]), int(c["image_size"][1])) if c.get("image_size") else None
+        for c in row.spec["cameras"]
+    ]
+
+
+def geometry_of(row: Rig) -> laser_grid.Geometry:
+    if row.kind == "cross":
+        return laser_grid.cross_geometry(cross_of(row))
+    return laser_grid.views_geometry(views_of(row))
+
+
+NULL_REASONS = {
+    "too_few_views": "seen by fewer than two cameras",
+    "behind_camera": "its rays meet behind (or at) a camera that saw it: the pixels are "
+    "mismatched (cameras in the wrong order, or another point's pixel)",
+    "no_depth": "no depth: the views see it with no disparity (at infinity, or the same pixel "
+    "in every camera)",
+}
+"""Why a point is null, by code (``Triangulated.reasons``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Triangulated:
+    points: NDArray[np.float64]
+    """(N, 3) in the rig's frame; NaN rows where no point was found."""
+    reprojection_rms: NDArray[np.float64]
+    reasons: list[str | None]
+    """Per point, why it is NaN (a key of ``NULL_REASONS``), or None when it was found."""
+    z_estimates: NDArray[np.float64] | None = None
+    """Cross rigs: (N, 10), the pairwise depths."""
+    z_spread: NDArray[np.float64] | None = None
+
+
+def _reasons(
+    points: NDArray[np.float64], few: NDArray[np.bool_], behind: NDArray[np.bool_]
+) -> list[str | None]:
+    found = np.asarray(np.isfinite(points).all(axis=1), dtype=np.bool_)
+    return [
+        None if ok else "too_few_views" if short else "behind_camera" if back else "no_depth"
+        for ok, short, back in zip(found, few, behind, strict=True)
+    ]
+
+
+def triangulate(row: Rig, obs: NDArray[np.float64], method: str) -> Triangulated:
+    """Points from pixel observations (N, cameras, 2) [px], NaN for a view that missed one."""
+    few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
+    if row.kind != "cross":
+        res = triangulate_views(views_of(row), obs)
+        return Triangulated(res.points, res.reprojection_rms, _reasons(res.points, few, res.behind))
+    rig = cross_of(row)
+    # a point seen once is solved from a stand-in (its depth would be undetermined) and dropped
+    safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)
+    with np.errstate(all="ignore"):
+        r = triangulate_cross(rig, safe, method=method)
+    points, est = r.points.copy(), r.z_estimates.copy()
+    points[few], est[few] = np.nan, np.nan
+    return Triangulated(
+        points,
+        np.where(few, np.nan, r.reprojection_rms),
+        _reasons(points, few, r.behind),
+        est,
+        np.where(few, np.nan, r.z_spread),
+    )

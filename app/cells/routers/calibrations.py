@@ -1,0 +1,185 @@
+"""Camera and stereo-pair calibration from checkerboard images."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
+
+from app.cells import calibrations
+from app.cells.calibrations import Board
+from app.platform.http.deps import (
+    Admin,
+    Limit,
+    Offset,
+    PolicyDep,
+    RecordId,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
+from app.platform.http.errors import Unprocessable, UnsupportedMediaType
+from app.platform.http.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+)
+from app.platform.http.uploads import content_type, read_form
+from app.platform.policy import Policy
+
+router = APIRouter(prefix="/calibrations", tags=["stereo"])
+
+# OpenCV's detectors need at least 3 inner corners each way
+Cols = Annotated[int, Query(ge=3, le=100, description="Inner corners per row.")]
+Rows = Annotated[int, Query(ge=3, le=100, description="Inner corners per column.")]
+Square = Annotated[
+    float,
+    Query(
+        gt=0, le=1e6, description="Square size, in the unit results (T, extrinsics) are wanted in."
+    ),
+]
+
+
+def _out(row: Any) -> dict[str, Any]:
+    return {"id": row.id, "created_at": row.created_at.isoformat(), "kind": row.kind, **row.result}
+
+
+def _body(row: Any) -> JSONResponse:
+    return JSONResponse(_out(row), status_code=201)
+
+
+PATTERN_FIELDS = ("pattern_cols", "pattern_rows", "square_size")
+"""Text fields a calibration upload may carry instead of the query parameters."""
+
+
+async def _form(request: Request, limit: int, *images: str) -> Any:
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send the checkerboard images as multipart/form-data")
+    return await read_form(request, limit, max_files=500, parts=(*images, *PATTERN_FIELDS))
+
+
+def _board(form: Any, default: Board) -> Board:
+    """The pattern from the multipart fields when given there, else from the query."""
+    fields = form.fields
+    try:
+        cols = int(fields.get("pattern_cols", [default.cols])[0])
+        rows = int(fields.get("pattern_rows", [default.rows])[0])
+        square = float(fields.get("square_size", [default.square])[0])
+    except ValueError:
+        raise Unprocessable(
+            "pattern_cols, pattern_rows must be integers, square_size a number"
+        ) from None
+    if not (3 <= cols <= 100 and 3 <= rows <= 100) or not 0 < square <= 1e6:
+        raise Unprocessable("pattern_cols, pattern_rows must be 3–100 and square_size > 0")
+    return Board(cols, rows, square)
+
+
+def _single(session: Session, files: Any, board: Board, max_pixels: int, policy: Policy) -> Any:
+    return calibrations.calibrate_camera(
+        session, files, board, max_pixels=max_pixels, now=policy.now()
+    )
+
+
+@router.post(
+    "",
+    status_code=201,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        files="files", pattern_cols="text", pattern_rows="text", square_size="text"
+    ),
+)
+async def calibrate(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    pattern_cols: Cols = 9,
+    pattern_rows: Rows = 6,
+    square_size: Square = 1.0,
+) -> JSONResponse:
+    """Calibrate a camera from checkerboard images (multipart ``files``): K, distortion
+    [k1, k2, p1, p2, k3], RMS and per-view reprojection error, standard deviations, and which
+    views were used or rejected (and why)."""
+    form = await _form(request, settings.max_upload_bytes, "files")
+    files = form.files_of("files")
+    if not files:
+        raise Unprocessable("no images in field files")
+    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    row = await image_work(
+        request, partial(_single, session, files, board, settings.max_pixels, policy)
+    )
+    return _body(row)
+
+
+def _pair(
+    session: Session, left: Any, right: Any, board: Board, max_pixels: int, policy: Policy
+) -> Any:
+    return calibrations.calibrate_pair(
+        session, left, right, board, max_pixels=max_pixels, now=policy.now()
+    )
+
+
+@router.post(
+    "/stereo",
+    status_code=201,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        left="files", right="files", pattern_cols="text", pattern_rows="text", square_size="text"
+    ),
+)
+async def calibrate_stereo(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    pattern_cols: Cols = 9,
+    pattern_rows: Rows = 6,
+    square_size: Square = 1.0,
+) -> JSONResponse:
+    """Calibrate a camera pair from simultaneous views (multipart ``left`` and ``right``, in
+    the same order): both cameras' intrinsics, then R, T (x_right = R x_left + T) and the
+    baseline |T| with the intrinsics held fixed."""
+    form = await _form(request, settings.max_upload_bytes, "left", "right")
+    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    row = await image_work(
+        request,
+        partial(
+            _pair,
+            session,
+            form.files_of("left"),
+            form.files_of("right"),
+            board,
+            settings.max_pixels,
+            policy,
+        ),
+    )
+    return _body(row)
+
+
+@router.get("", responses=AUTH_ERRORS)
+def list_calibrations(
+    session: SessionDep,
+    _: Admin,
+    kind: Annotated[
+        Literal["single", "stereo"] | None,
+        Query(description="Only cameras (single) or only stereo pairs."),
+    ] = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
+) -> JSONResponse:
+    """Calibrations, newest first (a stereo pair's id makes a rig: POST /rigs)."""
+    rows = calibrations.listed(session, kind=kind, limit=limit, offset=offset)
+    return JSONResponse([_out(row) for row in rows])
+
+
+@router.get("/{calibration_id}", responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_calibration(calibration_id: RecordId, session: SessionDep, _: Admin) -> JSONResponse:
+    """One calibration."""
+    return JSONResponse(_out(calibrations.get(session, calibration_id)))

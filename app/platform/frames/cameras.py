@@ -1,0 +1,443 @@
+"""Registering cameras, panels and robots."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, TypeVar
+
+from sqlalchemy import ColumnElement, ScalarSelect, Select, event, or_, select, tuple_
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import QueryableAttribute, Session, selectinload
+
+from app.platform.auth import hash_token, new_token
+from app.platform.db.models import Camera, CameraKind, Frame, Panel, Robot, TaskStatus
+from app.platform.db.rows import select_rows
+from app.platform.frames.camera_info import TokenCache, view_of
+from app.platform.frames.ingest import check_fits
+from app.platform.frames.writer import Credential, Refusal
+from app.platform.http.errors import Conflict, NotFound, Unprocessable
+from app.platform.policy import Policy
+from app.platform.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
+from app.solar import cleaning, panels
+
+
+def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
+    existing = session.get(type(row), row.id)
+    if existing is not None:
+        retired = getattr(existing, "retired_at", None)
+        if retired is not None:  # its history keeps the id: a new one would inherit it
+            raise Conflict(
+                f"a {what} with id {row.id!r} was retired at {retired.isoformat()}; ids are not "
+                f"reused (its history is kept under it): choose another id",
+                code=f"{what}_retired",
+            )
+        raise Conflict(f"a {what} with id {row.id!r} already exists")
+    session.add(row)
+    try:
+        session.flush()
+    except IntegrityError:  # a concurrent request inserted the same id first
+        raise Conflict(f"a {what} with id {row.id!r} already exists") from None
+
+
+def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> None:
+    if panel_id is None:
+        return
+    if kind != CameraKind.panel:
+        raise Unprocessable(f"panel_id is only for panel cameras, not {kind.value}")
+    try:  # locked: a panel being retired meanwhile either sees this camera or refuses it
+        panel = panels.lock_panel(session, panel_id)
+    except NotFound:
+        raise Unprocessable(f"panel {panel_id!r} does not exist; create it first") from None
+    check_in_service(panel)
+
+
+def _check_located(row: Camera | Panel) -> None:
+    """A place is a latitude and a longitude: one alone (a camera that would silently stay
+    off the air map) is refused, as a request or as the result of a change."""
+    if (row.lat is None) != (row.lon is None):
+        given = "lat" if row.lat is not None else "lon"
+        raise Unprocessable(
+            f"{given} without {'lon' if given == 'lat' else 'lat'}: a place needs both "
+            "(or neither)",
+            code="half_a_place",
+        )
+
+
+def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
+    """Register a camera; returns it with its token (the only time the token is seen)."""
+    _check_panel(session, data.kind, data.panel_id)
+    token = new_token("vc")
+    camera = Camera(**data.model_dump(), token_hash=hash_token(token))
+    _check_located(camera)
+    _insert(session, camera, "camera")
+    return camera, token
+
+
+def get_camera(session: Session, camera_id: str) -> Camera:
+    camera = session.get(Camera, camera_id)
+    if camera is None:
+        raise NotFound(f"no camera {camera_id!r}")
+    return camera
+
+
+def check_in_service(row: Camera | Robot | Panel) -> None:
+    """Refuse (409 ``camera_retired``, ``robot_retired``, ``panel_retired``) to act for a
+    retired camera or robot, or to attach a camera to or train a baseline for a retired
+    panel."""
+    if row.retired_at is not None:
+        what = type(row).__name__.lower()
+        raise Conflict(
+            f"{what} {row.id!r} was retired at {row.retired_at.isoformat()}",
+            code=f"{what}_retired",
+        )
+
+
+def _retire(row: Camera | Robot, token_prefix: str, policy: Policy) -> bool:
+    """Mark the row retired and replace its token hash by that of a token nobody holds; False
+    (and nothing changed) when it already was."""
+    if row.retired_at is not None:
+        return False
+    row.retired_at = policy.now()
+    row.token_hash = hash_token(new_token(token_prefix))
+    return True
+
+
+def _in_service(session: Session, camera_id: str) -> Camera:
+    camera = get_camera(session, camera_id)
+    check_in_service(camera)
+    return camera
+
+
+def _check_region_fits(session: Session, camera: Camera) -> None:
+    """Refuse a region that would not fit the camera's latest frame: its next frames, if of
+    that size, would all be refused. (A camera about to send larger frames gets its new region
+    after its first one.)"""
+    latest = session.execute(_newest(camera.id, Frame.width, Frame.height)).first()
+    if latest is None:
+        return
+    try:
+        check_fits(camera.roi, *latest)
+    except ValueError as exc:
+        raise Unprocessable(
+            f"{exc} the camera sent last; its frames of that size would all be refused"
+        ) from None
+
+
+def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> None:
+    """Drop this process's cached view of the camera once the change is committed (before, a
+    concurrent upload could cache the old row again). Other processes' caches expire within
+    their ``TokenCache.ttl``."""
+    event.listen(session, "after_commit", lambda _: tokens.forget(camera_id), once=True)
+
+
+def refusals(session: Session, credentials: set[Credential]) -> dict[Credential, Refusal]:
+    """Which (camera id, token hash, view) triples no longer hold, and how: ``revoked``, the
+    token was replaced or its camera retired; ``changed``, the camera is now of another kind,
+    watches another panel or measures another region (``view_of``), so a frame measured by
+    the old view must be measured again. One query for all of them, made by the group-commit
+    writer in every batch of frames, so sent through the driver (``select_rows``). A None
+    token or view is not checked (an upload with the admin token has no token of the
+    camera's)."""
+    ids = sorted({camera_id for camera_id, _, _ in credentials})
+    marks = ", ".join("?" * len(ids))
+    sql = (
+        "SELECT id, token_hash, kind, panel_id, roi FROM cameras"
+        f" WHERE retired_at IS NULL AND id IN ({marks})"
+    )
+    if session.get_bind().dialect.name == "postgresql":
+        # the lock the batch's frame rows take on their cameras anyway (their foreign key),
+        # taken now: a change of kind (``_check_no_frames``, FOR UPDATE) either waits for
+        # this batch and then sees its frames, or is seen by this check
+        sql += " ORDER BY id FOR KEY SHARE"
+    now = {
+        camera_id: (token_hash, view_of(kind, panel_id, roi))
+        for camera_id, token_hash, kind, panel_id, roi in select_rows(session, sql, ids)
+    }
+    out: dict[Credential, Refusal] = {}
+    for credential in credentials:
+        camera_id, token_hash, view = credential
+        found = now.get(camera_id)
+        if found is None:  # retired: its token went with it
+            out[credential] = "revoked" if token_hash is not None else "changed"
+        elif token_hash is not None and token_hash != found[0]:
+            out[credential] = "revoked"
+        elif view is not None and view != found[1]:
+            out[credential] = "changed"
+    return out
+
+
+def _check_no_frames(session: Session, camera: Camera) -> None:
+    """Refuse (409 ``camera_has_frames``) to change the kind of a camera that has stored a
+    frame: its verdicts are of its kind. Takes the camera's row first (PostgreSQL): a batch
+    storing the camera's first frame holds it from its check of the cameras (``refusals``)
+    to its commit, so this either waits for that batch and finds its frame, or goes first and
+    the batch's check finds the new kind (and the frame is measured again as that kind)."""
+    session.execute(select(Camera.id).where(Camera.id == camera.id).with_for_update())
+    if session.execute(select(Frame.id).where(Frame.camera_id == camera.id).limit(1)).first():
+        raise Conflict(
+            f"camera {camera.id!r} has stored frames as a {camera.kind.value} camera: its kind "
+            "cannot change; register a camera of the other kind (and retire this one)",
+            code="camera_has_frames",
+        )
+
+
+def update_camera(
+    session: Session, camera_id: str, data: CameraUpdate, tokens: TokenCache
+) -> Camera:
+    """Change the fields ``data`` carries (``null`` clears one); frames uploaded after the
+    commit are judged with the new region."""
+    camera = _in_service(session, camera_id)
+    changes = data.model_dump(include=data.model_fields_set)
+    kind = changes.get("kind", camera.kind)
+    if kind is None:
+        raise Unprocessable("kind cannot be cleared: give panel, sky or rig")
+    if kind != camera.kind:
+        _check_no_frames(session, camera)
+    if "panel_id" in changes or kind != camera.kind:
+        _check_panel(session, kind, changes.get("panel_id", camera.panel_id))
+    for field, value in changes.items():
+        setattr(camera, field, value)
+    _check_located(camera)
+    if changes.get("roi") is not None:  # on error the request's transaction is rolled back
+        _check_region_fits(session, camera)
+    session.flush()
+    _forget_on_commit(session, tokens, camera_id)
+    return camera
+
+
+def rotate_camera_token(session: Session, camera_id: str, tokens: TokenCache) -> tuple[Camera, str]:
+    """A new upload token for the camera; the old one stops working. Returns the camera and
+    the new token (the only time it is seen)."""
+    camera = _in_service(session, camera_id)
+    token = new_token("vc")
+    camera.token_hash = hash_token(token)
+    session.flush()
+    _forget_on_commit(session, tokens, camera_id)
+    return camera, token
+
+
+def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: Policy) -> None:
+    """Take the camera out of service: its token stops working (replaced by the hash of one
+    nobody holds), its frames are refused, and it leaves the air map and the default camera
+    list. Its history stays. Retiring a retired camera changes nothing."""
+    if _retire(get_camera(session, camera_id), "vc", policy):
+        session.flush()
+        _forget_on_commit(session, tokens, camera_id)
+
+
+Retirable = TypeVar("Retirable", Camera, Robot, Panel)
+
+
+def listed(
+    session: Session, model: type[Retirable], *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Retirable]:
+    """Cameras, robots or panels in service, by id; with ``retired``, the retired ones too."""
+    q = select(model)
+    if not retired:
+        q = q.where(model.retired_at.is_(None))
+    return session.scalars(q.order_by(model.id).limit(limit).offset(offset)).all()
+
+
+def _newest(camera_id: str | QueryableAttribute[str], *columns: Any) -> Select[Any]:
+    """``columns`` of the camera's newest frame kept (the (camera_id, captured_at) index)."""
+    return (
+        select(*columns)
+        .where(Frame.camera_id == camera_id)
+        .order_by(Frame.captured_at.desc())
+        .limit(1)
+    )
+
+
+def _last_captured() -> ScalarSelect[datetime]:
+    """The capture time of a camera's newest frame kept, correlated: one lookup per camera."""
+    return _newest(Camera.id, Frame.captured_at).correlate(Camera).scalar_subquery()
+
+
+def cameras_seen(
+    session: Session,
+    *,
+    limit: int,
+    offset: int,
+    retired: bool = False,
+    silent_since: datetime | None = None,
+    kind: CameraKind | None = None,
+    panel_id: str | None = None,
+) -> list[tuple[Camera, datetime | None]]:
+    """Cameras (as ``listed``) with their newest frame's capture time; with ``silent_since``,
+    only those with no frame taken since then (or none kept); of one ``kind``, or watching
+    ``panel_id`` (404 when there is no such panel: a mistyped id is not a panel without
+    cameras)."""
+    if panel_id is not None:
+        get_panel(session, panel_id)
+    last = _last_captured()
+    q = select(Camera, last)
+    if not retired:
+        q = q.where(Camera.retired_at.is_(None))
+    if kind is not None:
+        q = q.where(Camera.kind == kind)
+    if panel_id is not None:
+        q = q.where(Camera.panel_id == panel_id)
+    if silent_since is not None:
+        q = q.where(or_(last.is_(None), last < silent_since))
+    rows = session.execute(q.order_by(Camera.id).limit(limit).offset(offset)).all()
+    return [(camera, when) for camera, when in rows]
+
+
+def last_captured_at(session: Session, camera_id: str) -> datetime | None:
+    """The capture time of the camera's newest frame kept."""
+    found: datetime | None = session.scalars(_newest(camera_id, Frame.captured_at)).first()
+    return found
+
+
+def create_panel(session: Session, data: PanelCreate) -> Panel:
+    panel = Panel(**data.model_dump())
+    _check_located(panel)
+    _insert(session, panel, "panel")
+    return panel
+
+
+def get_panel(session: Session, panel_id: str) -> Panel:
+    panel = session.get(Panel, panel_id)
+    if panel is None:
+        raise NotFound(f"no panel {panel_id!r}")
+    return panel
+
+
+def panel_in_service(session: Session, panel_id: str) -> Panel:
+    """The panel (404 when there is none), refused (409) when retired."""
+    panel = get_panel(session, panel_id)
+    check_in_service(panel)
+    return panel
+
+
+def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
+    """Change the fields ``data`` carries (``null`` clears one)."""
+    panel = panel_in_service(session, panel_id)
+    for field, value in data.model_dump(include=data.model_fields_set).items():
+        setattr(panel, field, value)
+    _check_located(panel)
+    session.flush()
+    return panel
+
+
+def retire_panel(session: Session, panel_id: str, policy: Policy) -> None:
+    """Take a panel out of service (removed from the farm): its open cleaning task is cancelled
+    (a robot holding it can neither complete nor fail it), and it leaves the default panel
+    list. Its history stays and its id stays taken. Refused (409 ``panel_in_use``) while
+    cameras in service watch it: move them (PATCH ``panel_id``) or retire them first, or their
+    frames would go on judging a panel nobody cleans. Retiring it again changes nothing."""
+    panel = panels.lock_panel(session, panel_id)
+    if panel.retired_at is not None:
+        return
+    watching = session.scalars(
+        select(Camera.id)
+        .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+    ).all()
+    if watching:
+        raise Conflict(
+            f"cameras in service watch panel {panel_id!r}: {', '.join(watching[:20])}"
+            f"{' …' if len(watching) > 20 else ''}; move them to another panel (PATCH "
+            "/cameras/{id} with panel_id) or retire them first",
+            code="panel_in_use",
+        )
+    now = policy.now()
+    task = panels.open_task(session, panel_id, lock=True)
+    if task is not None:
+        panels.close_task(task, TaskStatus.cancelled, "panel_retired", now)
+    panel.retired_at = now
+    session.flush()
+
+
+def create_robot(session: Session, data: RobotCreate) -> tuple[Robot, str]:
+    token = new_token("vr")
+    robot = Robot(**data.model_dump(), token_hash=hash_token(token))
+    _insert(session, robot, "robot")
+    return robot, token
+
+
+def get_robot(session: Session, robot_id: str) -> Robot:
+    robot = session.get(Robot, robot_id)
+    if robot is None:
+        raise NotFound(f"no robot {robot_id!r}")
+    return robot
+
+
+def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
+    """A new token for the robot; the old one stops working at once (robot tokens are looked up
+    on every request, in every process). Returns the robot and the new token (shown once)."""
+    robot = get_robot(session, robot_id)
+    check_in_service(robot)
+    token = new_token("vr")
+    robot.token_hash = hash_token(token)
+    session.flush()
+    return robot, token
+
+
+def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
+    """Take the robot out of service: its token stops working, and the tasks it holds go back
+    to the queue for the other robots. Its history stays. Retiring it again changes nothing."""
+    if _retire(get_robot(session, robot_id), "vr", policy):
+        cleaning.release_all(session, robot_id, policy)
+        session.flush()
+
+
+@dataclass(frozen=True, slots=True)
+class FrameKey:
+    """Where a page of frames, newest first, ended: the next page starts after it."""
+
+    captured_at: datetime
+    frame_id: str
+
+
+NEWEST_FIRST = (Frame.captured_at.desc(), Frame.id.desc())
+"""Frames newest first, ties by id: the order of ``ix_frames_captured_at_id`` read backwards."""
+
+
+def after(key: FrameKey | None) -> list[ColumnElement[bool]]:
+    """Frames after ``key`` in ``NEWEST_FIRST`` order (keyset paging: a page costs the same
+    however deep, and frames arriving meanwhile shift nothing)."""
+    if key is None:
+        return []
+    return [tuple_(Frame.captured_at, Frame.id) < tuple_(key.captured_at, key.frame_id)]
+
+
+def taken_in(
+    camera_id: str | Sequence[str] | None, since: datetime | None, until: datetime | None
+) -> list[ColumnElement[bool]]:
+    """Conditions on frames: one camera's (or several, or all), taken in [since, until)."""
+    conditions = []
+    if isinstance(camera_id, str):
+        conditions.append(Frame.camera_id == camera_id)
+    elif camera_id is not None:
+        conditions.append(Frame.camera_id.in_(camera_id))
+    if since is not None:
+        conditions.append(Frame.captured_at >= since)
+    if until is not None:
+        conditions.append(Frame.captured_at < until)
+    return conditions
+
+
+def frames_of(
+    session: Session,
+    camera_id: str,
+    *,
+    since: datetime | None,
+    until: datetime | None,
+    limit: int,
+    offset: int,
+    cursor: FrameKey | None = None,
+) -> Sequence[Frame]:
+    """A camera's frames taken in [since, until), newest first (after ``cursor``), with their
+    verdicts."""
+    get_camera(session, camera_id)
+    return session.scalars(
+        select(Frame)
+        .where(*taken_in(camera_id, since, until), *after(cursor))
+        .options(selectinload(Frame.verdict))
+        .order_by(*NEWEST_FIRST)
+        .limit(limit)
+        .offset(offset)
+    ).all()

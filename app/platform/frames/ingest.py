@@ -1,0 +1,268 @@
+"""Ingest one frame: check and decode the JPEG, compute its statistics, store frame and verdict."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import select
+from sqlalchemy.orm import Session, selectinload
+
+from app.air.core import airquality
+from app.platform.db.ids import time_ordered_id
+from app.platform.db.models import CameraKind, Frame, Verdict
+from app.platform.db.rows import insert_rows
+from app.platform.frames.camera_info import CameraInfo, Region, parse_region
+from app.platform.frames.jpeg import (
+    SOI,
+    JpegError,
+    JpegHeader,
+    TooManyPixelsError,
+    decode_rgb,
+    read_header,
+)
+from app.platform.frames.quality import (
+    DEFAULT_LIMITS,
+    SKY_LIMITS,
+    obstruction_reason,
+    unusable_reason,
+)
+from app.platform.frames.stats import (
+    ChannelStats,
+    Polygon,
+    Roi,
+    bounding_box,
+    channel_stats,
+    crop,
+    polygon_pixels,
+)
+from app.platform.frames.storage import FrameStore, digest
+from app.platform.frames.verdicts import conclude
+from app.platform.http.errors import Unprocessable, UnsupportedMediaType
+from app.platform.policy import Policy
+from app.solar.core import fleet
+
+
+@dataclass(frozen=True, slots=True)
+class Decoded:
+    header: JpegHeader
+    stats: ChannelStats
+    """Channel statistics inside the camera's ROI (of the image decoded at ``reduction``)."""
+    quality: str | None
+    """Why the frame cannot be judged (night, glare, blank, occluded), or None."""
+    features: NDArray[np.float64] | None
+    """Fleet-model features (panel cameras) or sky features (sky cameras)."""
+    reduction: int
+    """The frame was decoded at 1/reduction of its size (libjpeg DCT scaling)."""
+
+
+MIN_REDUCED_SIDE = 120
+"""Panel frames are decoded at the largest of 1/2, 1/4, 1/8 that keeps this many pixels on the
+short side [px]: the panel statistics do not need more, and decoding costs less."""
+
+
+def decode_reduction(header: JpegHeader, kind: CameraKind) -> int:
+    """The DCT reduction for a frame of this camera kind (1 = full size)."""
+    if kind != CameraKind.panel:
+        return 1
+    short = min(header.width, header.height)
+    return next((r for r in (8, 4, 2) if short // r >= MIN_REDUCED_SIDE), 1)
+
+
+def scale_roi(roi: Roi, width: int, height: int, reduction: int) -> Roi:
+    """The ROI of the full frame, checked against it, in the pixels of the reduced image."""
+    x, y, w, h = roi
+    if x + w > width or y + h > height:
+        raise ValueError(f"ROI {list(roi)} does not lie inside the {width}×{height} frame")
+    r = reduction
+    return (x // r, y // r, max(1, w // r), max(1, h // r))
+
+
+def scale_polygon(polygon: Polygon, width: int, height: int, reduction: int) -> Polygon:
+    """The polygon of the full frame, checked against it, in the pixels of the reduced image."""
+    if any(x >= width or y >= height for x, y in polygon):
+        raise ValueError(
+            f"ROI polygon {[list(p) for p in polygon]} does not lie inside the "
+            f"{width}×{height} frame"
+        )
+    return tuple((x // reduction, y // reduction) for x, y in polygon)
+
+
+def check_fits(region: Region, width: int, height: int) -> None:
+    """Raise ValueError when ``region`` (as stored) does not lie inside a ``width`` ×
+    ``height`` frame: the check every upload's region gets."""
+    roi, polygon = parse_region(region)
+    if polygon is not None:
+        scale_polygon(polygon, width, height, 1)
+    elif roi is not None:
+        scale_roi(roi, width, height, 1)
+
+
+def region_of(
+    image: NDArray[np.uint8], camera: CameraInfo, width: int, height: int, reduction: int
+) -> tuple[NDArray[np.uint8], Roi | None]:
+    """The camera's region of the (reduced) image, and its bounding box: a rectangle's crop,
+    or a polygon's pixels as a column image."""
+    if camera.polygon is not None:
+        polygon = scale_polygon(camera.polygon, width, height, reduction)
+        return polygon_pixels(image, polygon), bounding_box(polygon)
+    roi = camera.roi and scale_roi(camera.roi, width, height, reduction)
+    return crop(image, roi), roi
+
+
+def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
+    """Validate and decode the JPEG; channel statistics inside the ROI; quality; features.
+
+    Raises UnsupportedMediaType (not a JPEG) or Unprocessable (truncated, undecodable,
+    over the pixel limit, ROI outside the frame). Touches no database.
+    """
+    if not data:
+        raise Unprocessable("empty body: expected a JPEG", code="empty")
+    if not data.startswith(SOI):
+        raise UnsupportedMediaType(
+            "the body is not a JPEG (no FF D8 start marker)", code="not_jpeg"
+        )
+    try:
+        header = read_header(data)
+        reduction = decode_reduction(header, camera.kind)
+        header, image = decode_rgb(data, max_pixels=max_pixels, reduce=reduction)
+    except TooManyPixelsError as exc:
+        raise Unprocessable(str(exc), code="too_many_pixels") from None
+    except JpegError as exc:
+        raise Unprocessable(str(exc), code="corrupt_jpeg") from None
+    try:
+        region, roi = region_of(image, camera, header.width, header.height, reduction)
+    except ValueError as exc:
+        raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
+    stats = channel_stats(region)
+    limits = SKY_LIMITS if camera.kind == CameraKind.sky else DEFAULT_LIMITS
+    quality = unusable_reason(stats, limits)
+    if quality is None and roi is not None:
+        # only in a region declared as sky: a camera without one measures its whole view,
+        # street and trees included (the Milan webcam's whole frames are up to 21 % foliage)
+        quality = obstruction_reason(region, limits)
+    features = None
+    if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
+        features = fleet.features(region)
+    elif camera.kind == CameraKind.sky:
+        below = _band_below(image, roi)
+        features = airquality.sky_features(region, below, stats.histograms)
+    return Decoded(header, stats, quality, features, reduction)
+
+
+def _band_below(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8] | None:
+    """The strip under the sky region (a fifth of the frame's height): the distant skyline,
+    whose contrast fades in haze. None when the sky region reaches the bottom."""
+    h = image.shape[0]
+    top = roi[1] + roi[3] if roi else h
+    strip = image[top : min(h, top + max(1, h // 5))]
+    return strip if strip.shape[0] >= 2 else None
+
+
+@dataclass(frozen=True, slots=True)
+class Prepared:
+    """A frame checked, decoded, measured and written to the store; not yet in the database."""
+
+    camera: CameraInfo
+    frame: Frame
+    decoded: Decoded
+    may_repeat: bool = False
+    """The upload could repeat a stored one (it has an Idempotency-Key or its own captured_at);
+    otherwise the unique constraint alone guards against duplicates."""
+
+
+def prepare(
+    frames: FrameStore | None,
+    *,
+    camera: CameraInfo,
+    data: bytes,
+    captured_at: datetime | None,
+    received_at: datetime,
+    max_pixels: int,
+    idempotency_key: str | None = None,
+) -> Prepared:
+    """Everything about a frame that needs no database, run in a worker thread.
+
+    The bytes are stored here, before any transaction, so a committed row always has them. A
+    transaction that then fails leaves bytes no row refers to, which retention removes (with
+    their pack, or as an orphan file); they are never deleted here, because in a store that
+    names frames by their SHA-256 an identical frame may share them.
+    """
+    decoded = analyse(data, camera=camera, max_pixels=max_pixels)
+    sha256 = digest(data)
+    stored_path = frames.put(data, sha256, received_at) if frames is not None else None
+    frame = Frame(
+        id=time_ordered_id(),
+        camera_id=camera.id,
+        captured_at=captured_at or received_at,
+        received_at=received_at,
+        width=decoded.header.width,
+        height=decoded.header.height,
+        size_bytes=len(data),
+        sha256=sha256,
+        stored_path=stored_path,
+        idempotency_key=idempotency_key,
+    )
+    may_repeat = idempotency_key is not None or captured_at is not None
+    return Prepared(camera, frame, decoded, may_repeat)
+
+
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    frame: Frame
+    verdict: Verdict
+    replay: bool
+    """The frame was already stored (a retried upload): these are the original rows."""
+
+
+def find_original(session: Session, frame: Frame) -> tuple[Frame, Verdict] | None:
+    """The stored frame a retry repeats: same camera and Idempotency-Key, or same camera, bytes
+    and capture time."""
+    q = select(Frame.id).where(Frame.camera_id == frame.camera_id)
+    if frame.idempotency_key is not None:
+        q = q.where(Frame.idempotency_key == frame.idempotency_key)
+    else:
+        q = q.where(Frame.sha256 == frame.sha256, Frame.captured_at == frame.captured_at)
+    found = session.scalar(q.limit(1))
+    if found is None:
+        return None
+    original = session.scalars(
+        select(Frame).where(Frame.id == found).options(selectinload(Frame.verdict))
+    ).one()
+    return original, original.verdict
+
+
+def check_same_frame(original: Frame, frame: Frame) -> None:
+    """Refuse (422) an Idempotency-Key used before for other bytes: answering with the original
+    frame told a camera whose key counter restarted (a reboot) that its new frame was stored,
+    and the frame was lost. The key names one request's content (the IETF draft on the header
+    answers its reuse with another payload with 422)."""
+    if original.idempotency_key is not None and original.sha256 != frame.sha256:
+        raise Unprocessable(
+            f"Idempotency-Key {original.idempotency_key!r} was used for another frame "
+            f"(frame {original.id}, taken at {original.captured_at.isoformat()}): "
+            "send a new frame with a new key",
+            code="idempotency_key_reused",
+        )
+
+
+def record(
+    session: Session, prepared: Prepared, policy: Policy, *, retry: bool = False
+) -> Recorded:
+    """The database part: conclude the verdict and insert the frame and verdict rows, unless
+    this is a retry of a stored frame, whose original rows are returned instead.
+
+    Runs on the group-commit writer (``app.platform.frames.writer``), inside the batch's transaction.
+    """
+    # the lookup costs a query per frame: only uploads that could be retries make it (a
+    # duplicate of any other is refused by the unique constraint, and the writer then runs
+    # this job again with ``may_repeat`` forced on)
+    original = find_original(session, prepared.frame) if prepared.may_repeat or retry else None
+    if original is not None:
+        check_same_frame(original[0], prepared.frame)
+        return Recorded(*original, replay=True)
+    verdict = conclude(session, prepared, policy)
+    insert_rows(session, prepared.frame, verdict)
+    return Recorded(prepared.frame, verdict, replay=False)

@@ -1,0 +1,85 @@
+"""The fleet model: judges panels that have no baseline of their own."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+from fastapi import APIRouter, Request
+from sqlalchemy.orm import Session
+
+from app.platform.db.models import CameraKind
+from app.platform.frames.camera_info import CameraInfo
+from app.platform.http.deps import Admin, PolicyDep, SessionDep, SettingsDep, image_work
+from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
+from app.platform.http.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    NOT_FOUND,
+    UNPROCESSABLE,
+    multipart_body,
+)
+from app.platform.http.uploads import content_type, read_form
+from app.platform.policy import Policy
+from app.platform.schemas import FleetModelOut
+from app.solar import panels, training
+
+router = APIRouter(prefix="/fleet", tags=["panels"])
+
+LABELS = {"clean": False, "dirty": True}
+
+
+def _train(
+    session: Session,
+    files: list[tuple[str | None, bytes]],
+    labels: list[str],
+    max_pixels: int,
+    policy: Policy,
+) -> FleetModelOut:
+    camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
+    decoded = training.decode_all(files, camera, max_pixels=max_pixels)
+    features = np.array([d.features for d in decoded], dtype=np.float64)
+    dirty = np.array([LABELS[label] for label in labels], dtype=bool)
+    row = training.fit_fleet(features, dirty, now=policy.now())
+    session.add(row)
+    session.flush()
+    return FleetModelOut.model_validate(row)
+
+
+@router.post(
+    "/model",
+    status_code=201,
+    response_model=FleetModelOut,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(files="files", labels="texts"),
+)
+async def train(
+    request: Request, session: SessionDep, settings: SettingsDep, policy: PolicyDep, _: Admin
+) -> FleetModelOut:
+    """Train the fleet model from labelled photos of many panels (≥ 5 of each label).
+
+    Multipart: repeated ``files`` and, in the same order, ``labels`` (clean or dirty).
+    """
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send multipart/form-data with files and labels")
+    form = await read_form(
+        request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels")
+    )
+    files, labels = form.files_of("files"), form.fields.get("labels", [])
+    if len(files) != len(labels):
+        raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")
+    bad = sorted({label for label in labels if label not in LABELS})
+    if bad:
+        raise Unprocessable(f"labels must be clean or dirty; got {', '.join(bad)}")
+    return await image_work(
+        request, partial(_train, session, files, labels, settings.max_pixels, policy)
+    )
+
+
+@router.get("/model", response_model=FleetModelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def current(session: SessionDep, _: Admin) -> FleetModelOut:
+    """The fleet model in use (the latest trained)."""
+    row = panels.latest_fleet_model(session)
+    if row is None:
+        raise NotFound("no fleet model has been trained")
+    return FleetModelOut.model_validate(row)

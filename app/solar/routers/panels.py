@@ -1,0 +1,419 @@
+"""Solar panels: registry, baselines, status, the cleaning trigger, evaluation."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy.orm import Session
+
+from app.platform.db.models import Baseline, CameraKind, Panel
+from app.platform.db.session import release
+from app.platform.frames import cameras as registry
+from app.platform.frames.camera_info import CameraInfo
+from app.platform.http.deps import (
+    ID_PATTERN,
+    Admin,
+    PanelId,
+    PolicyDep,
+    RobotOrAdmin,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
+from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
+from app.platform.http.responses import (
+    AUTH_ERRORS,
+    BODY_ERRORS,
+    CONFLICT,
+    NOT_FOUND,
+    PANEL_IN_USE,
+    PANEL_RETIRED,
+    UNPROCESSABLE,
+    multipart_body,
+    verdict_out,
+)
+from app.platform.http.uploads import content_type, read_files, read_form, read_json
+from app.platform.policy import Policy
+from app.platform.schemas import (
+    BaselineFromFrames,
+    BaselineOut,
+    EvaluationOut,
+    PanelCreate,
+    PanelOut,
+    PanelStateCounts,
+    PanelStatus,
+    PanelUpdate,
+    PanelVerdictSummary,
+    TaskOut,
+    TrendOut,
+    Trigger,
+    TwoSampleOut,
+    ViewOut,
+)
+from app.solar import panels, training
+from app.solar.core.panel_state import PanelState
+
+router = APIRouter(tags=["panels"])
+
+Significance = Annotated[
+    float, Query(ge=1e-6, le=0.05, description="ς, the level of significance (eq. 5.21).")
+]
+Shrinkage = Annotated[
+    float,
+    Query(
+        ge=0,
+        le=100,
+        description="Variance added to Σ̂'s diagonal [level²]. 0 refuses a singular covariance; "
+        "1/12 (integer rounding of modes) admits a channel whose mode never changes.",
+    ),
+]
+_FILES_BODY = multipart_body(json=BaselineFromFrames, files="files")
+
+
+def _out(
+    session: Session, policy: Policy, panel: Panel, state: PanelState | None = None
+) -> PanelOut:
+    return PanelOut(
+        id=panel.id,
+        name=panel.name,
+        lat=panel.lat,
+        lon=panel.lon,
+        created_at=panel.created_at,
+        retired_at=panel.retired_at,
+        state=state if state is not None else panels.state_now(session, panel, policy),
+    )
+
+
+@router.post(
+    "/panels",
+    status_code=201,
+    response_model=PanelOut,
+    responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
+)
+def create_panel(body: PanelCreate, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
+    """Register a solar panel."""
+    return _out(session, policy, registry.create_panel(session, body))
+
+
+@router.get("/panels", response_model=list[PanelOut], responses=AUTH_ERRORS)
+def list_panels(
+    session: SessionDep,
+    policy: PolicyDep,
+    _: Admin,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    retired: Annotated[
+        bool, Query(description="Include retired panels (by default only those in service).")
+    ] = False,
+    state: Annotated[
+        list[PanelState] | None,
+        Query(
+            max_length=5,
+            description="Only panels in these states now (repeat it for several): "
+            "``?state=needs_cleaning&state=cleaning``.",
+        ),
+    ] = None,
+) -> list[PanelOut]:
+    """List panels, ordered by id, each with its state now."""
+    rows = panels.listed_with_state(
+        session, policy, states=state or [], retired=retired, limit=limit, offset=offset
+    )
+    return [_out(session, policy, p, s) for p, s in rows]
+
+
+@router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
+def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
+    """One panel."""
+    return _out(session, policy, registry.get_panel(session, panel_id))
+
+
+@router.patch(
+    "/panels/{panel_id}",
+    response_model=PanelOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **UNPROCESSABLE},
+)
+def update_panel(
+    panel_id: PanelId, body: PanelUpdate, session: SessionDep, policy: PolicyDep, _: Admin
+) -> PanelOut:
+    """Change a panel's name or location (JSON merge: fields left out keep their value,
+    ``null`` clears one)."""
+    return _out(session, policy, registry.update_panel(session, panel_id, body))
+
+
+@router.get("/panel-states", response_model=PanelStateCounts, responses=AUTH_ERRORS)
+def panel_states(session: SessionDep, policy: PolicyDep, _: Admin) -> PanelStateCounts:
+    """The farm at a glance: how many panels in service are in each state now (one query, for
+    tens of thousands of panels; ``GET /panels?state=`` lists those of a state)."""
+    counts = panels.state_counts(session, policy)
+    return PanelStateCounts(
+        counted_at=policy.now(),
+        total=sum(counts.values()),
+        states={s.value: n for s, n in counts.items()},
+    )
+
+
+@router.delete(
+    "/panels/{panel_id}",
+    status_code=204,
+    response_class=Response,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_IN_USE},
+)
+def retire_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> Response:
+    """Retire a panel removed from the farm. Its open cleaning task is cancelled (outcome
+    ``panel_retired``: no robot is sent to it, and one holding the task can neither complete
+    nor fail it), no camera may be attached to it nor baseline trained for it (409
+    ``panel_retired``), and it leaves the panel list (``?retired=true`` shows it). Its
+    verdicts, baselines and tasks stay readable, and its id stays taken. Refused (409
+    ``panel_in_use``) while cameras in service watch it. Retiring it again changes nothing."""
+    registry.retire_panel(session, panel_id, policy)
+    return Response(status_code=204)
+
+
+def _train_from_files(
+    session: Session,
+    panel_id: str,
+    camera_id: str | None,
+    files: list[tuple[str | None, bytes]],
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+    policy: Policy,
+) -> BaselineOut:
+    registry.panel_in_service(session, panel_id)
+    camera = training.panel_camera(session, panel_id, camera_id)
+    release(session)  # while decoding; training locks the panel and checks it again
+    modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
+    row = training.train_baseline(
+        session,
+        panel_id,
+        modes,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=None,
+        roi=camera.region,
+        now=policy.now(),
+    )
+    return BaselineOut.model_validate(row)
+
+
+def _train_from_frames(
+    session: Session,
+    panel_id: str,
+    frame_ids: list[str],
+    significance: float,
+    shrinkage: float,
+    policy: Policy,
+) -> BaselineOut:
+    registry.panel_in_service(session, panel_id)
+    modes, region = training.modes_of_frames(session, panel_id, frame_ids)
+    row = training.train_baseline(
+        session,
+        panel_id,
+        modes,
+        significance=significance,
+        shrinkage=shrinkage,
+        frame_ids=frame_ids,
+        roi=region,
+        now=policy.now(),
+    )
+    return BaselineOut.model_validate(row)
+
+
+@router.post(
+    "/panels/{panel_id}/baseline",
+    status_code=201,
+    response_model=BaselineOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=_FILES_BODY,
+)
+async def train_baseline(
+    panel_id: PanelId,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+    camera_id: Annotated[
+        str | None, Query(description="Whose ROI applies to uploaded images.")
+    ] = None,
+) -> BaselineOut:
+    """Train the panel's clean baseline (eqs. 5.12–5.13) from ≥ 4 clean images or frames.
+
+    Multipart with repeated field ``files``, or JSON ``{"frame_ids": [...]}`` of stored frames.
+    """
+    kind = content_type(request)
+    if kind == "multipart/form-data":
+        files = await read_files(request, "files", settings.max_upload_bytes, max_files=1000)
+        return await image_work(
+            request,
+            _train_from_files,
+            session,
+            panel_id,
+            camera_id,
+            files,
+            significance,
+            shrinkage,
+            settings.max_pixels,
+            policy,
+        )
+    if kind == "application/json":
+        body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
+        return await run_in_threadpool(  # stored modes, no image: no image_work
+            _train_from_frames,
+            session,
+            panel_id,
+            body.frame_ids,
+            significance,
+            shrinkage,
+            policy,
+        )
+    raise UnsupportedMediaType("send multipart/form-data (files) or application/json (frame_ids)")
+
+
+@router.get(
+    "/panels/{panel_id}/baseline",
+    response_model=BaselineOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def get_baseline(
+    panel_id: PanelId,
+    session: SessionDep,
+    _: RobotOrAdmin,
+    camera_id: Annotated[
+        str | None,
+        Query(
+            pattern=ID_PATTERN,
+            description="The baseline that judges this camera's frames (the panel's newest "
+            "measured in its region) instead of the panel's newest.",
+        ),
+    ] = None,
+) -> BaselineOut:
+    """The panel's newest baseline, or the one judging a camera's frames. A panel watched by
+    cameras with different regions of interest has one in use per region."""
+    panel = registry.get_panel(session, panel_id)
+    if camera_id is None:
+        if panel.baseline_id is None:
+            raise NotFound(f"panel {panel_id!r} has no baseline")
+        return BaselineOut.model_validate(session.get(Baseline, panel.baseline_id))
+    return BaselineOut.model_validate(panels.judging(session, panel, camera_id))
+
+
+def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
+    last = None
+    if status.last is not None:
+        frame, verdict = status.last
+        base: dict[str, Any] = verdict_out(verdict).model_dump()
+        last = PanelVerdictSummary(**base, frame_id=frame.id, captured_at=frame.captured_at)
+    now = policy.now()
+    return PanelStatus(
+        panel_id=status.panel.id,
+        state=status.state.value,
+        last_verdict=last,
+        open_task=TaskOut(**panels.task_view(status.task, now)) if status.task else None,
+        ineffective=status.panel.ineffective,
+        dirty_streak=status.panel.dirty_streak,
+        retired_at=status.panel.retired_at,
+        baseline_id=status.panel.baseline_id,
+        trend=TrendOut.model_validate(status.trend),
+        views=[
+            ViewOut(
+                camera_id=v.camera_id,
+                baseline_id=v.baseline_id,
+                trend=TrendOut.model_validate(v.trend),
+            )
+            for v in status.views
+        ],
+    )
+
+
+@router.get(
+    "/panels/{panel_id}/status",
+    response_model=PanelStatus,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def panel_status(
+    panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin
+) -> PanelStatus:
+    """The panel's state, last verdict, open task and soiling trend."""
+    return status_out(panels.panel_status(session, panel_id, policy), policy)
+
+
+@router.get(
+    "/panels/{panel_id}/trigger",
+    response_model=Trigger,
+    responses={**AUTH_ERRORS, **NOT_FOUND},
+)
+def trigger(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> Trigger:
+    """Polled by the panel's cleaning mechanism: should it clean now? Read only."""
+    registry.get_panel(session, panel_id)
+    task = panels.open_task(session, panel_id)
+    if task is None:
+        return Trigger(panel_id=panel_id, clean_now=False, task_id=None)
+    phase = panels.task_view(task, policy.now())["status"]
+    return Trigger(panel_id=panel_id, clean_now=phase in ("pending", "claimed"), task_id=task.id)
+
+
+def _evaluate(
+    clean_files: list[tuple[str | None, bytes]],
+    dirty_files: list[tuple[str | None, bytes]],
+    significance: float,
+    shrinkage: float,
+    max_pixels: int,
+) -> EvaluationOut:
+    camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
+    clean = training.modes_of(training.decode_all(clean_files, camera, max_pixels=max_pixels))
+    dirty = training.modes_of(training.decode_all(dirty_files, camera, max_pixels=max_pixels))
+    ev = training.evaluate(clean, dirty, significance=significance, shrinkage=shrinkage)
+    return EvaluationOut(
+        n_clean=ev.rates.n_clean,
+        n_dirty=ev.rates.n_dirty,
+        hotelling=TwoSampleOut(
+            t2=ev.test.t2,
+            f_stat=ev.test.f_stat,
+            df1=ev.test.df1,
+            df2=ev.test.df2,
+            p_value=ev.test.p_value,
+            mean_difference=ev.test.mean_difference.tolist(),
+        ),
+        dirty_called_clean=ev.rates.dirty_called_clean,
+        clean_called_dirty=ev.rates.clean_called_dirty,
+        clean_modes=ev.clean_modes.tolist(),
+        dirty_modes=ev.dirty_modes.tolist(),
+    )
+
+
+@router.post(
+    "/panels/evaluate",
+    response_model=EvaluationOut,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(clean="files", dirty="files"),
+)
+async def evaluate(
+    request: Request,
+    settings: SettingsDep,
+    _: Admin,
+    significance: Significance = 0.05,
+    shrinkage: Shrinkage = 0.0,
+) -> EvaluationOut:
+    """Do clean and dirty images differ (two-sample T²), and how often does T² err?
+
+    Multipart with repeated fields ``clean`` (≥ 5) and ``dirty`` (≥ 1) images.
+    """
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send multipart/form-data with fields clean and dirty")
+    form = await read_form(
+        request, settings.max_upload_bytes, max_files=2000, parts=("clean", "dirty")
+    )
+    clean, dirty = form.files_of("clean"), form.files_of("dirty")
+    if len(clean) < 5 or not dirty:
+        raise Unprocessable(
+            f"need at least 5 clean and 1 dirty image; got {len(clean)} clean, {len(dirty)} dirty"
+        )
+    return await image_work(
+        request, partial(_evaluate, clean, dirty, significance, shrinkage, settings.max_pixels)
+    )

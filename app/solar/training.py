@@ -1,0 +1,241 @@
+"""Training from labelled images: a panel's baseline, the fleet model, the T² evaluation."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.platform.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
+from app.platform.frames import hotelling as soiling
+from app.platform.frames import verdicts
+from app.platform.frames.camera_info import (
+    CameraInfo,
+    Region,
+    describe_region,
+    one_view,
+    region_now,
+    uploads_in,
+)
+from app.platform.frames.cameras import check_in_service
+from app.platform.frames.ingest import Decoded, analyse
+from app.platform.http.errors import Unprocessable, VantageError
+from app.solar.core.fleet import FEATURES
+from app.solar.panels import lock_panel
+
+MIN_FLEET_PER_CLASS = 5
+
+
+def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> CameraInfo:
+    """The camera whose ROI and decoding apply to uploaded images of a panel.
+
+    The named camera, else the panel's cameras in service when they all have one region (one
+    camera, or several with the same view of it), else the whole frame.
+    """
+    if camera_id is not None:
+        camera = session.get(Camera, camera_id)
+        if camera is None or camera.panel_id != panel_id:
+            raise Unprocessable(f"camera {camera_id!r} does not watch panel {panel_id!r}")
+        return CameraInfo.of(camera)  # features wanted: training may be for the fleet
+    cameras = session.scalars(
+        select(Camera)
+        .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+        .order_by(Camera.id)
+    ).all()
+    return uploads_in(one_view(cameras), CameraKind.panel, panel_id)
+
+
+def decode_all(
+    files: Sequence[tuple[str | None, bytes]], camera: CameraInfo, *, max_pixels: int
+) -> list[Decoded]:
+    """Decode every uploaded image; refuse (422) naming each one that is unusable."""
+    decoded, problems = [], []
+    for i, (name, data) in enumerate(files):
+        label = name or f"file {i + 1}"
+        try:
+            d = analyse(data, camera=camera, max_pixels=max_pixels)
+        except VantageError as exc:
+            problems.append(f"{label}: {exc.detail}")
+            continue
+        if d.quality is not None:
+            problems.append(f"{label}: {d.quality}")
+        decoded.append(d)
+    if problems:
+        raise Unprocessable("unusable images: " + "; ".join(problems), problems=problems)
+    return decoded
+
+
+def modes_of(decoded: Sequence[Decoded]) -> NDArray[np.float64]:
+    return np.array([d.stats.modes for d in decoded], dtype=np.float64).reshape(-1, 3)
+
+
+def modes_of_frames(
+    session: Session, panel_id: str, frame_ids: Sequence[str]
+) -> tuple[NDArray[np.float64], Region]:
+    """Mode vectors of stored frames of this panel's cameras, in the order given, and the one
+    region of interest they were all measured in (422 when they differ)."""
+    rows = session.execute(
+        select(
+            PanelVerdict.frame_id,
+            PanelVerdict.mode_r,
+            PanelVerdict.mode_g,
+            PanelVerdict.mode_b,
+            PanelVerdict.roi,
+            PanelVerdict.usable,
+            PanelVerdict.reason,
+        )
+        .join(Frame, Frame.id == PanelVerdict.frame_id)
+        .where(PanelVerdict.frame_id.in_(frame_ids), PanelVerdict.panel_id == panel_id)
+    ).all()
+    found = {r[0]: (r[1], r[2], r[3]) for r in rows}
+    missing = [f for f in frame_ids if f not in found]
+    if missing:
+        raise Unprocessable(
+            f"frames not found for panel {panel_id!r}: {', '.join(missing[:10])}",
+            missing=missing,
+        )
+    verdicts.check_usable([(r[0], r[6]) for r in rows if not r[5]])
+    regions = {r[0]: r[4] for r in rows}
+    region = regions[frame_ids[0]]
+    elsewhere = [f for f in frame_ids if regions[f] != region]
+    if elsewhere:
+        raise Unprocessable(
+            f"the frames were measured in different regions of interest: {frame_ids[0]} in "
+            f"{describe_region(region)}, {elsewhere[0]} in {describe_region(regions[elsewhere[0]])}"
+            " (the camera's roi changed between them); train from frames of one region",
+            code="mixed_regions",
+        )
+    return np.array([found[f] for f in frame_ids], dtype=np.float64), region
+
+
+def check_region_in_use(session: Session, panel_id: str, region: Region) -> None:
+    """Refuse a baseline no camera of the panel could use: one measured in a region of
+    interest none of the panel's cameras in service measures now (a panel with no camera yet
+    may be trained for any)."""
+    cameras = session.scalars(
+        select(Camera).where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
+    ).all()
+    if cameras and all(region_now(c) != region for c in cameras):
+        now = "; ".join(f"{c.id}: {describe_region(region_now(c))}" for c in cameras)
+        raise Unprocessable(
+            f"these images were measured in {describe_region(region)}, but the panel's cameras "
+            f"now measure another region ({now}), so the baseline would judge none of their "
+            "frames: train from frames taken since the roi changed, or upload images naming "
+            "the camera (camera_id)",
+            code="region_not_in_use",
+        )
+
+
+def train_baseline(
+    session: Session,
+    panel_id: str,
+    modes: NDArray[np.float64],
+    *,
+    significance: float,
+    shrinkage: float,
+    frame_ids: list[str] | None,
+    roi: Region,
+    now: datetime,
+) -> Baseline:
+    """Fit and store the panel's baseline, measured in region ``roi``; verdicts use it from the
+    next frame on."""
+    panel = lock_panel(session, panel_id)
+    check_in_service(panel)
+    check_region_in_use(session, panel_id, roi)
+    try:
+        fit = soiling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
+    except soiling.BaselineError as exc:
+        raise Unprocessable(str(exc), code="bad_baseline") from None
+    row = Baseline(
+        id=str(uuid.uuid4()),
+        panel_id=panel.id,
+        created_at=now,
+        n=fit.n,
+        mean_modes=fit.mean_modes.tolist(),
+        covariance=fit.covariance.tolist(),
+        significance=fit.significance,
+        f_critical=fit.f_critical,
+        condition_number=fit.condition_number,
+        shrinkage=fit.shrinkage,
+        frame_ids=frame_ids,
+        roi=roi,
+    )
+    session.add(row)
+    session.flush()
+    # trained on clean images: the panel is clean now, and its debounce starts afresh
+    panel.baseline_id = row.id
+    panel.dirty_streak, panel.last_clean, panel.ineffective = 0, None, False
+    return row
+
+
+@dataclass(frozen=True, slots=True)
+class Evaluation:
+    test: soiling.TwoSampleT2
+    rates: soiling.Misclassification
+    clean_modes: NDArray[np.float64]
+    dirty_modes: NDArray[np.float64]
+
+
+def evaluate(
+    clean: NDArray[np.float64], dirty: NDArray[np.float64], *, significance: float, shrinkage: float
+) -> Evaluation:
+    """Two-sample T² between the sets and the classifier's two error rates."""
+    try:
+        test = soiling.two_sample_t2(clean, dirty)
+        rates = soiling.misclassification(
+            clean, dirty, significance=significance, shrinkage=shrinkage
+        )
+    except ValueError as exc:  # BaselineError included: too few or degenerate sets
+        raise Unprocessable(str(exc), code="bad_baseline") from None
+    return Evaluation(test, rates, clean, dirty)
+
+
+def fit_fleet(
+    features: NDArray[np.float64], dirty: NDArray[np.bool_], *, now: datetime, c: float = 0.3
+) -> FleetModel:
+    """Standardised logistic regression (scikit-learn), with 5-fold balanced accuracy."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import StratifiedKFold, cross_val_score
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    n_dirty, n_clean = int(dirty.sum()), int((~dirty).sum())
+    if min(n_dirty, n_clean) < MIN_FLEET_PER_CLASS:
+        raise Unprocessable(
+            f"need at least {MIN_FLEET_PER_CLASS} clean and {MIN_FLEET_PER_CLASS} dirty images; "
+            f"got {n_clean} clean, {n_dirty} dirty"
+        )
+    if not np.isfinite(features).all():
+        raise Unprocessable("some images gave non-finite features")
+
+    def pipeline() -> object:
+        return make_pipeline(
+            StandardScaler(),
+            LogisticRegression(C=c, class_weight="balanced", max_iter=5000),
+        )
+
+    folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
+    cv = cross_val_score(pipeline(), features, dirty, cv=folds, scoring="balanced_accuracy")
+    model = pipeline()
+    model.fit(features, dirty)  # type: ignore[attr-defined]
+    scaler, logistic = model.steps[0][1], model.steps[1][1]  # type: ignore[attr-defined]
+    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    return FleetModel(
+        id=str(uuid.uuid4()),
+        created_at=now,
+        feature_names=list(FEATURES),
+        mean=scaler.mean_.tolist(),
+        scale=scale.tolist(),
+        coef=logistic.coef_[0].tolist(),
+        intercept=float(logistic.intercept_[0]),
+        threshold=0.5,
+        n_clean=n_clean,
+        n_dirty=n_dirty,
+        cv_balanced_accuracy=float(np.mean(cv)),
+    )
