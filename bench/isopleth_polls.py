@@ -29,7 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.main import create_app  # noqa: E402
-from app.platform.db.models import Camera, CameraKind, Frame, SkyVerdict, Verdict  # noqa: E402
+from app.platform.db.models import Camera, CameraKind, Frame, Verdict
+from app.air.models import SkyVerdict
 from app.platform.settings import Settings  # noqa: E402
 from tests.conftest import migrate  # noqa: E402
 

@@ -7,6 +7,10 @@ from logging.config import fileConfig
 from alembic import context
 from sqlalchemy import create_engine, pool
 
+import app.air.models  # noqa: F401
+import app.cells.models  # noqa: F401
+import app.platform.db.models  # noqa: F401  every table on Base.metadata
+import app.solar.models  # noqa: F401
 from app.platform.db.base import Base
 from app.platform.settings import get_settings
 

@@ -46,7 +46,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.air.core import airquality
 from app.platform.background import in_thread
-from app.platform.db.models import AirAlert, Camera, Frame
+from app.air.models import AirAlert
+from app.platform.db.models import Camera, Frame
 from app.platform.observability import ALERT_DELIVERIES
 from app.platform.policy import Policy
 

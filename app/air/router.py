@@ -23,7 +23,8 @@ from app.air import alerts as webhooks
 from app.air import service as air
 from app.air.core import airquality, isopleths
 from app.air.isopleth_cache import MapCache
-from app.platform.db.models import Frame, SkyVerdict
+from app.platform.db.models import Frame
+from app.air.models import SkyVerdict
 from app.platform.db.session import release
 from app.platform.http.compression import accepts_gzip
 from app.platform.http.deps import (
@@ -56,15 +57,7 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_form, read_json
 from app.platform.policy import Policy
-from app.platform.schemas import (
-    AirAggregate,
-    AirAlertOut,
-    AirCalibrationFromFrames,
-    AirCalibrationOut,
-    AirLatest,
-    AirReading,
-    WebhookTestOut,
-)
+from app.air.schemas import AirAggregate, AirAlertOut, AirCalibrationFromFrames, AirCalibrationOut, AirLatest, AirReading, WebhookTestOut
 from app.solar import training
 
 router = APIRouter(prefix="/air", tags=["air quality"])

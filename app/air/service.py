@@ -27,15 +27,8 @@ from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.air.core import airquality
 from app.platform.db.base import time_slot
-from app.platform.db.models import (
-    AirAlert,
-    AirCalibration,
-    AirCalibrationCamera,
-    Camera,
-    CameraKind,
-    Frame,
-    SkyVerdict,
-)
+from app.air.models import AirAlert, AirCalibration, AirCalibrationCamera, SkyVerdict
+from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import (
     CameraInfo,

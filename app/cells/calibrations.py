@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.cells.core import calibration
-from app.platform.db.models import Calibration
+from app.cells.models import Calibration
 from app.platform.frames.jpeg import JpegError, decode_image
 from app.platform.http.errors import NotFound, Unprocessable
 

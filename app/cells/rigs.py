@@ -23,9 +23,9 @@ from app.cells.core.triangulation import (
     triangulate_views,
 )
 from app.platform.db.base import utcnow
-from app.platform.db.models import Rig
+from app.cells.models import Rig
 from app.platform.http.errors import Conflict, NotFound, Unprocessable
-from app.platform.schemas import RigSpec
+from app.cells.schemas import RigSpec
 
 
 def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from datetime import datetime
 from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
-from app.platform.db.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
+from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 from app.platform.http.errors import Conflict, NotFound
 from app.platform.policy import Policy
 from app.solar.core.panel_state import TaskPhase, task_phase

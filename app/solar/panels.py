@@ -13,17 +13,16 @@ from scipy import stats as sstats
 from sqlalchemy import ColumnElement, Select, and_, case, func, or_, select
 from sqlalchemy.orm import Session
 
-from app.platform.db.models import (
+from app.solar.models import (
     OPEN_TASK_STATUSES,
     Baseline,
-    Camera,
     CleaningTask,
     FleetModel,
-    Frame,
     Panel,
     PanelVerdict,
     TaskStatus,
 )
+from app.platform.db.models import Camera, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import Region, describe_region, region_now
 from app.platform.frames.verdicts import stats_columns

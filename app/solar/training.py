@@ -12,7 +12,8 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.platform.db.models import Baseline, Camera, CameraKind, FleetModel, Frame, PanelVerdict
+from app.solar.models import Baseline, FleetModel, PanelVerdict
+from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames import verdicts
 from app.platform.frames.camera_info import (

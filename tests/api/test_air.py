@@ -263,7 +263,7 @@ def test_why_a_delivery_failed_is_for_the_operator(
 ) -> None:
     """``GET /air/alerts`` is public, and a failed delivery's error can hold the receiver's
     addresses (a redirect's Location, with its token): only the admin token reads it."""
-    from app.platform.db.models import AirAlert
+    from app.air.models import AirAlert
 
     assert calibrate(client, admin).status_code == 201
     post(client, city, "sky1", 1, seed=1)
@@ -339,7 +339,7 @@ def test_an_episode_over_before_cleared_alerts_existed_is_not_cleared_again(
     """Alerts raised before this service sent cleared ones (here: the cleared alert removed,
     as a database upgraded from then holds none) are over once a reading came back to 5.0:
     the next clean frame, weeks on, clears nothing."""
-    from app.platform.db.models import AirAlert
+    from app.air.models import AirAlert
 
     assert calibrate(client, admin).status_code == 201
     for level, n in ((10, 3), (1, 6), (10, 12)):

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, insert
 
 from app.cells.core.triangulation import CrossRig, View, project_views
-from app.platform.db.models import Rig
+from app.cells.models import Rig
 from tests.core.test_triangulation import RIG, calibrated_views, points
 
 

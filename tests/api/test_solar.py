@@ -989,7 +989,7 @@ def store_farm(engine: Any, now: datetime, facts: list[Facts], *, fleet: bool) -
     and a fleet model when ``fleet``; their ids."""
     from sqlalchemy import bindparam, insert
 
-    from app.platform.db.models import Baseline, CleaningTask, FleetModel, Panel, Robot
+    from app.solar.models import Baseline, CleaningTask, FleetModel, Panel, Robot
 
     ids = [f"p{k:06d}" for k in range(len(facts))]
     panels, baselines, tasks = [], [], []

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.air import alerts as webhooks
 from app.main import create_app
 from app.platform.background import in_thread
-from app.platform.db.models import AirAlert
+from app.air.models import AirAlert
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.policy import Policy
 from app.platform.settings import Settings

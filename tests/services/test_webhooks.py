@@ -23,7 +23,8 @@ from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.air import alerts as webhooks
-from app.platform.db.models import AirAlert, Camera, CameraKind, Frame
+from app.air.models import AirAlert
+from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.policy import Policy
 from app.platform.settings import Settings

@@ -20,16 +20,9 @@ from sqlalchemy import Engine, event, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.db import rows
-from app.platform.db.models import (
-    AirAlert,
-    Camera,
-    CameraKind,
-    Frame,
-    Panel,
-    PanelVerdict,
-    SkyVerdict,
-    Verdict,
-)
+from app.air.models import AirAlert, SkyVerdict
+from app.platform.db.models import Camera, CameraKind, Frame, Verdict
+from app.solar.models import Panel, PanelVerdict
 from app.platform.db.rows import deferred_inserts, insert_rows
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.frames import cameras as registry

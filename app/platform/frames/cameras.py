@@ -12,14 +12,16 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.platform.auth import hash_token, new_token
-from app.platform.db.models import Camera, CameraKind, Frame, Panel, Robot, TaskStatus
+from app.platform.db.models import Camera, CameraKind, Frame
+from app.solar.models import Panel, Robot, TaskStatus
 from app.platform.db.rows import select_rows
 from app.platform.frames.camera_info import TokenCache, view_of
 from app.platform.frames.ingest import check_fits
 from app.platform.frames.writer import Credential, Refusal
 from app.platform.http.errors import Conflict, NotFound, Unprocessable
 from app.platform.policy import Policy
-from app.platform.schemas import CameraCreate, CameraUpdate, PanelCreate, PanelUpdate, RobotCreate
+from app.platform.schemas import CameraCreate, CameraUpdate
+from app.solar.schemas import PanelCreate, PanelUpdate, RobotCreate
 from app.solar import cleaning, panels
 
 

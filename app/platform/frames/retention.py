@@ -29,15 +29,9 @@ from sqlalchemy import ColumnElement, delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.background import in_thread
-from app.platform.db.models import (
-    AirAlert,
-    AirCalibration,
-    Baseline,
-    Frame,
-    PanelVerdict,
-    SkyVerdict,
-    Verdict,
-)
+from app.air.models import AirAlert, AirCalibration, SkyVerdict
+from app.solar.models import Baseline, PanelVerdict
+from app.platform.db.models import Frame, Verdict
 from app.platform.frames.storage import FrameStore, pack_of
 from app.platform.policy import Policy
 

@@ -21,7 +21,8 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
-from app.platform.db.models import Camera, Panel, Robot
+from app.platform.db.models import Camera
+from app.solar.models import Panel, Robot
 from app.platform.frames import cameras as registry
 from app.platform.frames import rate_limit
 from app.platform.frames.camera_info import CameraInfo, TokenCache

@@ -6,7 +6,9 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from app.platform.db.models import Frame, PanelVerdict, SkyVerdict, Verdict
+from app.platform.db.models import Frame, Verdict
+from app.solar.models import PanelVerdict
+from app.air.models import SkyVerdict
 from app.platform.schemas import FrameOut, PanelVerdictOut, RigVerdictOut, SkyVerdictOut, VerdictOut
 
 

@@ -17,7 +17,7 @@ from app.platform.http.deps import (
     SessionDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
-from app.platform.schemas import ClaimOut, FailIn, TaskOut
+from app.solar.schemas import ClaimOut, FailIn, TaskOut
 from app.solar import cleaning
 from app.solar.panels import task_view
 

@@ -21,7 +21,7 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_form
 from app.platform.policy import Policy
-from app.platform.schemas import FleetModelOut
+from app.solar.schemas import FleetModelOut
 from app.solar import panels, training
 
 router = APIRouter(prefix="/fleet", tags=["panels"])

@@ -9,7 +9,8 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from app.platform.db.models import Baseline, CameraKind, Panel
+from app.solar.models import Baseline, Panel
+from app.platform.db.models import CameraKind
 from app.platform.db.session import release
 from app.platform.frames import cameras as registry
 from app.platform.frames.camera_info import CameraInfo
@@ -37,22 +38,7 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
 from app.platform.policy import Policy
-from app.platform.schemas import (
-    BaselineFromFrames,
-    BaselineOut,
-    EvaluationOut,
-    PanelCreate,
-    PanelOut,
-    PanelStateCounts,
-    PanelStatus,
-    PanelUpdate,
-    PanelVerdictSummary,
-    TaskOut,
-    TrendOut,
-    Trigger,
-    TwoSampleOut,
-    ViewOut,
-)
+from app.solar.schemas import BaselineFromFrames, BaselineOut, EvaluationOut, PanelCreate, PanelOut, PanelStateCounts, PanelStatus, PanelUpdate, PanelVerdictSummary, TaskOut, TrendOut, Trigger, TwoSampleOut, ViewOut
 from app.solar import panels, training
 from app.solar.core.panel_state import PanelState
 

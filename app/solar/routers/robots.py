@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from fastapi.responses import Response
 
-from app.platform.db.models import Robot
+from app.solar.models import Robot
 from app.platform.frames import cameras as registry
 from app.platform.http.deps import Admin, Limit, Offset, PolicyDep, RobotId, SessionDep
 from app.platform.http.responses import (
@@ -17,7 +17,7 @@ from app.platform.http.responses import (
     ROBOT_RETIRED,
     UNPROCESSABLE,
 )
-from app.platform.schemas import RobotCreate, RobotCreated, RobotOut
+from app.solar.schemas import RobotCreate, RobotCreated, RobotOut
 
 router = APIRouter(tags=["robots"])
 

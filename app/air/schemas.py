@@ -1,0 +1,123 @@
+"""Request and response bodies of the domain, on the platform's base models."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from app.platform.schemas import Out, Schema
+
+
+class AirCalibrationFromFrames(Schema):
+    frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
+    levels: list[Annotated[int, Field(ge=1, le=10)]] = Field(min_length=1, max_length=10_000)
+
+
+class AirClusterOut(Out):
+    levels: list[int] = Field(description="Calibration levels pooled into this cluster.")
+    level: int = Field(description="The level it reports.")
+    n: int
+    mean_modes: list[float] = Field(description="x̄ₘ, eq. 6.12 [level].")
+    covariance: list[list[float]] = Field(description="Σ̂, eq. 6.13 [level²].")
+    f_critical: float = Field(description="F₍₃,ₙ₋₃,ς₎, eq. 6.21.")
+    significance: float
+
+
+class AirCalibrationOut(Out):
+    id: str
+    created_at: datetime
+    n_images: int
+    clusters: list[AirClusterOut]
+    warnings: list[str] = Field(description="Levels pooled for want of images, and the like.")
+    method: str = Field(description="clusters (T², the dissertation) or regression.")
+    city_wide: bool = Field(
+        description="Made for no camera in particular: it grades every camera without one of "
+        "its own."
+    )
+    camera_ids: list[str] = Field(description="The sky cameras it was made for and still grades.")
+
+
+class AirLatest(Out):
+    camera_id: str
+    name: str | None = None
+    lat: float | None = None
+    lon: float | None = None
+    level: int | None = Field(
+        description="The camera's public level: its smoothed level (NowCast-style weighted "
+        "average of the last 12 hours, as the map and the alerts use it) rounded, not the "
+        "latest frame's alone (frame_level). Null without a graded reading in the 3 hours "
+        "before the latest one."
+    )
+    category: str | None = Field(description="The category of the public level.")
+    message: str | None = Field(
+        description="Today's Air Quality is <category>: null when the latest reading is not "
+        "current."
+    )
+    captured_at: datetime | None = Field(description="When the latest reading was taken.")
+    smoothed_level: float | None = Field(
+        description="The public level unrounded; null when the latest reading is not current."
+    )
+    smoothed_category: str | None
+    frame_level: int | None = Field(
+        description="The latest frame's own grade (null when it could not be graded: reason)."
+    )
+    frame_category: str | None
+    reason: str | None
+    current: bool = Field(
+        description="The latest reading was taken in the last 3 hours. When not, the level and"
+        " category are those of that reading's time (see captured_at), and message and the"
+        " smoothed level are null: they would speak of today's air."
+    )
+
+
+class AirReading(Out):
+    camera_id: str
+    frame_id: str
+    captured_at: datetime
+    level: int | None
+    category: str | None
+    smoothed_level: float | None
+    reason: str | None
+
+
+class AirAggregate(Out):
+    camera_id: str
+    start: datetime
+    end: datetime
+    n: int
+    mean_level: float
+    min_level: float
+    max_level: float
+    category: str
+
+
+class WebhookTestOut(Schema):
+    webhook_id: str = Field(description="The test alert's webhook-id (and alert_id).")
+    delivered: bool = Field(description="The receiver answered 2xx.")
+    error: str | None = Field(description="Why it did not take the test alert.")
+    signed: bool = Field(description="It carried webhook-signature (a secret is set).")
+
+
+class AirAlertOut(Out):
+    id: str
+    camera_id: str
+    frame_id: str
+    created_at: datetime
+    kind: Literal["raised", "cleared"] = Field(
+        description="raised: the smoothed level entered ``category`` (Poor or Very Poor); "
+        "cleared: after an alert, it is back in ``category``, clear of Poor (5.0 or better)."
+    )
+    smoothed_level: float
+    category: str
+    delivered: bool
+    attempts: int
+    delivery: Literal["delivered", "pending", "gave_up", "no_webhook"] = Field(
+        description="delivered; pending (to be tried, or retried after a failure); gave_up"
+        " (undelivered when its retry period ran out); no_webhook (none is configured)."
+    )
+    last_error: str | None = Field(
+        description="Why the last attempt failed (with the admin token only; else null)."
+    )
+    next_attempt_at: datetime | None = Field(description="When a failed delivery is retried.")

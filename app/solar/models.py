@@ -1,0 +1,162 @@
+"""Solar tables. The schema is built only by the Alembic migrations in ``migrations/``."""
+
+from __future__ import annotations
+
+import enum
+from datetime import datetime
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Enum,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    false,
+)
+from sqlalchemy.orm import Mapped, mapped_column
+
+from app.platform.db.base import Base, UTCDateTime
+from app.platform.db.models import ID_LENGTH, CameraKind, TimestampMixin, Verdict
+
+
+class Panel(TimestampMixin, Base):
+    """A solar panel. Its public state is derived (``core.panel_state``) from these columns
+    and its open cleaning task, so robots claiming tasks never write the panel row."""
+
+    __tablename__ = "panels"
+
+    id: Mapped[str] = mapped_column(String(ID_LENGTH), primary_key=True)
+    name: Mapped[str | None] = mapped_column(String(200))
+    lat: Mapped[float | None] = mapped_column(Float)
+    """Latitude [°], WGS 84."""
+    lon: Mapped[float | None] = mapped_column(Float)
+    """Longitude [°], WGS 84."""
+    baseline_id: Mapped[str | None] = mapped_column(
+        ForeignKey("baselines.id", use_alter=True), default=None
+    )
+    """The baseline verdicts use (the latest trained)."""
+    dirty_streak: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    """Consecutive usable verdicts that said dirty (the debounce counter)."""
+    last_clean: Mapped[bool | None] = mapped_column(Boolean, default=None)
+    """The last usable verdict, or None before the first."""
+    ineffective: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    """The last cleaning did not make the panel clean."""
+    last_judged_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the latest frame whose verdict drove the state machine was captured: a frame taken
+    before it (a camera's backlog uploaded late) is judged but does not drive it."""
+    retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the panel was taken out of service (removed from the farm): its open cleaning task
+    was cancelled, and no camera may be attached to it nor baseline trained for it."""
+
+
+class Baseline(Base):
+    """A panel's clean baseline (eqs. 5.12–5.13)."""
+
+    __tablename__ = "baselines"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    panel_id: Mapped[str] = mapped_column(ForeignKey("panels.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    n: Mapped[int] = mapped_column(Integer)
+    mean_modes: Mapped[list[float]] = mapped_column(JSON)
+    covariance: Mapped[list[list[float]]] = mapped_column(JSON)
+    significance: Mapped[float] = mapped_column(Float)
+    f_critical: Mapped[float] = mapped_column(Float)
+    condition_number: Mapped[float] = mapped_column(Float)
+    shrinkage: Mapped[float] = mapped_column(Float)
+    frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
+    """Stored frames it was trained from (kept by the retention sweep), or none for uploads."""
+    roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
+    """The region of interest its images were measured in (null: whole images). It judges only
+    frames measured in the same region: modes of another part of the view are not comparable."""
+
+
+class TaskStatus(enum.StrEnum):
+    pending = "pending"
+    claimed = "claimed"
+    completed = "completed"
+    """Done by the robot; the panel's next usable verdict confirms it."""
+    closed = "closed"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+OPEN_TASK_STATUSES = (TaskStatus.pending, TaskStatus.claimed, TaskStatus.completed)
+
+
+class CleaningTask(Base):
+    __tablename__ = "cleaning_tasks"
+    __table_args__ = (Index("ix_cleaning_tasks_status_created_at", "status", "created_at"),)
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    panel_id: Mapped[str] = mapped_column(ForeignKey("panels.id"), index=True)
+    open_panel_id: Mapped[str | None] = mapped_column(ForeignKey("panels.id"), unique=True)
+    """The panel id while the task is open, else NULL: at most one open task per panel."""
+    status: Mapped[TaskStatus] = mapped_column(
+        Enum(TaskStatus, native_enum=False, length=16, validate_strings=True)
+    )
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    robot_id: Mapped[str | None] = mapped_column(ForeignKey("robots.id"))
+    claimed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    completed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    outcome: Mapped[str | None] = mapped_column(String(16))
+    """effective, ineffective, not_needed, failed or panel_retired."""
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    fail_reason: Mapped[str | None] = mapped_column(String(500))
+
+
+class FleetModel(Base):
+    """A clean/dirty model trained on labelled photos of many panels (``app.solar.core.fleet``)."""
+
+    __tablename__ = "fleet_models"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    feature_names: Mapped[list[str]] = mapped_column(JSON)
+    mean: Mapped[list[float]] = mapped_column(JSON)
+    scale: Mapped[list[float]] = mapped_column(JSON)
+    coef: Mapped[list[float]] = mapped_column(JSON)
+    intercept: Mapped[float] = mapped_column(Float)
+    threshold: Mapped[float] = mapped_column(Float)
+    n_clean: Mapped[int] = mapped_column(Integer)
+    n_dirty: Mapped[int] = mapped_column(Integer)
+    cv_balanced_accuracy: Mapped[float | None] = mapped_column(Float)
+
+
+class Robot(TimestampMixin, Base):
+    __tablename__ = "robots"
+
+    id: Mapped[str] = mapped_column(String(ID_LENGTH), primary_key=True)
+    name: Mapped[str | None] = mapped_column(String(200))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the robot was taken out of service: its token no longer works and the tasks it
+    held went back to the queue."""
+
+
+class PanelVerdict(Verdict):
+    __tablename__ = "panel_verdicts"
+
+    frame_id: Mapped[str] = mapped_column(ForeignKey("verdicts.frame_id"), primary_key=True)
+    panel_id: Mapped[str | None] = mapped_column(ForeignKey("panels.id"), index=True)
+    clean: Mapped[bool | None] = mapped_column(Boolean)
+    t2: Mapped[float | None] = mapped_column(Float)
+    f_stat: Mapped[float | None] = mapped_column(Float)
+    p_value: Mapped[float | None] = mapped_column(Float)
+    threshold: Mapped[float | None] = mapped_column(Float)
+    state: Mapped[str | None] = mapped_column(String(32))
+    method: Mapped[str | None] = mapped_column(String(16))
+    """baseline (the panel's T² test) or fleet (the fleet model)."""
+    baseline_id: Mapped[str | None] = mapped_column(ForeignKey("baselines.id"))
+    p_dirty: Mapped[float | None] = mapped_column(Float)
+    """The fleet model's probability that the panel needs cleaning."""
+    late: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    """Taken before the panel's latest judged frame, or before the cleaning awaiting
+    confirmation was done: judged, but it did not drive the panel's state."""
+
+    __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}

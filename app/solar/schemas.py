@@ -1,0 +1,195 @@
+"""Request and response bodies of the domain, on the platform's base models."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from app.platform.schemas import Id, Lat, Lon, Out, PanelVerdictOut, Schema
+
+
+class PanelCreate(Schema):
+    id: Id
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat | None = None
+    lon: Lon | None = None
+
+
+class PanelUpdate(Schema):
+    """The fields to change: a field left out keeps its value, ``null`` clears it. A panel's id
+    never changes."""
+
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat | None = None
+    lon: Lon | None = None
+
+
+PanelStateName = Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
+
+
+class PanelOut(Out):
+    id: str
+    name: str | None
+    lat: float | None
+    lon: float | None
+    created_at: datetime
+    retired_at: datetime | None = Field(
+        None, description="When the panel was retired (DELETE); null while in service."
+    )
+    state: PanelStateName = Field(
+        description="Its state now, as ``GET /panels/{id}/status`` reads it (a retired panel's "
+        "is history)."
+    )
+
+
+class PanelStateCounts(Out):
+    counted_at: datetime
+    total: int = Field(description="Panels in service.")
+    states: dict[str, int] = Field(
+        description="How many panels in service are in each state now (every state, zeros "
+        "included): no_baseline, unknown, clean, needs_cleaning, cleaning."
+    )
+
+
+class RobotCreate(Schema):
+    id: Id
+    name: Annotated[str, Field(max_length=200)] | None = None
+
+
+class RobotOut(Out):
+    id: str
+    name: str | None
+    created_at: datetime
+    retired_at: datetime | None = Field(
+        None, description="When the robot was retired (DELETE); null while in service."
+    )
+
+
+class RobotCreated(RobotOut):
+    token: str = Field(description="The robot's token. Shown once; store it now.")
+
+
+class BaselineFromFrames(Schema):
+    frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
+
+
+class BaselineOut(Out):
+    id: str
+    panel_id: str
+    created_at: datetime
+    n: int = Field(description="Clean images used.")
+    mean_modes: list[float] = Field(description="x̄ₘ, eq. 5.12 [level].")
+    covariance: list[list[float]] = Field(description="Σ̂ with n − 1, eq. 5.13 [level²].")
+    significance: float = Field(description="ς.")
+    f_critical: float = Field(description="F₍₃,ₙ₋₃,ς₎, eq. 5.21.")
+    condition_number: float
+    shrinkage: float = Field(description="Variance added to Σ̂'s diagonal [level²].")
+    frame_ids: list[str] | None
+    roi: list[int] | list[list[int]] | None = Field(
+        description="The region of interest its images were measured in (null: whole images); "
+        "it judges only frames measured in the same region."
+    )
+
+
+class TaskOut(Out):
+    task_id: str
+    panel_id: str
+    status: str = Field(description="pending, claimed, completed, closed, failed or cancelled.")
+    robot_id: str | None
+    created_at: datetime
+    claimed_at: datetime | None
+    lease_expires_at: datetime | None
+    completed_at: datetime | None
+    closed_at: datetime | None
+    outcome: str | None = Field(
+        description="effective, ineffective, not_needed, failed or panel_retired."
+    )
+    attempts: int
+    fail_reason: str | None
+
+
+class ClaimOut(Out):
+    task_id: str
+    panel_id: str
+    lease_expires_at: datetime
+
+
+class FailIn(Schema):
+    reason: Annotated[str, Field(max_length=500)] | None = None
+
+
+class TrendOut(Out):
+    points: int = Field(description="Verdicts since the panel was last known clean.")
+    slope_per_day: float | None = Field(description="Theil–Sen slope of F [1/day].")
+    f_now: float | None = Field(description="Fitted F now.")
+    threshold: float | None = Field(description="F₍₃,ₙ₋₃,ς₎.")
+    crossing_at: datetime | None = Field(description="Forecast: fitted F reaches the threshold.")
+
+
+class ViewOut(Out):
+    camera_id: str
+    baseline_id: str | None = Field(description="None: no baseline of its region yet.")
+    trend: TrendOut
+
+
+class PanelVerdictSummary(PanelVerdictOut):
+    frame_id: str
+    captured_at: datetime
+
+
+class PanelStatus(Out):
+    panel_id: str
+    state: PanelStateName
+    last_verdict: PanelVerdictSummary | None
+    open_task: TaskOut | None
+    ineffective: bool = Field(description="The last cleaning did not make the panel clean.")
+    dirty_streak: int
+    retired_at: datetime | None = Field(
+        None, description="When the panel was retired; its state is then history."
+    )
+    baseline_id: str | None
+    trend: TrendOut = Field(description="Of the panel's newest baseline's verdicts.")
+    views: list[ViewOut] = Field(
+        default_factory=list,
+        description="Each camera in service: the baseline judging its frames (the panel's newest "
+        "of its region) and their trend.",
+    )
+
+
+class Trigger(Out):
+    panel_id: str
+    clean_now: bool
+    task_id: str | None
+
+
+class TwoSampleOut(Out):
+    t2: float
+    f_stat: float
+    df1: int
+    df2: int
+    p_value: float
+    mean_difference: list[float] = Field(description="Dirty mean modes minus clean [level].")
+
+
+class EvaluationOut(Out):
+    n_clean: int
+    n_dirty: int
+    hotelling: TwoSampleOut
+    dirty_called_clean: float = Field(description="Dirty images the clean baseline accepts.")
+    clean_called_dirty: float = Field(
+        description="Clean images refused by a baseline fitted without them (leave-one-out)."
+    )
+    clean_modes: list[list[float]]
+    dirty_modes: list[list[float]]
+
+
+class FleetModelOut(Out):
+    id: str
+    created_at: datetime
+    feature_names: list[str]
+    n_clean: int
+    n_dirty: int
+    cv_balanced_accuracy: float | None = Field(description="5-fold balanced accuracy.")
+    threshold: float
