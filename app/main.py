@@ -16,16 +16,20 @@ from fastapi_offline import FastAPIOffline
 
 from app import __version__
 from app.air import alerts as webhooks
+from app.air import kind as air_kind
 from app.air import router as air
 from app.air.isopleth_cache import MapCache
+from app.cells import kind as cells_kind
+from app.cells import router as cells
 from app.cells.core import triangulation
-from app.cells.routers import calibrations, rigs, vision
 from app.platform import health
+from app.platform import webhooks as platform_webhooks
 from app.platform.auth import admin_token_hash, hash_token
 from app.platform.db import schema
+from app.platform.db.models import CameraKind
 from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.platform.frames import cameras as registry
-from app.platform.frames import rate_limit, retention
+from app.platform.frames import kinds, rate_limit, retention
 from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
 from app.platform.frames.camera_info import TokenCache
@@ -41,7 +45,8 @@ from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
-from app.solar.routers import cleaning, fleet, panels, robots
+from app.solar import kind as solar_kind
+from app.solar import router as solar
 
 log = logging.getLogger("vantage")
 
@@ -65,10 +70,18 @@ def _log_failure(work: asyncio.Future[object]) -> None:
         log.error("start-up work left in the background failed: %s", exc, exc_info=exc)
 
 
+def register_kinds() -> None:
+    """Hand the ingest path each domain's handler of its camera kind (``kinds.KindHandler``)."""
+    kinds.register(CameraKind.panel, solar_kind.HANDLER)
+    kinds.register(CameraKind.sky, air_kind.HANDLER)
+    kinds.register(CameraKind.rig, cells_kind.HANDLER)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service. The database schema must already be at the migrations' head."""
     settings = settings or get_settings()
     configure_logging(settings.log_level, settings.log_json)
+    register_kinds()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -201,6 +214,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         None if metrics is None else hash_token(metrics.get_secret_value())
     )
     app.state.camera_tokens = TokenCache(ttl=settings.camera_cache_seconds)
+    # tokens of callers other than the admin and cameras: (role, owner id of a token hash)
+    app.state.token_owners = (("robot", solar_kind.robot_of),)
     app.state.rate_budgets = rate_limit.LocalBudgets()
     app.state.policy = Policy(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
@@ -212,7 +227,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
     secret = settings.alert_webhook_secret
     app.state.webhook_key = (
-        None if secret is None else webhooks.signing_key(secret.get_secret_value())
+        None if secret is None else platform_webhooks.signing_key(secret.get_secret_value())
     )
 
     install_error_handlers(app)
@@ -228,15 +243,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (
         cameras,  # first: the frame upload is matched first
         health,
-        panels,
-        fleet,
-        robots,
-        cleaning,
+        solar,
         air,
-        vision,
-        calibrations,
-        rigs,
+        cells,
     ):
         app.include_router(module.router)
-    app.include_router(rigs.shapes_router)
     return app

@@ -32,7 +32,7 @@ from app.solar.core import fleet
 
 CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
 WITH_BASELINE = CameraInfo(
-    id="bench", kind=CameraKind.panel, panel_id="p", roi=None, panel_has_baseline=True
+    id="bench", kind=CameraKind.panel, panel_id="p", roi=None, has_reference=True
 )
 
 

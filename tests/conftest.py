@@ -23,9 +23,11 @@ from alembic.config import Config
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, inspect, make_url, text
 
-from app.main import create_app
+from app.main import create_app, register_kinds
 from app.platform.db.base import Base
 from app.platform.settings import Settings
+
+register_kinds()  # what app.main hands the ingest path, for tests that call it directly
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"

@@ -28,7 +28,7 @@ Clock = Callable[[], float]
 class Kept(NamedTuple):
     body: bytes
     etag: str
-    """Weak: the body may go gzipped (``app.platform.http.compression``), a representation of its own."""
+    """Weak: the body may go gzipped (``http.compression``), a representation of its own."""
     gzipped: bytes | None
     """The body gzipped (``get(compress=True)``, bodies from 1 KiB), else None."""
 

@@ -23,15 +23,26 @@ from app.air import alerts as webhooks
 from app.air import service as air
 from app.air.core import airquality, isopleths
 from app.air.isopleth_cache import MapCache
-from app.platform.db.models import Frame
 from app.air.models import SkyVerdict
+from app.air.schemas import (
+    AirAggregate,
+    AirAlertOut,
+    AirCalibrationFromFrames,
+    AirCalibrationOut,
+    AirLatest,
+    AirReading,
+    WebhookTestOut,
+)
+from app.platform import webhooks as platform_webhooks
+from app.platform.db.models import Frame
 from app.platform.db.session import release
+from app.platform.frames import ingest
+from app.platform.frames.deps import FrameCursor, link_next
 from app.platform.http.compression import accepts_gzip
 from app.platform.http.deps import (
     ID_PATTERN,
     Admin,
     CameraId,
-    FrameCursor,
     IdFilter,
     IdsFilter,
     Limit,
@@ -43,7 +54,6 @@ from app.platform.http.deps import (
     TimeRangeQuery,
     UtcTime,
     image_work,
-    link_next,
     public_work,
 )
 from app.platform.http.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
@@ -57,8 +67,6 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_form, read_json
 from app.platform.policy import Policy
-from app.air.schemas import AirAggregate, AirAlertOut, AirCalibrationFromFrames, AirCalibrationOut, AirLatest, AirReading, WebhookTestOut
-from app.solar import training
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -95,11 +103,11 @@ def _from_files(
 ) -> AirCalibrationOut:
     camera, warnings = air.upload_region(session, camera_id, applies_to)
     release(session)  # while decoding
-    decoded = training.decode_all(files, camera, max_pixels=max_pixels)
+    decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
     feats = np.array([d.features for d in decoded], dtype=np.float64)
     row = air.calibrate(
         session,
-        training.modes_of(decoded),
+        ingest.modes_of(decoded),
         levels,
         significance=significance,
         shrinkage=shrinkage,
@@ -491,7 +499,7 @@ def try_alert_webhook(
     if settings.alert_webhook_url is None:
         raise Conflict("no webhook is configured: set VANTAGE_ALERT_WEBHOOK_URL", code="no_webhook")
     key = request.app.state.webhook_key
-    msg_id, error = webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
+    msg_id, error = platform_webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
     return WebhookTestOut(
         webhook_id=msg_id, delivered=error is None, error=error, signed=key is not None
     )

@@ -7,7 +7,7 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, time, timedelta, timezone
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 from zoneinfo import ZoneInfo
 
 import numpy as np
@@ -26,8 +26,8 @@ from sqlalchemy import (
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.air.core import airquality
-from app.platform.db.base import time_slot
 from app.air.models import AirAlert, AirCalibration, AirCalibrationCamera, SkyVerdict
+from app.platform.db.base import time_slot
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import (
@@ -39,12 +39,10 @@ from app.platform.frames.camera_info import (
     uploads_in,
 )
 from app.platform.frames.cameras import NEWEST_FIRST, FrameKey, after, taken_in
+from app.platform.frames.kinds import Prepared
 from app.platform.frames.verdicts import check_usable, stats_columns
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.policy import Policy
-
-if TYPE_CHECKING:
-    from app.platform.frames.ingest import Prepared
 
 
 def calibration_for(session: Session, camera_id: str | None) -> AirCalibration | None:

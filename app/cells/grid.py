@@ -12,8 +12,8 @@ from pydantic import TypeAdapter, ValidationError
 from app.cells import vision
 from app.cells.core import laser, laser_grid
 from app.cells.core.laser_grid import Geometry
-from app.platform.http.errors import Unprocessable
 from app.cells.schemas import Finite, LaserGridOut
+from app.platform.http.errors import Unprocessable
 
 Files = list[tuple[str | None, bytes]]
 Sizes = Sequence[tuple[int, int] | None]

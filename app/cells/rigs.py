@@ -22,10 +22,10 @@ from app.cells.core.triangulation import (
     triangulate_cross,
     triangulate_views,
 )
-from app.platform.db.base import utcnow
 from app.cells.models import Rig
-from app.platform.http.errors import Conflict, NotFound, Unprocessable
 from app.cells.schemas import RigSpec
+from app.platform.db.base import utcnow
+from app.platform.http.errors import Conflict, NotFound, Unprocessable
 
 
 def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from typing import Any
 from prometheus_client import Counter, Histogram
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.platform.http.routes import route_of
+from app.platform.routes import route_of
 from app.random_bits import uuid4_hex
 
 request_id_var: contextvars.ContextVar[str | None] = contextvars.ContextVar(

@@ -240,7 +240,7 @@ class Settings(BaseSettings):
                     f" got {self.alert_webhook_url!r}"
                 )
         if self.alert_webhook_secret is not None:
-            from app.air.alerts import signing_key
+            from app.platform.webhooks import signing_key
 
             try:
                 signing_key(self.alert_webhook_secret.get_secret_value())

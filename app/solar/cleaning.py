@@ -14,10 +14,11 @@ from datetime import datetime
 from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
-from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 from app.platform.http.errors import Conflict, NotFound
 from app.platform.policy import Policy
 from app.solar.core.panel_state import TaskPhase, task_phase
+from app.solar.lookup import get_panel, get_robot
+from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 
 
 def _claimable(now: datetime) -> ColumnElement[bool]:
@@ -161,8 +162,6 @@ def list_tasks(
 ) -> Sequence[CleaningTask]:
     """Tasks newest first: a panel's, a robot's, of the statuses given (as they read at
     ``now``). An unknown panel or robot is 404: a mistyped id is not one without tasks."""
-    from app.platform.frames.cameras import get_panel, get_robot  # registry imports this module
-
     if panel_id is not None:
         get_panel(session, panel_id)
     if robot_id is not None:

@@ -6,25 +6,17 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from scipy import stats as sstats
 from sqlalchemy import ColumnElement, Select, and_, case, func, or_, select
 from sqlalchemy.orm import Session
 
-from app.solar.models import (
-    OPEN_TASK_STATUSES,
-    Baseline,
-    CleaningTask,
-    FleetModel,
-    Panel,
-    PanelVerdict,
-    TaskStatus,
-)
 from app.platform.db.models import Camera, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import Region, describe_region, region_now
+from app.platform.frames.kinds import Prepared
 from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
 from app.platform.policy import Policy
@@ -38,9 +30,15 @@ from app.solar.core.panel_state import (
     state_of,
     task_phase,
 )
-
-if TYPE_CHECKING:
-    from app.platform.frames.ingest import Prepared
+from app.solar.models import (
+    OPEN_TASK_STATUSES,
+    Baseline,
+    CleaningTask,
+    FleetModel,
+    Panel,
+    PanelVerdict,
+    TaskStatus,
+)
 
 
 def lock_panel(session: Session, panel_id: str) -> Panel:

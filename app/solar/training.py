@@ -12,7 +12,6 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.solar.models import Baseline, FleetModel, PanelVerdict
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames import hotelling as soiling
 from app.platform.frames import verdicts
@@ -25,9 +24,9 @@ from app.platform.frames.camera_info import (
     uploads_in,
 )
 from app.platform.frames.cameras import check_in_service
-from app.platform.frames.ingest import Decoded, analyse
-from app.platform.http.errors import Unprocessable, VantageError
+from app.platform.http.errors import Unprocessable
 from app.solar.core.fleet import FEATURES
+from app.solar.models import Baseline, FleetModel, PanelVerdict
 from app.solar.panels import lock_panel
 
 MIN_FLEET_PER_CLASS = 5
@@ -50,30 +49,6 @@ def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> Came
         .order_by(Camera.id)
     ).all()
     return uploads_in(one_view(cameras), CameraKind.panel, panel_id)
-
-
-def decode_all(
-    files: Sequence[tuple[str | None, bytes]], camera: CameraInfo, *, max_pixels: int
-) -> list[Decoded]:
-    """Decode every uploaded image; refuse (422) naming each one that is unusable."""
-    decoded, problems = [], []
-    for i, (name, data) in enumerate(files):
-        label = name or f"file {i + 1}"
-        try:
-            d = analyse(data, camera=camera, max_pixels=max_pixels)
-        except VantageError as exc:
-            problems.append(f"{label}: {exc.detail}")
-            continue
-        if d.quality is not None:
-            problems.append(f"{label}: {d.quality}")
-        decoded.append(d)
-    if problems:
-        raise Unprocessable("unusable images: " + "; ".join(problems), problems=problems)
-    return decoded
-
-
-def modes_of(decoded: Sequence[Decoded]) -> NDArray[np.float64]:
-    return np.array([d.stats.modes for d in decoded], dtype=np.float64).reshape(-1, 3)
 
 
 def modes_of_frames(

@@ -16,8 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, insert, select
 
-from app.platform.db.models import Camera, CameraKind, Frame, Verdict
 from app.air.models import SkyVerdict
+from app.platform.db.models import Camera, CameraKind, Frame, Verdict
 
 Reading = tuple[str, datetime, int | None]
 

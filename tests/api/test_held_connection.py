@@ -18,7 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.cells.routers import rigs
-from app.solar import training
+from app.platform.frames import ingest
 from tests.api.test_air import calibrate
 from tests.api.test_solar import clean_set
 from tests.conftest import make_jpeg
@@ -82,7 +82,7 @@ def test_a_baseline_decoding_its_photos_holds_no_other_request(
 ) -> None:
     assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
     files = [("files", (f"{i}.jpg", jpeg, "image/jpeg")) for i, jpeg in enumerate(clean_set(5))]
-    with ThreadPoolExecutor(1) as pool, paused(monkeypatch, training, "decode_all") as decoding:
+    with ThreadPoolExecutor(1) as pool, paused(monkeypatch, ingest, "decode_all") as decoding:
         slow = pool.submit(client.post, "/panels/p1/baseline", files=files, headers=admin)
         assert decoding.wait(WAIT)
         answers_meanwhile(client, admin, slow)
@@ -94,7 +94,7 @@ def test_a_baseline_decoding_its_photos_holds_no_other_request(
 def test_an_air_calibration_decoding_its_photos_holds_no_other_request(
     client: TestClient, admin: dict[str, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    with ThreadPoolExecutor(1) as pool, paused(monkeypatch, training, "decode_all") as decoding:
+    with ThreadPoolExecutor(1) as pool, paused(monkeypatch, ingest, "decode_all") as decoding:
         slow = pool.submit(calibrate, client, admin, None)
         assert decoding.wait(WAIT)
         answers_meanwhile(client, admin, slow)

@@ -15,10 +15,11 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.air import alerts as webhooks
-from app.main import create_app
-from app.platform.background import in_thread
+from app.air import alerts
 from app.air.models import AirAlert
+from app.main import create_app
+from app.platform import webhooks
+from app.platform.background import in_thread
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.policy import Policy
 from app.platform.settings import Settings
@@ -70,7 +71,7 @@ def test_shutdown_waits_for_a_webhook_sweep_holding_a_connection(
         events.append("sweep done")
         return 0
 
-    monkeypatch.setattr(webhooks, "sweep", slow_sweep)
+    monkeypatch.setattr(alerts, "sweep", slow_sweep)
     app = create_app(settings.model_copy(update={"alert_webhook_url": "http://127.0.0.1:9/x"}))
     engine = app.state.engine
     dispose = engine.dispose
@@ -124,15 +125,15 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
         posted.append(json.loads(body)["alert_id"])
         stopping.set()  # the shutdown comes while the first alert is being posted
 
-    monkeypatch.setattr(webhooks, "_post", post)
+    monkeypatch.setattr(webhooks, "post", post)
     app_engine = make_engine(database_url)
     try:
         sessions = make_sessionmaker(app_engine)
         policy = Policy(clock=lambda: t0 + timedelta(minutes=1))
-        assert webhooks.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
+        assert alerts.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
     finally:
         app_engine.dispose()
     assert posted == ["a0"]
     with Session(engine) as s:
-        alerts = {a.id: (a.attempts, a.delivered) for a in s.scalars(select(AirAlert))}
-    assert alerts == {"a0": (1, True), "a1": (0, False), "a2": (0, False)}
+        kept = {a.id: (a.attempts, a.delivered) for a in s.scalars(select(AirAlert))}
+    assert kept == {"a0": (1, True), "a1": (0, False), "a2": (0, False)}

@@ -19,16 +19,16 @@ import pytest
 from sqlalchemy import Engine, event, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.platform.db import rows
 from app.air.models import AirAlert, SkyVerdict
+from app.platform.db import rows
 from app.platform.db.models import Camera, CameraKind, Frame, Verdict
-from app.solar.models import Panel, PanelVerdict
 from app.platform.db.rows import deferred_inserts, insert_rows
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.frames import cameras as registry
 from app.platform.frames.camera_info import view_of
 from app.platform.frames.writer import CameraChanged, Credential, GroupCommitWriter, Refusal, _Job
 from app.platform.http.errors import Unauthorized
+from app.solar.models import Panel, PanelVerdict
 from tests.conftest import _empty_tables
 
 T0 = datetime(2026, 6, 1, 12, tzinfo=UTC)

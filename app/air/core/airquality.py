@@ -4,7 +4,7 @@ Street cameras photograph the sky; haze raises the red and green modes of the sk
 lowers the blue one. Labelled images (levels 1–10 measured by reference instruments) make one
 cluster per level — its mean mode vector and covariance (eqs. 6.12–6.13) — and a new frame falls
 in the level whose T² test accepts it (6.19–6.22; as in chapter 5, eq. 6.23 is not equivalent
-to 6.22 and is not used). The statistics are ``app.platform.frames.hotelling``'s: the same Theorem 2.
+to 6.22 and is not used). The statistics are hotelling's (platform): the same Theorem 2.
 """
 
 from __future__ import annotations

@@ -14,6 +14,17 @@ from sqlalchemy.orm import Session
 from app.cells import grid, rigs
 from app.cells.core import laser, shapes
 from app.cells.models import Rig
+from app.cells.schemas import (
+    LaserDotOut,
+    LaserGridOut,
+    RigCreate,
+    RigOut,
+    RigReplace,
+    ShapeFitOut,
+    ShapeMatchIn,
+    TriangulateIn,
+    TriangulateOut,
+)
 from app.platform.db.session import release
 from app.platform.http.deps import (
     Admin,
@@ -35,7 +46,6 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import Form, content_type, read_form
-from app.cells.schemas import LaserDotOut, LaserGridOut, RigCreate, RigOut, RigReplace, ShapeFitOut, ShapeMatchIn, TriangulateIn, TriangulateOut
 from app.platform.settings import Settings
 
 router = APIRouter(prefix="/rigs", tags=["stereo"])

@@ -12,11 +12,11 @@ from fastapi.responses import Response
 
 from app.cells import vision
 from app.cells.core.imaging import CannyParams, OutlineParams
+from app.cells.schemas import EllipseOut, OutlineOut
 from app.platform.http.deps import PrincipalDep, SettingsDep, image_work
 from app.platform.http.errors import Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body
 from app.platform.http.uploads import read_files
-from app.cells.schemas import EllipseOut, OutlineOut
 from app.platform.settings import Settings
 
 router = APIRouter(prefix="/vision", tags=["vision"])

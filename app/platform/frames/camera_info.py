@@ -21,11 +21,12 @@ class CameraInfo:
     kind: CameraKind
     panel_id: str | None
     roi: Roi | None
-    panel_has_baseline: bool = False
-    """The panel has a baseline of this camera's view (region): the fleet-model features need
-    not be computed. Possibly stale, false only (a baseline trained through another process
-    since): that costs a little work, never a wrong verdict. A view moved through another
-    process is caught by the writer's check of ``view``, and the frame measured again."""
+    has_reference: bool = False
+    """The camera's view (region) has a reference of its own (a panel's baseline), so the
+    features of a fallback model need not be computed (``KindHandler.features``). Possibly
+    stale, false only (a reference made through another process since): that costs a little
+    work, never a wrong verdict. A view moved through another process is caught by the
+    writer's check of ``view``, and the frame measured again."""
 
     polygon: Polygon | None = None
     """The region as a polygon instead of ``roi``'s rectangle."""
@@ -53,12 +54,10 @@ class CameraInfo:
         object.__setattr__(self, "region", region)
 
     @classmethod
-    def of(cls, camera: Camera, *, panel_has_baseline: bool = False) -> CameraInfo:
+    def of(cls, camera: Camera, *, has_reference: bool = False) -> CameraInfo:
         roi, polygon = parse_region(camera.roi)
         view = view_of(camera.kind, camera.panel_id, camera.roi)
-        return cls(
-            camera.id, camera.kind, camera.panel_id, roi, panel_has_baseline, polygon, view=view
-        )
+        return cls(camera.id, camera.kind, camera.panel_id, roi, has_reference, polygon, view=view)
 
     @property
     def credential(self) -> tuple[str, str | None, str | None] | None:

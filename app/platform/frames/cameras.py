@@ -1,31 +1,49 @@
-"""Registering cameras, panels and robots."""
+"""Registering cameras, and the reads of their frames that several domains share."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from sqlalchemy import ColumnElement, ScalarSelect, Select, event, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.platform.auth import hash_token, new_token
+from app.platform.db.base import Base
 from app.platform.db.models import Camera, CameraKind, Frame
-from app.solar.models import Panel, Robot, TaskStatus
 from app.platform.db.rows import select_rows
 from app.platform.frames.camera_info import TokenCache, view_of
 from app.platform.frames.ingest import check_fits
+from app.platform.frames.kinds import KINDS
 from app.platform.frames.writer import Credential, Refusal
 from app.platform.http.errors import Conflict, NotFound, Unprocessable
 from app.platform.policy import Policy
 from app.platform.schemas import CameraCreate, CameraUpdate
-from app.solar.schemas import PanelCreate, PanelUpdate, RobotCreate
-from app.solar import cleaning, panels
 
 
-def _insert(session: Session, row: Camera | Panel | Robot, what: str) -> None:
+class Identified(Protocol):
+    id: str
+
+
+class Located(Protocol):
+    lat: float | None
+    lon: float | None
+
+
+class Retirable(Protocol):
+    id: str
+    retired_at: datetime | None
+
+
+class Tokened(Retirable, Protocol):
+    token_hash: str
+
+
+def insert_new(session: Session, row: Identified, what: str) -> None:
+    """Add a row whose id the caller chose: 409 when the id is taken, or was by a retired row."""
     existing = session.get(type(row), row.id)
     if existing is not None:
         retired = getattr(existing, "retired_at", None)
@@ -48,14 +66,10 @@ def _check_panel(session: Session, kind: CameraKind, panel_id: str | None) -> No
         return
     if kind != CameraKind.panel:
         raise Unprocessable(f"panel_id is only for panel cameras, not {kind.value}")
-    try:  # locked: a panel being retired meanwhile either sees this camera or refuses it
-        panel = panels.lock_panel(session, panel_id)
-    except NotFound:
-        raise Unprocessable(f"panel {panel_id!r} does not exist; create it first") from None
-    check_in_service(panel)
+    KINDS[kind].check_camera(session, panel_id)
 
 
-def _check_located(row: Camera | Panel) -> None:
+def check_located(row: Located) -> None:
     """A place is a latitude and a longitude: one alone (a camera that would silently stay
     off the air map) is refused, as a request or as the result of a change."""
     if (row.lat is None) != (row.lon is None):
@@ -72,8 +86,8 @@ def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
     _check_panel(session, data.kind, data.panel_id)
     token = new_token("vc")
     camera = Camera(**data.model_dump(), token_hash=hash_token(token))
-    _check_located(camera)
-    _insert(session, camera, "camera")
+    check_located(camera)
+    insert_new(session, camera, "camera")
     return camera, token
 
 
@@ -84,7 +98,7 @@ def get_camera(session: Session, camera_id: str) -> Camera:
     return camera
 
 
-def check_in_service(row: Camera | Robot | Panel) -> None:
+def check_in_service(row: Retirable) -> None:
     """Refuse (409 ``camera_retired``, ``robot_retired``, ``panel_retired``) to act for a
     retired camera or robot, or to attach a camera to or train a baseline for a retired
     panel."""
@@ -96,7 +110,7 @@ def check_in_service(row: Camera | Robot | Panel) -> None:
         )
 
 
-def _retire(row: Camera | Robot, token_prefix: str, policy: Policy) -> bool:
+def retire_row(row: Tokened, token_prefix: str, policy: Policy) -> bool:
     """Mark the row retired and replace its token hash by that of a token nobody holds; False
     (and nothing changed) when it already was."""
     if row.retired_at is not None:
@@ -201,7 +215,7 @@ def update_camera(
         _check_panel(session, kind, changes.get("panel_id", camera.panel_id))
     for field, value in changes.items():
         setattr(camera, field, value)
-    _check_located(camera)
+    check_located(camera)
     if changes.get("roi") is not None:  # on error the request's transaction is rolled back
         _check_region_fits(session, camera)
     session.flush()
@@ -224,22 +238,24 @@ def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: 
     """Take the camera out of service: its token stops working (replaced by the hash of one
     nobody holds), its frames are refused, and it leaves the air map and the default camera
     list. Its history stays. Retiring a retired camera changes nothing."""
-    if _retire(get_camera(session, camera_id), "vc", policy):
+    if retire_row(get_camera(session, camera_id), "vc", policy):
         session.flush()
         _forget_on_commit(session, tokens, camera_id)
 
 
-Retirable = TypeVar("Retirable", Camera, Robot, Panel)
+Listed = TypeVar("Listed", bound=Base)
 
 
 def listed(
-    session: Session, model: type[Retirable], *, limit: int, offset: int, retired: bool = False
-) -> Sequence[Retirable]:
-    """Cameras, robots or panels in service, by id; with ``retired``, the retired ones too."""
+    session: Session, model: type[Listed], *, limit: int, offset: int, retired: bool = False
+) -> Sequence[Listed]:
+    """Rows in service of a model with ``id`` and ``retired_at`` columns (cameras, robots,
+    panels), by id; with ``retired``, the retired ones too."""
+    columns: Any = model
     q = select(model)
     if not retired:
-        q = q.where(model.retired_at.is_(None))
-    return session.scalars(q.order_by(model.id).limit(limit).offset(offset)).all()
+        q = q.where(columns.retired_at.is_(None))
+    return session.scalars(q.order_by(columns.id).limit(limit).offset(offset)).all()
 
 
 def _newest(camera_id: str | QueryableAttribute[str], *columns: Any) -> Select[Any]:
@@ -271,8 +287,8 @@ def cameras_seen(
     only those with no frame taken since then (or none kept); of one ``kind``, or watching
     ``panel_id`` (404 when there is no such panel: a mistyped id is not a panel without
     cameras)."""
-    if panel_id is not None:
-        get_panel(session, panel_id)
+    if panel_id is not None and not KINDS[CameraKind.panel].link_exists(session, panel_id):
+        raise NotFound(f"no panel {panel_id!r}")
     last = _last_captured()
     q = select(Camera, last)
     if not retired:
@@ -291,99 +307,6 @@ def last_captured_at(session: Session, camera_id: str) -> datetime | None:
     """The capture time of the camera's newest frame kept."""
     found: datetime | None = session.scalars(_newest(camera_id, Frame.captured_at)).first()
     return found
-
-
-def create_panel(session: Session, data: PanelCreate) -> Panel:
-    panel = Panel(**data.model_dump())
-    _check_located(panel)
-    _insert(session, panel, "panel")
-    return panel
-
-
-def get_panel(session: Session, panel_id: str) -> Panel:
-    panel = session.get(Panel, panel_id)
-    if panel is None:
-        raise NotFound(f"no panel {panel_id!r}")
-    return panel
-
-
-def panel_in_service(session: Session, panel_id: str) -> Panel:
-    """The panel (404 when there is none), refused (409) when retired."""
-    panel = get_panel(session, panel_id)
-    check_in_service(panel)
-    return panel
-
-
-def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
-    """Change the fields ``data`` carries (``null`` clears one)."""
-    panel = panel_in_service(session, panel_id)
-    for field, value in data.model_dump(include=data.model_fields_set).items():
-        setattr(panel, field, value)
-    _check_located(panel)
-    session.flush()
-    return panel
-
-
-def retire_panel(session: Session, panel_id: str, policy: Policy) -> None:
-    """Take a panel out of service (removed from the farm): its open cleaning task is cancelled
-    (a robot holding it can neither complete nor fail it), and it leaves the default panel
-    list. Its history stays and its id stays taken. Refused (409 ``panel_in_use``) while
-    cameras in service watch it: move them (PATCH ``panel_id``) or retire them first, or their
-    frames would go on judging a panel nobody cleans. Retiring it again changes nothing."""
-    panel = panels.lock_panel(session, panel_id)
-    if panel.retired_at is not None:
-        return
-    watching = session.scalars(
-        select(Camera.id)
-        .where(Camera.panel_id == panel_id, Camera.retired_at.is_(None))
-        .order_by(Camera.id)
-    ).all()
-    if watching:
-        raise Conflict(
-            f"cameras in service watch panel {panel_id!r}: {', '.join(watching[:20])}"
-            f"{' …' if len(watching) > 20 else ''}; move them to another panel (PATCH "
-            "/cameras/{id} with panel_id) or retire them first",
-            code="panel_in_use",
-        )
-    now = policy.now()
-    task = panels.open_task(session, panel_id, lock=True)
-    if task is not None:
-        panels.close_task(task, TaskStatus.cancelled, "panel_retired", now)
-    panel.retired_at = now
-    session.flush()
-
-
-def create_robot(session: Session, data: RobotCreate) -> tuple[Robot, str]:
-    token = new_token("vr")
-    robot = Robot(**data.model_dump(), token_hash=hash_token(token))
-    _insert(session, robot, "robot")
-    return robot, token
-
-
-def get_robot(session: Session, robot_id: str) -> Robot:
-    robot = session.get(Robot, robot_id)
-    if robot is None:
-        raise NotFound(f"no robot {robot_id!r}")
-    return robot
-
-
-def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
-    """A new token for the robot; the old one stops working at once (robot tokens are looked up
-    on every request, in every process). Returns the robot and the new token (shown once)."""
-    robot = get_robot(session, robot_id)
-    check_in_service(robot)
-    token = new_token("vr")
-    robot.token_hash = hash_token(token)
-    session.flush()
-    return robot, token
-
-
-def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
-    """Take the robot out of service: its token stops working, and the tasks it holds go back
-    to the queue for the other robots. Its history stays. Retiring it again changes nothing."""
-    if _retire(get_robot(session, robot_id), "vr", policy):
-        cleaning.release_all(session, robot_id, policy)
-        session.flush()
 
 
 @dataclass(frozen=True, slots=True)

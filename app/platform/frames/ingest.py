@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -10,27 +11,23 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
-from app.air.core import airquality
 from app.platform.db.ids import time_ordered_id
-from app.platform.db.models import CameraKind, Frame, Verdict
+from app.platform.db.models import Frame, Verdict
 from app.platform.db.rows import insert_rows
 from app.platform.frames.camera_info import CameraInfo, Region, parse_region
 from app.platform.frames.jpeg import (
     SOI,
     JpegError,
-    JpegHeader,
     TooManyPixelsError,
     decode_rgb,
     read_header,
 )
+from app.platform.frames.kinds import KINDS, Decoded, Pixels, Prepared
 from app.platform.frames.quality import (
-    DEFAULT_LIMITS,
-    SKY_LIMITS,
     obstruction_reason,
     unusable_reason,
 )
 from app.platform.frames.stats import (
-    ChannelStats,
     Polygon,
     Roi,
     bounding_box,
@@ -39,36 +36,8 @@ from app.platform.frames.stats import (
     polygon_pixels,
 )
 from app.platform.frames.storage import FrameStore, digest
-from app.platform.frames.verdicts import conclude
-from app.platform.http.errors import Unprocessable, UnsupportedMediaType
+from app.platform.http.errors import Unprocessable, UnsupportedMediaType, VantageError
 from app.platform.policy import Policy
-from app.solar.core import fleet
-
-
-@dataclass(frozen=True, slots=True)
-class Decoded:
-    header: JpegHeader
-    stats: ChannelStats
-    """Channel statistics inside the camera's ROI (of the image decoded at ``reduction``)."""
-    quality: str | None
-    """Why the frame cannot be judged (night, glare, blank, occluded), or None."""
-    features: NDArray[np.float64] | None
-    """Fleet-model features (panel cameras) or sky features (sky cameras)."""
-    reduction: int
-    """The frame was decoded at 1/reduction of its size (libjpeg DCT scaling)."""
-
-
-MIN_REDUCED_SIDE = 120
-"""Panel frames are decoded at the largest of 1/2, 1/4, 1/8 that keeps this many pixels on the
-short side [px]: the panel statistics do not need more, and decoding costs less."""
-
-
-def decode_reduction(header: JpegHeader, kind: CameraKind) -> int:
-    """The DCT reduction for a frame of this camera kind (1 = full size)."""
-    if kind != CameraKind.panel:
-        return 1
-    short = min(header.width, header.height)
-    return next((r for r in (8, 4, 2) if short // r >= MIN_REDUCED_SIDE), 1)
 
 
 def scale_roi(roi: Roi, width: int, height: int, reduction: int) -> Roi:
@@ -126,7 +95,8 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
         )
     try:
         header = read_header(data)
-        reduction = decode_reduction(header, camera.kind)
+        kind = KINDS[camera.kind]
+        reduction = kind.reduction(header)
         header, image = decode_rgb(data, max_pixels=max_pixels, reduce=reduction)
     except TooManyPixelsError as exc:
         raise Unprocessable(str(exc), code="too_many_pixels") from None
@@ -137,40 +107,16 @@ def analyse(data: bytes, *, camera: CameraInfo, max_pixels: int) -> Decoded:
     except ValueError as exc:
         raise Unprocessable(f"the camera's {exc}", code="roi_outside_frame") from None
     stats = channel_stats(region)
-    limits = SKY_LIMITS if camera.kind == CameraKind.sky else DEFAULT_LIMITS
+    limits = kind.limits
     quality = unusable_reason(stats, limits)
     if quality is None and roi is not None:
         # only in a region declared as sky: a camera without one measures its whole view,
         # street and trees included (the Milan webcam's whole frames are up to 21 % foliage)
         quality = obstruction_reason(region, limits)
     features = None
-    if camera.kind == CameraKind.panel and not camera.panel_has_baseline:
-        features = fleet.features(region)
-    elif camera.kind == CameraKind.sky:
-        below = _band_below(image, roi)
-        features = airquality.sky_features(region, below, stats.histograms)
+    if kind.features is not None:
+        features = kind.features(Pixels(camera, image, region, roi, stats))
     return Decoded(header, stats, quality, features, reduction)
-
-
-def _band_below(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8] | None:
-    """The strip under the sky region (a fifth of the frame's height): the distant skyline,
-    whose contrast fades in haze. None when the sky region reaches the bottom."""
-    h = image.shape[0]
-    top = roi[1] + roi[3] if roi else h
-    strip = image[top : min(h, top + max(1, h // 5))]
-    return strip if strip.shape[0] >= 2 else None
-
-
-@dataclass(frozen=True, slots=True)
-class Prepared:
-    """A frame checked, decoded, measured and written to the store; not yet in the database."""
-
-    camera: CameraInfo
-    frame: Frame
-    decoded: Decoded
-    may_repeat: bool = False
-    """The upload could repeat a stored one (it has an Idempotency-Key or its own captured_at);
-    otherwise the unique constraint alone guards against duplicates."""
 
 
 def prepare(
@@ -207,6 +153,30 @@ def prepare(
     )
     may_repeat = idempotency_key is not None or captured_at is not None
     return Prepared(camera, frame, decoded, may_repeat)
+
+
+def decode_all(
+    files: Sequence[tuple[str | None, bytes]], camera: CameraInfo, *, max_pixels: int
+) -> list[Decoded]:
+    """Decode every uploaded image; refuse (422) naming each one that is unusable."""
+    decoded, problems = [], []
+    for i, (name, data) in enumerate(files):
+        label = name or f"file {i + 1}"
+        try:
+            d = analyse(data, camera=camera, max_pixels=max_pixels)
+        except VantageError as exc:
+            problems.append(f"{label}: {exc.detail}")
+            continue
+        if d.quality is not None:
+            problems.append(f"{label}: {d.quality}")
+        decoded.append(d)
+    if problems:
+        raise Unprocessable("unusable images: " + "; ".join(problems), problems=problems)
+    return decoded
+
+
+def modes_of(decoded: Sequence[Decoded]) -> NDArray[np.float64]:
+    return np.array([d.stats.modes for d in decoded], dtype=np.float64).reshape(-1, 3)
 
 
 @dataclass(frozen=True, slots=True)
@@ -248,13 +218,21 @@ def check_same_frame(original: Frame, frame: Frame) -> None:
         )
 
 
+def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+    """The verdict on a prepared frame, by its camera's kind (``kinds.KindHandler.conclude``)."""
+    verdict = KINDS[prepared.camera.kind].conclude(session, prepared, policy)
+    verdict.roi = prepared.camera.region
+    verdict.usable = prepared.decoded.quality is None
+    return verdict
+
+
 def record(
     session: Session, prepared: Prepared, policy: Policy, *, retry: bool = False
 ) -> Recorded:
     """The database part: conclude the verdict and insert the frame and verdict rows, unless
     this is a retry of a stored frame, whose original rows are returned instead.
 
-    Runs on the group-commit writer (``app.platform.frames.writer``), inside the batch's transaction.
+    Runs on the group-commit writer (``writer``), inside the batch's transaction.
     """
     # the lookup costs a query per frame: only uploads that could be retries make it (a
     # duplicate of any other is refused by the unique constraint, and the writer then runs

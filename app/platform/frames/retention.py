@@ -7,7 +7,7 @@ photos.
 
 Kept whatever their age: frames a baseline or an air calibration was trained from, and frames
 an alert points at. On disk, frames live in packs, one per process and hour of reception
-(``app.platform.frames.storage``): once an hour has expired, the kept frames among its packs are
+(``storage``): once an hour has expired, the kept frames among its packs are
 copied into a current pack and the packs deleted, taking with them the frames whose rows went
 and any bytes a killed process wrote without committing their row. A frame stored as a file or
 object of its own goes when no frame row refers to it any more (identical frames share one).
@@ -29,9 +29,8 @@ from sqlalchemy import ColumnElement, delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.background import in_thread
-from app.air.models import AirAlert, AirCalibration, SkyVerdict
-from app.solar.models import Baseline, PanelVerdict
 from app.platform.db.models import Frame, Verdict
+from app.platform.frames.kinds import KINDS
 from app.platform.frames.storage import FrameStore, pack_of
 from app.platform.policy import Policy
 
@@ -51,12 +50,10 @@ class Swept:
 
 
 def _kept(session: Session) -> set[str]:
+    """Frames some kind still needs (``KindHandler.kept_frames``)."""
     keep: set[str] = set()
-    for ids in session.scalars(select(Baseline.frame_ids)):
-        keep.update(ids or [])
-    for ids in session.scalars(select(AirCalibration.frame_ids)):
-        keep.update(ids or [])
-    keep.update(session.scalars(select(AirAlert.frame_id)))
+    for handler in KINDS.handlers.values():
+        keep.update(handler.kept_frames(session))
     return keep
 
 
@@ -96,8 +93,10 @@ def sweep(
 
 
 def _delete_rows(session: Session, ids: list[str]) -> None:
-    for table in (PanelVerdict, SkyVerdict, Verdict):
-        session.execute(delete(table).where(table.frame_id.in_(ids)))
+    for handler in KINDS.handlers.values():  # the kinds' own verdict tables first
+        if (table := handler.verdict_table) is not None:
+            session.execute(delete(table).where(table.frame_id.in_(ids)))
+    session.execute(delete(Verdict).where(Verdict.frame_id.in_(ids)))
     session.execute(delete(Frame).where(Frame.id.in_(ids)))
 
 

@@ -19,18 +19,18 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 from sqlalchemy.orm.interfaces import ORMOption
 
-from app.cells.core import imaging
 from app.direct_route import DirectRoute
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.db.session import release
 from app.platform.frames import cameras as registry
-from app.platform.frames import ingest, jpeg, retention
+from app.platform.frames import ingest, jpeg, regions, retention
 from app.platform.frames.camera_info import CameraInfo, TokenCache
+from app.platform.frames.deps import FrameCursor, UploadTargetDep, fresh_upload_target, link_next
+from app.platform.frames.kinds import frame_out
 from app.platform.frames.writer import CameraChanged, GroupCommitWriter
 from app.platform.http.deps import (
     Admin,
     CameraId,
-    FrameCursor,
     IdFilter,
     Limit,
     Offset,
@@ -38,11 +38,8 @@ from app.platform.http.deps import (
     RecordId,
     SessionDep,
     TimeRangeQuery,
-    UploadTargetDep,
     UtcTime,
-    fresh_upload_target,
     image_work,
-    link_next,
 )
 from app.platform.http.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
 from app.platform.http.responses import (
@@ -54,7 +51,6 @@ from app.platform.http.responses import (
     UNPROCESSABLE,
     UPLOAD_ERRORS,
     UPLOAD_UNAVAILABLE,
-    frame_out,
     not_modified,
 )
 from app.platform.http.uploads import read_jpeg
@@ -503,7 +499,7 @@ MAX_STORED_PIXELS = 1_000_000_000
 
 def _outlined(data: bytes, region: list[Any] | None) -> bytes:
     image = jpeg.decode_rgb(data, max_pixels=MAX_STORED_PIXELS)[1]
-    outlined = cv2.cvtColor(imaging.outline_region(image, region), cv2.COLOR_RGB2BGR)
+    outlined = cv2.cvtColor(regions.outline_region(image, region), cv2.COLOR_RGB2BGR)
     ok, buf = cv2.imencode(".jpg", outlined, [cv2.IMWRITE_JPEG_QUALITY, 85])
     assert ok
     return bytes(buf.tobytes())

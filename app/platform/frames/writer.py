@@ -306,25 +306,6 @@ class GroupCommitWriter:
         pool.submit(work)
         return future
 
-    def submit(self, fn: Callable[[Session], T]) -> asyncio.Future[T]:
-        """Run ``fn(session)`` in the next batch, with nothing to prepare first; await the
-        returned future for its result once the batch committed. For a request's short database
-        work that must be done before the request goes on (an upload's camera looked up, a
-        block of its rate budget reserved): it takes no thread, nor a transaction and a commit
-        of its own. Must be called on the loop. Run again alone after its batch failed, ``fn``
-        is called the same way. A future cancelled before its batch is taken (a deadline) runs
-        nothing."""
-        if self._thread is None:
-            self.start()
-        loop = asyncio.get_running_loop()
-        future: asyncio.Future[T] = loop.create_future()
-
-        def job(session: Session, *, retry: bool = False) -> T:
-            return fn(session)
-
-        self._queue.put(_Job(job, future, loop))
-        return future
-
     def _prepared(self) -> None:
         with self._preparing_lock:
             self._preparing -= 1

@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import asyncio
 import base64
 import binascii
 import hmac
-import math
-from collections.abc import AsyncIterator, Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
 from typing import Annotated, Any, Literal, TypeVar
 
 import anyio
-from fastapi import Depends, Path, Query, Request, Response
+from fastapi import Depends, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from pydantic import AfterValidator, StringConstraints
 from sqlalchemy import select
@@ -22,23 +20,13 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
 from app.platform.db.models import Camera
-from app.solar.models import Panel, Robot
-from app.platform.frames import cameras as registry
-from app.platform.frames import rate_limit
-from app.platform.frames.camera_info import CameraInfo, TokenCache
-from app.platform.frames.cameras import FrameKey
-from app.platform.frames.writer import GroupCommitWriter
 from app.platform.http.errors import (
     Forbidden,
-    NotFound,
-    ServiceUnavailable,
-    TooManyRequests,
     Unauthorized,
     Unprocessable,
 )
 from app.platform.policy import Policy
 from app.platform.settings import Settings
-from app.solar import panels
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
 
@@ -98,7 +86,7 @@ class Principal:
     """The camera or robot id; None for the admin."""
 
 
-def _credentials(header: str) -> tuple[str, str | None]:
+def credentials_of(header: str) -> tuple[str, str | None]:
     """(token, Basic user name or None) from an Authorization header."""
     scheme, _, value = header.strip().partition(" ")
     value = value.strip()
@@ -119,7 +107,7 @@ def _identify(request: Request, session: Session) -> Principal:
     header = request.headers.get("authorization")
     if not header:
         raise Unauthorized("missing Authorization header")
-    token, basic_user = _credentials(header)
+    token, basic_user = credentials_of(header)
     digest = hash_token(token)
     if hmac.compare_digest(digest, request.app.state.admin_token_hash):
         return Principal("admin")
@@ -128,9 +116,10 @@ def _identify(request: Request, session: Session) -> Principal:
         if basic_user is not None and basic_user != camera_id:
             raise Unauthorized("the Basic user name is not the camera this token belongs to")
         return Principal("camera", camera_id)
-    robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
-    if robot_id is not None:
-        return Principal("robot", robot_id)
+    for role, owner_of in request.app.state.token_owners:
+        owner = owner_of(session, digest)
+        if owner is not None:
+            return Principal(role, owner)
     raise Unauthorized("unknown token")
 
 
@@ -153,7 +142,7 @@ def require_metrics_reader(request: Request) -> None:
     expected: str | None = request.app.state.metrics_token_hash
     header = request.headers.get("authorization")
     if header and expected is not None:
-        token, _ = _credentials(header)
+        token, _ = credentials_of(header)
         if hmac.compare_digest(hash_token(token), expected):
             return
     require_admin(get_principal(request))
@@ -244,52 +233,6 @@ def _time_range(
     return TimeRange(since, until)
 
 
-def _cursor(
-    cursor: Annotated[
-        str | None,
-        Query(
-            max_length=200,
-            description="Where the previous page ended: the `cursor` of its `Link: rel=next` "
-            "header. Unlike `offset`, a page costs the same however deep, and rows arriving "
-            "meanwhile shift nothing.",
-        ),
-    ] = None,
-) -> FrameKey | None:
-    if cursor is None:
-        return None
-    try:
-        when, _, frame_id = base64.urlsafe_b64decode(cursor.encode()).decode().partition("|")
-        key = FrameKey(datetime.fromisoformat(when), frame_id)
-    except (ValueError, binascii.Error):
-        raise Unprocessable("cursor is not one this service gave", code="bad_cursor") from None
-    if key.captured_at.tzinfo is None or not frame_id:
-        raise Unprocessable("cursor is not one this service gave", code="bad_cursor")
-    return key
-
-
-FrameCursor = Annotated[FrameKey | None, Depends(_cursor)]
-"""The ``cursor`` query parameter of a listing of frames newest first."""
-
-
-def cursor_of(key: FrameKey) -> str:
-    """The ``cursor`` for the page after ``key`` (read back by ``FrameCursor``)."""
-    return base64.urlsafe_b64encode(
-        f"{key.captured_at.isoformat()}|{key.frame_id}".encode()
-    ).decode()
-
-
-def link_next(request: Request, response: Response, rows: Sequence[Any], limit: int) -> None:
-    """``Link: <…>; rel="next"`` on a full page of frames (rows with ``captured_at`` and the
-    frame id as ``id``), as RFC 8288: the same query, from after its last row."""
-    if len(rows) < limit:
-        return
-    last = rows[-1]
-    url = request.url.remove_query_params("offset").include_query_params(
-        cursor=cursor_of(FrameKey(last.captured_at, last.id))
-    )
-    response.headers["Link"] = f'<{url}>; rel="next"'
-
-
 TimeRangeQuery = Annotated[TimeRange, Depends(_time_range)]
 """The ``since`` and ``until`` query parameters of a listing by time."""
 Limit = Annotated[int, Query(ge=1, le=1000)]
@@ -338,133 +281,3 @@ def _read(state: Any, fn: Callable[..., T], args: Any, kwargs: Any) -> T:
     sessions: sessionmaker[Session] = state.read_sessionmaker
     with sessions() as session:
         return fn(session, *args, **kwargs)
-
-
-def _info(session: Session, camera: Camera) -> CameraInfo:
-    """The camera as the ingest path reads it; ``panel_has_baseline``: its view (region) has a
-    baseline, so the fleet model's features need not be computed."""
-    panel = session.get(Panel, camera.panel_id) if camera.panel_id is not None else None
-    info = CameraInfo.of(camera)
-    if panel is None or panels.baseline_for(session, panel, info.region) is None:
-        return info
-    return replace(info, panel_has_baseline=True)
-
-
-def _token_owner(session: Session, digest: str) -> CameraInfo | Principal | None:
-    """The camera (or robot) a token belongs to (run in the frame writer's batch)."""
-    camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
-    if camera is not None:
-        return replace(_info(session, camera), token_hash=digest)
-    robot_id = session.scalar(select(Robot.id).where(Robot.token_hash == digest))
-    return Principal("robot", robot_id) if robot_id is not None else None
-
-
-async def _in_next_batch(request: Request, job: Callable[[Session], T], what: str) -> T:
-    """``job(session)`` run in the frame writer's next batch (``GroupCommitWriter.submit``),
-    or 503 after ``upload_timeout_seconds``. The upload's own reads and writes before its body
-    is read (its camera looked up, a block of its budget reserved) go there rather than to a
-    thread of the shared pool with a session of their own: that cost ~0.6 ms of CPU for a
-    lookup and ~0.8 ms for a reservation on PostgreSQL (a session, a pooled connection's ping,
-    BEGIN, the statements, the end of the transaction), a quarter to a third of a frame's, and
-    a camera posting once a minute pays both on every frame."""
-    writer: GroupCommitWriter = request.app.state.writer
-    seconds: float = request.app.state.settings.upload_timeout_seconds
-    try:
-        return await asyncio.wait_for(writer.submit(job), seconds)
-    except TimeoutError:
-        raise ServiceUnavailable(
-            f"{what} within {seconds:g} s (the database is not answering, or the service is "
-            "overloaded): send the frame again",
-            code="upload_timeout",
-        ) from None
-
-
-def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
-    with get_sessionmaker(request)() as session:
-        camera = session.get(Camera, camera_id)
-        if camera is None:
-            return None
-        registry.check_in_service(camera)  # a retired camera's own token no longer exists
-        return _info(session, camera)
-
-
-async def fresh_upload_target(request: Request, target: CameraInfo) -> CameraInfo:
-    """The upload's camera as it is now, looked up again (and cached again under its token):
-    the writer found it changed through another process since ``target`` was cached."""
-    info = await run_in_threadpool(_camera_by_id, request, target.id)
-    if info is None:
-        raise NotFound(f"no camera {target.id!r}")
-    info = replace(info, token_hash=target.token_hash)
-    if target.token_hash is not None:
-        cache: TokenCache = request.app.state.camera_tokens
-        cache.put(target.token_hash, info)
-    return info
-
-
-async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
-    """Authenticate and authorise a frame upload and find its camera, before the body is read.
-
-    The camera's own token (Bearer, or Basic with the camera id as user name) or the admin
-    token; another camera's or a robot's → 403. Camera tokens are cached briefly
-    (``TokenCache``), so a steady stream of frames costs no lookup here.
-    """
-    header = request.headers.get("authorization")
-    if not header:
-        raise Unauthorized("missing Authorization header")
-    token, basic_user = _credentials(header)
-    digest = hash_token(token)
-    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
-        info = await run_in_threadpool(_camera_by_id, request, camera_id)
-        if info is None:
-            raise NotFound(f"no camera {camera_id!r}")
-        return info
-    cache: TokenCache = request.app.state.camera_tokens
-    found: CameraInfo | Principal | None = cache.get(digest)
-    if found is None:
-        found = await _in_next_batch(
-            request, partial(_token_owner, digest=digest), "the camera could not be looked up"
-        )
-        if isinstance(found, CameraInfo):
-            cache.put(digest, found)
-    if found is None:
-        raise Unauthorized("unknown token")
-    if isinstance(found, Principal):
-        raise Forbidden(f"a {found.role} token may not post frames")
-    if basic_user is not None and basic_user != found.id:
-        raise Unauthorized("the Basic user name is not the camera this token belongs to")
-    if found.id != camera_id:
-        raise Forbidden("this camera's token may only post frames for its own camera")
-    await _check_rate(request, found.id)
-    return found
-
-
-async def _check_rate(request: Request, camera_id: str) -> None:
-    """At most ``rate_limit_per_minute`` frames per camera in each clock minute, over all
-    processes: budget reserved in the database in blocks (``app.platform.frames.rate_limit``), spent
-    here without a round trip. A camera flooding is refused before its body is read and cannot
-    crowd out the others. A block is reserved in the frame writer's next batch, and committed
-    with its frames (``_in_next_batch``)."""
-    limit: int = request.app.state.settings.rate_limit_per_minute
-    if limit <= 0:
-        return
-    policy: Policy = request.app.state.policy
-    now = policy.now()
-    minute = rate_limit.minute_of(now)
-    budgets: rate_limit.LocalBudgets = request.app.state.rate_budgets
-    if budgets.take(camera_id, minute):
-        return
-    reservation = partial(rate_limit.reserve, camera_id=camera_id, minute=minute, limit=limit)
-    granted = await _in_next_batch(
-        request, reservation, f"camera {camera_id}'s frame budget could not be reserved"
-    )
-    if granted <= 0:
-        wait = 60 - (now - minute).total_seconds()
-        raise TooManyRequests(
-            f"camera {camera_id} has posted its {limit} frames for this minute",
-            retry_after=max(1, math.ceil(wait)),
-            code="rate_limited",
-        )
-    budgets.keep(camera_id, minute, granted - 1)
-
-
-UploadTargetDep = Annotated[CameraInfo, Depends(get_upload_target)]

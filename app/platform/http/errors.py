@@ -15,8 +15,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
 from app.platform.db.rows import READ_ONLY_SQL_TRANSACTION
-from app.platform.http.routes import operations_of
 from app.platform.observability import FRAMES_REJECTED
+from app.platform.routes import operations_of
 
 log = logging.getLogger("vantage.errors")
 

@@ -34,8 +34,8 @@ from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.platform.http.errors import FRAMES_ROUTE, problem
-from app.platform.http.routes import operations, path_pattern
 from app.platform.observability import FRAMES_REJECTED
+from app.platform.routes import operations, path_pattern
 
 _UPLOAD = path_pattern(FRAMES_ROUTE)
 

@@ -6,11 +6,6 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from app.platform.db.models import Frame, Verdict
-from app.solar.models import PanelVerdict
-from app.air.models import SkyVerdict
-from app.platform.schemas import FrameOut, PanelVerdictOut, RigVerdictOut, SkyVerdictOut, VerdictOut
-
 
 def _problem(description: str) -> dict[str, Any]:
     return {
@@ -73,57 +68,6 @@ UPLOAD_ERRORS: Responses = {
     415: _problem("Not a JPEG"),
     422: _problem("Truncated or undecodable JPEG, over the pixel limit, or bad parameters"),
 }
-
-
-def category_message(category: str | None) -> str | None:
-    return f"Today's Air Quality is {category}" if category else None
-
-
-def verdict_out(verdict: Verdict) -> VerdictOut:
-    common = {
-        "modes": verdict.modes,
-        "means": verdict.means,
-        "reason": verdict.reason,
-        "roi": verdict.roi,
-    }
-    if isinstance(verdict, PanelVerdict):
-        return PanelVerdictOut(
-            panel_id=verdict.panel_id,
-            clean=verdict.clean,
-            t2=verdict.t2,
-            f_stat=verdict.f_stat,
-            p_value=verdict.p_value,
-            threshold=verdict.threshold,
-            state=verdict.state,
-            method=verdict.method,
-            baseline_id=verdict.baseline_id,
-            p_dirty=verdict.p_dirty,
-            late=bool(verdict.late),
-            **common,
-        )
-    if isinstance(verdict, SkyVerdict):
-        return SkyVerdictOut(
-            level=verdict.level,
-            category=verdict.category,
-            message=category_message(verdict.category),
-            calibration_id=verdict.calibration_id,
-            **common,
-        )
-    return RigVerdictOut(**common)
-
-
-def frame_out(frame: Frame, verdict: Verdict) -> FrameOut:
-    return FrameOut(
-        frame_id=frame.id,
-        camera_id=frame.camera_id,
-        captured_at=frame.captured_at,
-        received_at=frame.received_at,
-        width=frame.width,
-        height=frame.height,
-        sha256=frame.sha256,
-        stored=frame.stored_path is not None,
-        verdict=verdict_out(verdict),
-    )
 
 
 def multipart_body(

@@ -17,9 +17,9 @@ from app.platform.http.deps import (
     SessionDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
-from app.solar.schemas import ClaimOut, FailIn, TaskOut
 from app.solar import cleaning
 from app.solar.panels import task_view
+from app.solar.schemas import ClaimOut, FailIn, TaskOut
 
 router = APIRouter(prefix="/cleaning", tags=["cleaning"])
 

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Request
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import CameraKind
+from app.platform.frames import ingest
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.http.deps import Admin, PolicyDep, SessionDep, SettingsDep, image_work
 from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
@@ -21,8 +22,8 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_form
 from app.platform.policy import Policy
-from app.solar.schemas import FleetModelOut
 from app.solar import panels, training
+from app.solar.schemas import FleetModelOut
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
 
@@ -37,7 +38,7 @@ def _train(
     policy: Policy,
 ) -> FleetModelOut:
     camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
-    decoded = training.decode_all(files, camera, max_pixels=max_pixels)
+    decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
     features = np.array([d.features for d in decoded], dtype=np.float64)
     dirty = np.array([LABELS[label] for label in labels], dtype=bool)
     row = training.fit_fleet(features, dirty, now=policy.now())

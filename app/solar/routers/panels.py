@@ -9,10 +9,9 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from app.solar.models import Baseline, Panel
 from app.platform.db.models import CameraKind
 from app.platform.db.session import release
-from app.platform.frames import cameras as registry
+from app.platform.frames import ingest
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.http.deps import (
     ID_PATTERN,
@@ -34,13 +33,29 @@ from app.platform.http.responses import (
     PANEL_RETIRED,
     UNPROCESSABLE,
     multipart_body,
-    verdict_out,
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
 from app.platform.policy import Policy
-from app.solar.schemas import BaselineFromFrames, BaselineOut, EvaluationOut, PanelCreate, PanelOut, PanelStateCounts, PanelStatus, PanelUpdate, PanelVerdictSummary, TaskOut, TrendOut, Trigger, TwoSampleOut, ViewOut
-from app.solar import panels, training
+from app.solar import lookup, panels, registry, training
 from app.solar.core.panel_state import PanelState
+from app.solar.kind import verdict_out
+from app.solar.models import Baseline, Panel
+from app.solar.schemas import (
+    BaselineFromFrames,
+    BaselineOut,
+    EvaluationOut,
+    PanelCreate,
+    PanelOut,
+    PanelStateCounts,
+    PanelStatus,
+    PanelUpdate,
+    PanelVerdictSummary,
+    TaskOut,
+    TrendOut,
+    Trigger,
+    TwoSampleOut,
+    ViewOut,
+)
 
 router = APIRouter(tags=["panels"])
 
@@ -113,7 +128,7 @@ def list_panels(
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
     """One panel."""
-    return _out(session, policy, registry.get_panel(session, panel_id))
+    return _out(session, policy, lookup.get_panel(session, panel_id))
 
 
 @router.patch(
@@ -171,7 +186,7 @@ def _train_from_files(
     registry.panel_in_service(session, panel_id)
     camera = training.panel_camera(session, panel_id, camera_id)
     release(session)  # while decoding; training locks the panel and checks it again
-    modes = training.modes_of(training.decode_all(files, camera, max_pixels=max_pixels))
+    modes = ingest.modes_of(ingest.decode_all(files, camera, max_pixels=max_pixels))
     row = training.train_baseline(
         session,
         panel_id,
@@ -281,7 +296,7 @@ def get_baseline(
 ) -> BaselineOut:
     """The panel's newest baseline, or the one judging a camera's frames. A panel watched by
     cameras with different regions of interest has one in use per region."""
-    panel = registry.get_panel(session, panel_id)
+    panel = lookup.get_panel(session, panel_id)
     if camera_id is None:
         if panel.baseline_id is None:
             raise NotFound(f"panel {panel_id!r} has no baseline")
@@ -336,7 +351,7 @@ def panel_status(
 )
 def trigger(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> Trigger:
     """Polled by the panel's cleaning mechanism: should it clean now? Read only."""
-    registry.get_panel(session, panel_id)
+    lookup.get_panel(session, panel_id)
     task = panels.open_task(session, panel_id)
     if task is None:
         return Trigger(panel_id=panel_id, clean_now=False, task_id=None)
@@ -352,8 +367,8 @@ def _evaluate(
     max_pixels: int,
 ) -> EvaluationOut:
     camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
-    clean = training.modes_of(training.decode_all(clean_files, camera, max_pixels=max_pixels))
-    dirty = training.modes_of(training.decode_all(dirty_files, camera, max_pixels=max_pixels))
+    clean = ingest.modes_of(ingest.decode_all(clean_files, camera, max_pixels=max_pixels))
+    dirty = ingest.modes_of(ingest.decode_all(dirty_files, camera, max_pixels=max_pixels))
     ev = training.evaluate(clean, dirty, significance=significance, shrinkage=shrinkage)
     return EvaluationOut(
         n_clean=ev.rates.n_clean,

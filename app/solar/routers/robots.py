@@ -7,8 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from fastapi.responses import Response
 
-from app.solar.models import Robot
-from app.platform.frames import cameras as registry
+from app.platform.frames import cameras
 from app.platform.http.deps import Admin, Limit, Offset, PolicyDep, RobotId, SessionDep
 from app.platform.http.responses import (
     AUTH_ERRORS,
@@ -17,6 +16,8 @@ from app.platform.http.responses import (
     ROBOT_RETIRED,
     UNPROCESSABLE,
 )
+from app.solar import lookup, registry
+from app.solar.models import Robot
 from app.solar.schemas import RobotCreate, RobotCreated, RobotOut
 
 router = APIRouter(tags=["robots"])
@@ -49,14 +50,14 @@ def list_robots(
     ] = False,
 ) -> list[RobotOut]:
     """List robots, ordered by id."""
-    robots = registry.listed(session, Robot, limit=limit, offset=offset, retired=retired)
+    robots = cameras.listed(session, Robot, limit=limit, offset=offset, retired=retired)
     return [RobotOut.model_validate(r) for r in robots]
 
 
 @router.get("/robots/{robot_id}", response_model=RobotOut, responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_robot(robot_id: RobotId, session: SessionDep, _: Admin) -> RobotOut:
     """One robot, retired or not (its tasks: ``GET /cleaning/tasks?robot_id=``)."""
-    return RobotOut.model_validate(registry.get_robot(session, robot_id))
+    return RobotOut.model_validate(lookup.get_robot(session, robot_id))
 
 
 @router.post(

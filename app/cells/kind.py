@@ -1,0 +1,28 @@
+"""Rig cameras' part of the ingest path (``KindHandler``), handed to the platform by
+``app.main``: a rig frame keeps its channel statistics; measuring is asked for explicitly."""
+
+from __future__ import annotations
+
+from sqlalchemy.orm import Session
+
+from app.platform.db.models import Verdict
+from app.platform.frames.kinds import KindHandler, Prepared, verdict_common
+from app.platform.frames.verdicts import stats_columns
+from app.platform.policy import Policy
+from app.platform.schemas import RigVerdictOut
+
+
+def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+    """A rig frame's verdict: its statistics only."""
+    return Verdict(
+        frame_id=prepared.frame.id,
+        camera_id=prepared.camera.id,
+        **stats_columns(prepared.decoded.stats),
+    )
+
+
+def verdict_out(verdict: Verdict) -> RigVerdictOut:
+    return RigVerdictOut(**verdict_common(verdict))
+
+
+HANDLER = KindHandler(conclude=conclude, verdict_out=verdict_out)
