@@ -15,4 +15,5 @@ VOLUME /data
 EXPOSE 8000
 # migrations first, then the service (several processes may share /data and one PostgreSQL)
 # (app.serve: uvicorn, with the workers' Prometheus counters summed by every /metrics scrape)
-CMD ["sh", "-c", "alembic upgrade head && exec python -m app.serve --host 0.0.0.0 --port 8000 --workers ${VANTAGE_WORKERS:-2}"]
+
+CMD ["sh", "-c", "alembic upgrade head && exec python -m app.serve --host 0.0.0.0 --port 8000 --workers ${VANTAGE_WORKERS:-2} --forwarded-allow-ips \"${VANTAGE_FORWARDED_ALLOW_IPS:-*}\""]

@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 HOST   ?= 127.0.0.1
 PORT   ?= 8000
 
-.PHONY: run test lint check migrate bench backup clean
+.PHONY: run test test-slow lint check docs migrate bench backup clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
@@ -22,18 +22,28 @@ migrate: $(VENV)/.installed
 run: migrate
 	$(BIN)/python -m app.serve --host $(HOST) --port $(PORT)
 
+# the suite on both cores, the slow end-to-end tests (multi-process, soak, fuzz) left to test-slow
 test: $(VENV)/.installed
-	$(BIN)/pytest
+	$(BIN)/pytest -n 2 -m "not slow"
+
+test-slow: $(VENV)/.installed
+	$(BIN)/pytest -m slow
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check app tests bench migrations
 	$(BIN)/ruff format --check app tests bench migrations
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # models and migrations never drift: build the schema on a scratch SQLite and compare
 check: $(VENV)/.installed
+	$(BIN)/python -m app.platform.configuration --check docs/configuration.md
 	rm -rf .check-data && VANTAGE_DATA_DIR=.check-data $(BIN)/alembic upgrade head \
 	  && VANTAGE_DATA_DIR=.check-data $(BIN)/alembic check; status=$$?; rm -rf .check-data; exit $$status
+
+# docs/configuration.md, made from the settings
+docs: $(VENV)/.installed
+	$(BIN)/python -m app.platform.configuration docs/configuration.md
 
 # a consistent copy of the running service's data: make backup DEST=/backups/vantage-$(date +%F)
 backup: $(VENV)/.installed

@@ -159,10 +159,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 settings.history_retention_days,
             )
         )
-        # what start-up built lives as long as the process: out of the cyclic collector's way,
-        # a full collection walks ~9,000 objects instead of ~170,000 (measured: a pause of the
-        # GIL of ~130 ms every few thousand frames; see bench/README.md)
-        gc.collect()
+        # what start-up built lives as long as the process: frozen out of the cyclic
+        # collector's way, so that a full collection does not walk it (a pause of the GIL).
+        # Not collected first: a full collection costs a process that imported the
+        # scientific stack ~0.3 s, for a little start-up garbage kept
         gc.freeze()
         yield
         gc.unfreeze()
@@ -201,8 +201,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     read_engine = make_read_engine(settings.effective_database_url, settings.public_work_threads)
     app.state.read_sessionmaker = make_sessionmaker(read_engine or engine)
     # frame uploads decode in the writer's own threads, apart from the shared pool: with the
-    # disk store about as many as there are cores, because more decoding threads than cores
-    # only contend for the cores and the GIL (bench/README.md)
+    # disk store about as many as there are cores (more only contend for them and the GIL)
     app.state.writer = GroupCommitWriter(
         app.state.sessionmaker,
         preparers=settings.effective_ingest_threads,

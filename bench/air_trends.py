@@ -29,8 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.air import service as air  # noqa: E402
-from tests.api.test_air_trends import store  # noqa: E402
-from tests.conftest import migrate  # noqa: E402
+from tests.factories import migrate, store  # noqa: E402
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 PG_BENCH = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_trends_bench"

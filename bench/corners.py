@@ -1,6 +1,6 @@
 """Checkerboard corners in large photos: detection on a scaled copy against the full image.
 
-Renders the test suite's board (tests/core/test_calibration.py: 9×6 inner corners in
+Renders the test suite's board (tests/cells/test_calibration.py: 9×6 inner corners in
 perspective, rendered at 4× and area-averaged, exact corners) at several photo sizes, the
 same with sensor grain (uniform 0–15 grey levels), and an image of noise (no board) of each
 size, and times ``app.cells.core.calibration.find_corners`` as it
@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.cells.core import calibration
-from tests.core.test_calibration import rendered_board  # noqa: E402
+from tests.factories import rendered_board
 
 
 def timed(image: np.ndarray, side: int) -> tuple[float, np.ndarray | None]:

@@ -31,8 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PG_ADMIN_URL = "postgresql://postgres@127.0.0.1:5432/postgres"
 PG_BENCH_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_bench"
 ADMIN = "bench-admin-token-0123456789abcdef"
-HTTP = "app.protocol:DeadlineProtocol"
-"""The protocol the service is served with (``app.serve``), deadlines on clients included."""
+HTTP = "auto"
+"""uvicorn's HTTP implementation (``auto``: httptools when installed, as ``app.serve``)."""
 
 
 def jpeg_640x480(seed: int = 1) -> bytes:
@@ -370,9 +370,7 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=10_000, help="frames in the RSS run")
     parser.add_argument("--port", type=int, default=8911)
     parser.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
-    parser.add_argument(
-        "--http", default=HTTP, help="uvicorn's protocol (auto: its own, without deadlines)"
-    )
+    parser.add_argument("--http", default=HTTP, help="uvicorn's HTTP implementation")
     add_pool_arguments(parser)
     add_cpu_arguments(parser)
     parser.add_argument("--data-root", type=Path, default=ROOT / "data", help="where frames go")

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 from sqlalchemy import Engine  # noqa: E402
 from sqlalchemy.orm import Session, sessionmaker  # noqa: E402
 
-from app.platform.db.models import Camera, CameraKind
+from app.platform.db.models import Camera, CameraKind  # noqa: E402
 from app.platform.db.session import make_engine, make_sessionmaker  # noqa: E402
 from app.platform.frames import ingest  # noqa: E402
 from app.platform.frames.camera_info import CameraInfo  # noqa: E402

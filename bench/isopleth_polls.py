@@ -28,11 +28,11 @@ from sqlalchemy import create_engine, insert
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.air.models import SkyVerdict
+from app.air.models import SkyVerdict  # noqa: E402
 from app.main import create_app  # noqa: E402
-from app.platform.db.models import Camera, CameraKind, Frame, Verdict
+from app.platform.db.models import Camera, CameraKind, Frame, Verdict  # noqa: E402
 from app.platform.settings import Settings  # noqa: E402
-from tests.conftest import migrate  # noqa: E402
+from tests.factories import migrate  # noqa: E402
 
 
 def seed(url: str, cameras: int, now: datetime) -> None:

@@ -2,7 +2,7 @@
 
 Each scene is a box or an upright cylinder on a table at 1 m, seen by the 4-camera cross
 (f = 1000 px, ax = 0.30, ay = 0.20 m, 640 × 480), the grid (1.2 cm cells at 1 m) projected from
-the cross's centre, pixel noise σ = 2 grey levels (renders: tests/core/laser_scenes.py). For
+the cross's centre, pixel noise σ = 2 grey levels (renders: tests/cells/laser_scenes.py). For
 each: the errors of volume, measured surface area (the part's top) and side area against the
 part's own dimensions, and the time of each stage. Then the first box at other grid pitches,
 and at other exposures (every channel scaled, clipped at 255) and JPEG qualities, as a camera
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.cells.core import laser, laser_grid
 from app.cells.core.triangulation import CrossRig  # noqa: E402
-from tests.core.laser_scenes import RIG, Part, Scene, photographed, render  # noqa: E402
+from tests.cells.laser_scenes import RIG, Part, Scene, photographed, render  # noqa: E402
 
 SCENES = [
     # shape, dims [m], centre [m], yaw, table tilt, grid rotation [rad]

@@ -1,6 +1,6 @@
 """Outline pipeline: time per 640×480 image, and corner error against exact ground truth.
 
-Renders the test suite's prism scene (tests/core/scenes.py: a matt box, its cast shadow,
+Renders the test suite's prism scene (tests/cells/scenes.py: a matt box, its cast shadow,
 Gaussian noise and blur) at several dynamic ranges and shadow strengths, runs
 ``app.cells.core.imaging.outline`` with and without the shadow step, and reports the largest corner
 error [px] (median over seeds), the same for a light part on a dark table, and the median time
@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.cells.core.imaging import OutlineParams, outline  # noqa: E402
-from tests.core.scenes import PRISM_OUTLINE, light_prism_scene, prism_scene  # noqa: E402
+from tests.cells.scenes import PRISM_OUTLINE, light_prism_scene, prism_scene  # noqa: E402
 
 
 def corner_error(found: np.ndarray) -> float:

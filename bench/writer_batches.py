@@ -24,7 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.platform.db.models import CameraKind
+from app.platform.db.models import CameraKind  # noqa: E402
 from app.platform.frames import cameras as registry  # noqa: E402
 from app.platform.frames import ingest  # noqa: E402
 from app.platform.frames.camera_info import CameraInfo  # noqa: E402

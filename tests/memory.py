@@ -13,7 +13,7 @@ import sys
 import textwrap
 from typing import Any
 
-from tests.conftest import ROOT
+from tests.factories import ROOT
 
 
 def traced_peak(setup: str, measured: str) -> tuple[int, Any]:

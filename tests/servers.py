@@ -13,7 +13,7 @@ from pathlib import Path
 import httpx2 as httpx
 import pytest
 
-from tests.conftest import ADMIN_TOKEN, ROOT
+from tests.factories import ADMIN_TOKEN, ROOT
 
 
 def free_port() -> int:

@@ -7,8 +7,7 @@ readings change only slowly, so a dashboard with many viewers, or anyone on the 
 could keep the cores busy. A map is kept for ``ttl`` seconds by its request (representation,
 bbox, window, method, resolution, max_distance); its ``computed_at`` says when it was made,
 and its ETag (a digest of the body) lets a client revalidate it for a 304. A GeoJSON map is
-also kept gzipped, compressed once when computed: served to every poll of a browser, it cost
-~7 ms a poll more than the plain body, compressed each time (bench/README.md).
+also kept gzipped, compressed once when computed rather than at every browser's poll.
 """
 
 from __future__ import annotations

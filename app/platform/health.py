@@ -80,9 +80,8 @@ def _sqlite_writes(request: Request) -> Literal["ok", "read_only", "full"]:
     """Whether a write commits on SQLite: the schema's version number written back unchanged
     (one page through the WAL). A SQLite file answers reads, and even begins its IMMEDIATE
     transactions (their lock lives in shared memory), on a filesystem the kernel has stopped
-    writing to (ext4's errors=remount-ro after an I/O error): measured, every upload and
-    registration got 503 "disk I/O error" while /health said "ok". Alembic keeps its
-    revision in a table, not in ``user_version``, which nothing else reads."""
+    writing to (ext4's errors=remount-ro after an I/O error), so only a write tells. Alembic
+    keeps its revision in a table, not in ``user_version``, which nothing else reads."""
     try:
         with get_sessionmaker(request)() as session, session.begin():
             version = int(session.execute(text("PRAGMA user_version")).scalar_one())

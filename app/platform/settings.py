@@ -161,6 +161,14 @@ class Settings(BaseSettings):
         "process may hold pool size + overflow, which over all processes must stay under the "
         "server's max_connections.",
     )
+    shutdown_grace_seconds: float = Field(
+        default=20.0,
+        gt=0,
+        le=3600,
+        description="How long a stop (SIGTERM) waits for requests under way before cancelling "
+        "them (uvicorn's --timeout-graceful-shutdown); under the orchestrator's own grace "
+        "before it kills (Kubernetes: 30 s).",
+    )
     upload_timeout_seconds: float = Field(
         default=30.0,
         gt=0,
@@ -208,9 +216,8 @@ class Settings(BaseSettings):
             return self.ingest_threads
         if self.frame_store == "s3":
             return 32
-        # one a core: with twice that, the threads' hand-offs of the GIL cost more than the
-        # extra decoding in parallel gains (bench/README.md, "Batches that gather for 20 ms,
-        # and one preparing thread a core")
+        # one a core: with more, the threads' hand-offs of the GIL cost more than the extra
+        # decoding in parallel gains
         return max(2, usable_cpus())
 
     @model_validator(mode="after")

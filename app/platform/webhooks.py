@@ -74,10 +74,8 @@ def _connect(
 ) -> socket.socket:
     """``socket.create_connection``, its name lookup bounded by ``TIMEOUT_S`` too. The lookup
     runs in a thread of its own and is left behind when it does not answer in time (its
-    answer then goes nowhere: nothing is sent). Before, it was bounded only by the resolver,
-    beyond the POST's deadline, which starts at the socket: by glibc's documented defaults
-    (``timeout:5``, ``attempts:2``, up to 3 name servers), up to 30 s an alert held the
-    sweep when no name server answers."""
+    answer then goes nowhere: nothing is sent). The resolver's own bound lies beyond the
+    POST's deadline (glibc's defaults: up to 30 s with no name server answering)."""
     host, port = address
     answer: list[list[tuple[Any, ...]] | OSError] = []
     answered = threading.Event()
@@ -146,11 +144,9 @@ def _cut(made: list[http.client.HTTPConnection], cut: threading.Event) -> None:
 
 def post(url: str, body: bytes, headers: dict[str, str]) -> None:
     """POST ``body``; raise DeliveryFailed unless the receiver answers 2xx within
-    ``DEADLINE_S``. ``TIMEOUT_S`` bounds each wait on the socket, and a receiver sending its
-    answer a byte every few seconds never met it: measured, a POST still waiting after 50 s,
-    which held the process's sweep, so that no later alert went anywhere, and let its claim
-    run out, so that the next process was held as well. The sockets are shut down at the
-    deadline."""
+    ``DEADLINE_S``. ``TIMEOUT_S`` bounds each wait on the socket, which a receiver sending its
+    answer a byte every few seconds never meets: the sockets are shut down at the deadline,
+    so one slow receiver cannot hold the sweep past its claim."""
     request = urllib.request.Request(
         url,
         data=body,

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
+import secrets
 import time
 import uuid
-
-from app.random_bits import random_bytes
 
 
 def time_ordered_id() -> str:
@@ -18,7 +17,7 @@ def time_ordered_id() -> str:
     PostgreSQL also means fewer full-page images in the WAL once the index outgrows memory.
     """
     ms = time.time_ns() // 1_000_000
-    bits = (ms & (1 << 48) - 1) << 80 | int.from_bytes(random_bytes(10), "big")
+    bits = (ms & (1 << 48) - 1) << 80 | int.from_bytes(secrets.token_bytes(10), "big")
     bits = bits & ~(0xF << 76) | 0x7 << 76  # version 7
     bits = bits & ~(0x3 << 62) | 0x2 << 62  # variant 10 (RFC 9562)
     return str(uuid.UUID(int=bits))

@@ -7,9 +7,8 @@ PostgreSQL several rows go as one ``COPY … FROM STDIN``: one statement on the 
 a parse, bind and execute per row, and psycopg formats the rows in C. On SQLite they go as one
 multi-row ``INSERT … VALUES (…), (…)``: one statement step per table instead of one per row.
 The sqlite3 module releases the GIL around every step, and under load the writer then waits
-~1 ms to get it back (in the bench server the batch's inserts took 3.8–4.0 ms of wall time for
-0.51 ms of CPU as executemany, 2.4–3.2 ms for 0.35–0.44 ms so; ``bench/README.md``). Elsewhere
-(and for a single row) they go as one executemany.
+to get it back: fewer steps, fewer waits. Elsewhere (and for a single row) they go as one
+executemany.
 """
 
 from __future__ import annotations
@@ -163,10 +162,8 @@ def _as_sqlalchemy_error(connection: Connection, sql: str) -> Iterator[None]:
 
 def select_rows(session: Session, sql: str, params: Sequence[Any]) -> list[tuple[Any, ...]]:
     """A plain SELECT sent through the driver itself, on the session's connection (its held
-    inserts first), placeholders written ``?``. For a query the writer makes in every batch:
-    a one-row select of the cameras by id cost 58 µs of CPU through ``text()``, 86 through a
-    Core ``select``, 164 through an ORM ``select`` with ``in_``, and 3.8 through the driver
-    (SQLite, one process, bench/README.md)."""
+    inserts first), placeholders written ``?``. For a query the writer makes in every batch,
+    where SQLAlchemy's statement building costs ten times the query itself."""
     connection = session.connection()
     if connection.dialect.paramstyle != "qmark":
         sql = sql.replace("?", "%s")

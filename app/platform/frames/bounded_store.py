@@ -2,13 +2,11 @@
 
 A disk store on a network mount whose server has gone away (NFS mounted ``hard``, its default)
 blocks every call into it for as long as the server is gone, and no timeout can be set on a
-``stat`` or a ``read``. ``/health``, probed every few seconds, then held one of the request
-threads per probe, for good: measured on a mount made to hang, 45 probes later the registry and
-the readings, which never touch the store, no longer answered either. Here those calls run on a
-few threads of their own and are awaited, holding no request thread, for at most ``seconds``;
-a check still running is awaited again rather than started once more. A hung store then costs
-these few threads, and its callers a 503 after ``seconds``. (Uploads have their own deadline:
-``routers.cameras._within``.)
+``stat`` or a ``read``: ``/health``, probed every few seconds, would hold a request thread per
+probe until none is left. Here those calls run on a few threads of their own and are awaited,
+holding no request thread, for at most ``seconds``; a check still running is awaited again
+rather than started once more. A hung store then costs these few threads, and its callers a 503
+after ``seconds``. (Uploads have their own deadline: ``frames.router._within``.)
 """
 
 from __future__ import annotations

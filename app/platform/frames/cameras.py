@@ -142,8 +142,8 @@ def _check_region_fits(session: Session, camera: Camera) -> None:
 
 
 def _forget_on_commit(session: Session, tokens: TokenCache, camera_id: str) -> None:
-    """Drop this process's cached view of the camera once the change is committed (before, a
-    concurrent upload could cache the old row again). Other processes' caches expire within
+    """Drop this process's cached view of the camera once the change is committed (not before:
+    a concurrent upload could cache the old row again). Other processes' caches expire within
     their ``TokenCache.ttl``."""
     event.listen(session, "after_commit", lambda _: tokens.forget(camera_id), once=True)
 

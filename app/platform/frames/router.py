@@ -19,7 +19,6 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 from sqlalchemy.orm.interfaces import ORMOption
 
-from app.direct_route import DirectRoute
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.db.session import release
 from app.platform.frames import cameras as registry
@@ -37,6 +36,7 @@ from app.platform.http.deps import (
     PolicyDep,
     RecordId,
     SessionDep,
+    SettingsDep,
     TimeRangeQuery,
     UtcTime,
     image_work,
@@ -55,7 +55,6 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import read_jpeg
 from app.platform.observability import FRAMES_RECEIVED, INGEST_SECONDS
-from app.platform.policy import Policy
 from app.platform.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.platform.settings import Settings
 
@@ -120,8 +119,7 @@ def _form_captured_at(
     text: str, query: datetime | None, now: datetime, settings: Settings
 ) -> datetime | None:
     """A multipart upload's ``captured_at`` field: the same rules as the query parameter, and
-    the same time when both are given. Before, the field was ignored and the frame took the
-    time it was received."""
+    the same time when both are given (422 ``bad_time`` otherwise)."""
     try:
         value = _TIME.validate_python(text.strip())
     except ValidationError:
@@ -137,9 +135,25 @@ def _form_captured_at(
     return _captured_at(value, now, settings)
 
 
+@router.post(
+    FRAMES_PATH,
+    status_code=201,
+    response_model=FrameOut,
+    responses={
+        **AUTH_ERRORS,
+        **NOT_FOUND,
+        **CAMERA_RETIRED,
+        **UPLOAD_ERRORS,
+        **UPLOAD_UNAVAILABLE,
+    },
+    openapi_extra=_JPEG_BODY,
+)
 async def post_frame(
     request: Request,
+    response: Response,
     target: UploadTargetDep,
+    settings: SettingsDep,
+    policy: PolicyDep,
     captured_at: Annotated[
         UtcTime | None,
         Query(description="When the frame was taken (RFC 3339; default: when received)."),
@@ -152,16 +166,12 @@ async def post_frame(
             "of the same bytes with the same captured_at).",
         ),
     ] = None,
-) -> Response:
+) -> FrameOut:
     """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict.
 
     A retried upload gets the original frame and verdict, with ``Idempotent-Replay: true``.
     """
     start = time.perf_counter()
-    # the hot path: settings and policy straight from the app's state (what SettingsDep and
-    # PolicyDep return), sparing two dependencies' resolution on every frame
-    settings: Settings = request.app.state.settings
-    policy: Policy = request.app.state.policy
     when = _captured_at(captured_at, policy.now(), settings)
     upload = await read_jpeg(request, settings.max_body_bytes)
     if upload.captured_at is not None:
@@ -209,31 +219,9 @@ async def post_frame(
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)
-    # serialised once here: the schema is already FrameOut, validating it again costs per frame
-    body = frame_out(done.frame, done.verdict).model_dump_json()
-    headers = {"Idempotent-Replay": "true"} if done.replay else None
-    return Response(body, status_code=201, media_type="application/json", headers=headers)
-
-
-# the frame upload is the first route of its router, and the router the app's first: routes are
-# matched in order, and each one passed costs the upload a few µs (bench/README.md). Its
-# parameters are read from a plan made once (``DirectRoute``), not solved again per frame.
-router.add_api_route(
-    FRAMES_PATH,
-    post_frame,
-    methods=["POST"],
-    status_code=201,
-    response_model=FrameOut,
-    responses={
-        **AUTH_ERRORS,
-        **NOT_FOUND,
-        **CAMERA_RETIRED,
-        **UPLOAD_ERRORS,
-        **UPLOAD_UNAVAILABLE,
-    },
-    openapi_extra=_JPEG_BODY,
-    route_class_override=DirectRoute,
-)
+    if done.replay:
+        response.headers["Idempotent-Replay"] = "true"
+    return frame_out(done.frame, done.verdict)
 
 
 def _out(camera: Camera, last_captured_at: datetime | None) -> CameraOut:

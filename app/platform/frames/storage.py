@@ -178,10 +178,9 @@ class DiskFrameStore:
 
     Content-addressed as git's packs are: every frame in a pack is preceded by a header with its
     SHA-256 and length, and the database row keeps its SHA-256 beside its locator
-    ``packs/<hour>/<name>.pack@<offset>+<length>``. A file per frame would cost an inode per
-    frame; on the ext4 volume this service was measured on, creating one cost 0.4–1 ms of
-    kernel CPU (mkdir as much), more than the rest of the store and the database together,
-    where appending the same bytes to an open file costs ~0.05 ms (bench/README.md).
+    ``packs/<hour>/<name>.pack@<offset>+<length>``. A file per frame would cost an inode and its
+    kernel CPU per frame (more than the rest of the store and the database together); appending
+    to an open file costs a tenth of that.
 
     Each process appends to packs of its own (never two writers in one file), one per hour of
     reception, a new one every ``PACK_MAX_BYTES``. A frame's row is committed only after its
@@ -210,9 +209,7 @@ class DiskFrameStore:
         self.keep_free_bytes = keep_free_bytes
         """Frames are refused (``DiskFull``) rather than take the disk's last bytes: the
         database beside them (SQLite in the same directory, by default) keeps room to record
-        a robot's claim, an alert, a retention sweep. Frames filled a disk to its last byte,
-        and then every write failed (measured: uploads, registering a robot or a panel), with
-        /health "ok"."""
+        a robot's claim, an alert, a retention sweep [B]."""
         self._lock = threading.Lock()
         self._pack: _Pack | None = None
         self._free: tuple[float, int] | None = None
@@ -478,7 +475,7 @@ class DiskFrameStore:
             # A file made and written, as a frame is: neither the mount's flags nor
             # os.access say that the kernel has stopped the filesystem's writes. ext4 with
             # errors=remount-ro does so after an I/O error ("emergency_ro"), its mount still
-            # listed rw: measured, every frame got 503 (EROFS) while /health said "ok".
+            # listed rw.
             # An unnamed file (O_TMPFILE where the filesystem has it) leaves nothing behind.
             with tempfile.TemporaryFile(dir=self.root, prefix=".probe-") as probe:
                 probe.write(b"\0")

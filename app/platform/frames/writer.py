@@ -36,15 +36,10 @@ log = logging.getLogger("vantage.writer")
 T = TypeVar("T")
 
 GATHER_S = 0.020
-"""How long a batch waits for the jobs of preparations still under way [s]. A batch costs the
-writer ~350 µs whatever its size and ~80 µs more a frame (SQLite, bench/writer_batches.py),
-and under load more than that in the server, where each of its statements lets go of the GIL
-and waits to take it back. In bench/ingest.py (16 clients, one process) a batch held 3.6 frames
-on SQLite and 5.2 on PostgreSQL at 2 ms, 15.4 at 20 ms, and the server's CPU a frame fell
-from 2.43 to 2.13 ms and from 2.25 to 2.16 ms (bench/README.md, "Batches that
-gather for 20 ms"). Never waited for when no preparation is under way (a lone upload): the
-wait adds at most this much to an upload's answer, and only while others are being
-prepared."""
+"""How long a batch waits for the jobs of preparations still under way [s]: a batch costs the
+writer a fixed part whatever its size (bench/writer_batches.py), so fuller batches cost less
+CPU a frame. Never waited for when no preparation is under way (a lone upload): the wait adds
+at most this much to an upload's answer, and only while others are being prepared."""
 
 PREPARERS = 32
 """Frames decoding and storing at once, per process, unless told (``submit_after``; the wait for
@@ -59,7 +54,7 @@ checked."""
 Refusal = Literal["revoked", "changed"]
 
 Check = Callable[[Session, set[Credential]], dict[Credential, Refusal]]
-"""Which of the credentials no longer hold, and how (``registry.refusals``)."""
+"""Which of the credentials no longer hold, and how (``cameras.refusals``)."""
 
 
 class CameraChanged(Exception):

@@ -23,8 +23,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 MINIMUM_BYTES = 1024
 """Smaller bodies go as they are: a few hundred bytes saved at most."""
 LEVEL = 6
-"""zlib's default. Level 9 (Starlette's) took 2.9–5.6× the CPU for bodies 2–12 % smaller: the
-map of 1,000 cameras 9.6 ms against 3.1, 40.2 kB against 41.0 (bench/README.md)."""
+"""zlib's default: Starlette's level 9 costs several times the CPU for bodies a few per cent
+smaller (bench/README.md, "Dashboards' answers gzipped")."""
 
 OFF_LOOP_BYTES = 32 * 1024
 """Bodies from this size are compressed on a worker thread (Starlette's default: 128 KiB). The

@@ -219,9 +219,8 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(ClientDisconnect)
     async def _client_gone(request: Request, _: ClientDisconnect) -> Response:
         # The client went away before its body was all sent (a camera losing its link
-        # mid-upload; or closed by app.protocol for sending too slowly): nothing is stored,
-        # and there is no one to answer. Before, an ERROR with its traceback and a 500 were
-        # counted for each, as if the service had failed.
+        # mid-upload, or cut off by the proxy for sending too slowly): nothing is stored, and
+        # there is no one to answer; not a failure of the service (no 500, no ERROR).
         log.info("the client went away before sending its whole request")
         _count_rejected_frame(request, CLIENT_CLOSED_REQUEST, "client_disconnected")
         return Response(status_code=CLIENT_CLOSED_REQUEST)

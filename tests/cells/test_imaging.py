@@ -1,0 +1,224 @@
+"""Chapter 3 and chapter 4 §II: known answers, synthetic renders with exact ground truth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from app.cells.core.imaging import (
+    CannyParams,
+    OutlineParams,
+    canny,
+    collinear,
+    corners_from_segments,
+    crop,
+    equalize,
+    join_fragments,
+    luma,
+    outline,
+    part_is_light,
+    shift,
+    signed_area,
+    stretch,
+)
+from tests.cells.scenes import (
+    CYLINDER,
+    PRISM_OUTLINE,
+    cylinder_scene,
+    light_prism_scene,
+    prism_scene,
+)
+from tests.factories import corner_error
+
+# Table 3.2 of the dissertation: Hough segments of Prism06.jpg
+
+# Table 3.2 of the dissertation: Hough segments of Prism06.jpg
+TABLE_3_2 = [
+    (45, 68, 180, 36),
+    (117, 148, 231, 117),
+    (42, 70, 42, 114),
+    (240, 108, 244, 63),
+    (45, 135, 75, 157),
+    (204, 32, 240, 47),
+]
+
+
+# Table 3.3: the corners, counter-clockwise, as printed (5 significant figures)
+TABLE_3_3 = np.array(
+    [
+        [42, 68.711],
+        [42, 132.8],
+        [77.408, 158.77],
+        [239.4, 114.71],
+        [245.23, 49.179],
+        [201.42, 30.924],
+    ]
+)
+
+
+class TestCornersFromSegments:
+    def test_table_3_2_gives_table_3_3(self) -> None:
+        corners = corners_from_segments([tuple(map(float, s)) for s in TABLE_3_2])
+        np.testing.assert_allclose(corners, TABLE_3_3, atol=0.01)
+
+    def test_order_and_direction_of_the_input_do_not_matter(self) -> None:
+        rng = np.random.default_rng(3)
+        segs = [tuple(map(float, s)) for s in TABLE_3_2]
+        for _ in range(10):
+            shuffled = [segs[i] for i in rng.permutation(6)]
+            shuffled = [(s[2], s[3], s[0], s[1]) if rng.random() < 0.5 else s for s in shuffled]
+            corners = corners_from_segments(shuffled)
+            assert signed_area(corners) < 0  # counter-clockwise as seen (y down)
+            assert corner_error(corners, TABLE_3_3) < 0.01
+
+    def test_needs_three_sides(self) -> None:
+        with pytest.raises(ValueError, match="at least 3"):
+            corners_from_segments([(0, 0, 1, 1), (1, 1, 2, 0)])
+
+
+class TestJoining:
+    def test_collinear_fragments_become_one_line(self) -> None:
+        # the two fragments of one side (Prism03, Figure 3.21): a 1 px offset, a 12 px gap
+        [joined] = join_fragments([(100, 50, 160, 51), (172, 51.5, 240, 53)])
+        assert sorted([joined[:2], joined[2:]]) == [(100, 50), (240, 53)]
+
+    def test_criteria_3_2_and_3_3(self) -> None:
+        base = (0.0, 0.0, 100.0, 0.0)
+        assert collinear(base, (110.0, 1.5, 200.0, 1.5))  # 1.5 px lateral
+        assert not collinear(base, (110.0, 3.0, 200.0, 3.0))  # 3 px > 2 px (3.3)
+        t = np.radians(6.0)
+        assert not collinear(base, (110.0, 0.0, 110 + 90 * np.cos(t), 90 * np.sin(t)))  # 6° (3.2)
+
+    def test_different_sides_stay_apart(self) -> None:
+        segs = [tuple(map(float, s)) for s in TABLE_3_2]
+        assert sorted(join_fragments(segs)) == sorted(segs)
+
+
+class TestConditioning:
+    def test_luma(self) -> None:
+        image = np.array([[[255, 0, 0], [0, 255, 0], [0, 0, 255], [100, 150, 200]]], np.uint8)
+        np.testing.assert_array_equal(luma(image), [[76, 150, 29, 141]])  # 0.299·255 = 76.2 …
+
+    def test_stretch_spans_0_to_255(self) -> None:
+        image = np.array([[103, 120, 170]], np.uint8)  # the range of Figure 4.1
+        np.testing.assert_array_equal(stretch(image), [[0, 65, 255]])  # (120−103)/67·255 = 64.7
+        with pytest.raises(ValueError, match="constant"):
+            stretch(np.full((4, 4), 9, np.uint8))
+
+    def test_equalize_is_255_times_the_cdf(self) -> None:
+        rng = np.random.default_rng(1)
+        image = rng.integers(103, 171, (50, 60), dtype=np.uint8)
+        cdf = np.array([(image <= v).mean() for v in range(256)])
+        np.testing.assert_array_equal(equalize(image), np.rint(255 * cdf[image]).astype(np.uint8))
+
+    def test_shift(self) -> None:
+        image = np.array([[0, 100, 200]], np.uint8)
+        np.testing.assert_array_equal(shift(image, 1.5, 20), [[20, 170, 255]])
+
+    def test_canny_thresholds_follow_matlab_scale(self) -> None:
+        image = prism_scene()
+        edges, low, high = canny(image, CannyParams(sigma=1.5, high=0.5))
+        blurred = cv2.GaussianBlur(image, (0, 0), 1.5)
+        mag = np.hypot(cv2.Sobel(blurred, cv2.CV_64F, 1, 0), cv2.Sobel(blurred, cv2.CV_64F, 0, 1))
+        assert high == pytest.approx(0.5 * mag.max(), rel=1e-4)
+        assert low == pytest.approx(0.2 * mag.max(), rel=1e-4)  # 40 % of the high threshold
+        assert edges.dtype == np.uint8
+        assert edges.any()
+
+    def test_crop_remembers_its_offset(self) -> None:
+        image = np.zeros((10, 20), np.uint8)
+        region, offset = crop(image, (5, 2, 10, 6))
+        assert region.shape == (6, 10)
+        assert offset == (5, 2)
+        with pytest.raises(ValueError, match="does not lie inside"):
+            crop(image, (15, 0, 10, 5))
+
+
+class TestPrism:
+    """A matt box under a narrow dynamic range (103–170), with a cast shadow, noise and blur."""
+
+    def test_scene_has_the_narrow_range(self) -> None:
+        image = prism_scene()
+        assert 100 <= image.min()
+        assert image.max() <= 173
+
+    @pytest.mark.parametrize("shadow", [0.45, 0.3, 0.0])
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_corners_within_2_px(self, shadow: float, seed: int) -> None:
+        o = outline(prism_scene(shadow=shadow, seed=seed))
+        assert o.shape == "polygon"
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+        assert signed_area(o.corners) < 0
+
+    def test_automatic_canny_thresholds(self) -> None:
+        o = outline(prism_scene(), OutlineParams(canny=CannyParams(high=None)))
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+
+    def test_without_the_shadow_step_the_shadow_makes_a_false_edge(self) -> None:
+        # the dissertation's Prism08 case
+        image = prism_scene(shadow=0.45)
+        naive = outline(image, OutlineParams(shadow=False))
+        assert corner_error(naive.corners, PRISM_OUTLINE) > 2.0
+        # the shadow's far border (x ≈ 560, y 215–345) is no edge of the part
+        band = (slice(225, 335), slice(552, 568))
+        assert naive.edges is not None
+        assert np.count_nonzero(naive.edges[band]) > 50  # the false edge
+        fixed = outline(image)
+        assert fixed.edges is not None
+        assert np.count_nonzero(fixed.edges[band]) == 0
+        assert corner_error(fixed.corners, PRISM_OUTLINE) <= 2.0
+
+    @pytest.mark.parametrize("seed", range(5))
+    def test_more_noise(self, seed: int) -> None:
+        # σ = 2 levels in a 67-level range: σ ≈ 7.6 levels once stretched to 0–255
+        o = outline(prism_scene(noise=2.0, blur=1.0, seed=seed))
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+
+
+class TestLightPart:
+    """A light part on a dark table: the dissertation's scenes are all dark on light."""
+
+    @pytest.mark.parametrize("shadow", [True, False])
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_corners_within_2_px(self, shadow: bool, seed: int) -> None:
+        o = outline(light_prism_scene(shadow=shadow, seed=seed))
+        assert o.part == "light"
+        assert o.shape == "polygon"
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+        assert signed_area(o.corners) < 0
+
+    def test_the_part_can_be_named(self) -> None:
+        image = light_prism_scene()
+        o = outline(image, OutlineParams(part="light"))
+        assert o.part == "light"
+        assert corner_error(o.corners, PRISM_OUTLINE) <= 2.0
+        # taken for a dark part, the outline is the dark table's
+        assert outline(image, OutlineParams(part="dark")).shape == "curved"
+
+    def test_a_dark_part_is_still_found_as_one(self) -> None:
+        assert outline(prism_scene()).part == "dark"
+        assert part_is_light(light_prism_scene())
+        assert not part_is_light(prism_scene(shadow=0.6))
+
+
+class TestCylinder:
+    def test_contour_and_ellipses_not_a_polygon(self) -> None:
+        o = outline(cylinder_scene())
+        assert o.shape == "curved"
+        assert len(o.corners) == 0
+        assert len(o.contour) > 10
+        c = CYLINDER
+        xs = sorted((x1 + x2) / 2 for x1, _, x2, _ in o.lines)
+        np.testing.assert_allclose(xs, [c["cx"] - c["a"], c["cx"] + c["a"]], atol=2)
+        centres = sorted(e.center[1] for e in o.ellipses)
+        np.testing.assert_allclose(centres, [c["top"], c["bottom"]], atol=3)
+        for e in o.ellipses:
+            assert e.center[0] == pytest.approx(c["cx"], abs=2)
+            # each arc is half an ellipse, which pins its size less well than a whole one
+            np.testing.assert_allclose(sorted(e.axes), [2 * c["b"], 2 * c["a"]], rtol=0.12)
+
+
+def test_blank_image_is_refused() -> None:
+    with pytest.raises(ValueError, match="no gradient|constant"):
+        outline(np.full((100, 100), 128, np.uint8))
