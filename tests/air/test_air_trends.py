@@ -122,6 +122,7 @@ def test_local_hours_and_days_across_zones_and_clock_changes(
     assert hours == 25 * 3600
 
 
+@pytest.mark.slow
 def test_every_reading_in_the_range_counts(client: TestClient, engine: Engine) -> None:
     """120,000 readings (a city's cameras over a few days). Before, only the newest 100,000
     were read: the oldest days' means came from part of their readings, or were missing."""

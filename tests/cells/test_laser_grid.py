@@ -89,6 +89,7 @@ def test_exposure_and_jpeg(gain: float, quality: int) -> None:
     assert dot[2] == pytest.approx(0.92, abs=0.002)
 
 
+@pytest.mark.slow
 def test_large_cells_of_a_longer_lens(box: tuple) -> None:
     """The box seen through lenses three times as long, on 1920 × 1440 sensors: cells of 36 px
     and lines ~8 px wide, wider than the kernels the nodes are found with. Found in a copy

@@ -422,6 +422,7 @@ def test_health_sees_a_frame_directory_that_takes_no_more_files(
     assert [p.name for p in settings.data_dir.iterdir() if p.name.startswith(".probe")] == []
 
 
+@pytest.mark.slow
 def test_two_machines_share_one_bucket(
     database_url: str, engine: Engine, bucket: Any, s3_url: str, tmp_path: Path
 ) -> None:

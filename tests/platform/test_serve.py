@@ -111,7 +111,7 @@ def test_a_wrong_shutdown_grace_stops_the_start_with_its_name() -> None:
     assert "shutdown_grace_seconds" in proc.stderr
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_the_server_logs_json_lines_only_and_one_a_request(
     database_url: str, engine: Engine, tmp_path: Path, workers: int
 ) -> None:

@@ -60,8 +60,7 @@ class LocalBudgets:
 def reserve(session: Session, camera_id: str, minute: datetime, limit: int) -> int:
     """Reserve a block of the camera's budget for ``minute``; how many frames were granted, 0
     when the minute's budget is spent. In the session's transaction, which the caller commits
-    before spending the block: the ingest path runs it in the frame writer's next batch
-    (``GroupCommitWriter.submit``), which commits it with that batch's frames."""
+    before spending the block (the upload's own short transaction, ``frames.deps``)."""
     block = block_size(limit)
     table = RateBudget.__table__
     dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite

@@ -150,7 +150,6 @@ def _form_captured_at(
 )
 async def post_frame(
     request: Request,
-    response: Response,
     target: UploadTargetDep,
     settings: SettingsDep,
     policy: PolicyDep,
@@ -166,7 +165,7 @@ async def post_frame(
             "of the same bytes with the same captured_at).",
         ),
     ] = None,
-) -> FrameOut:
+) -> Response:
     """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict.
 
     A retried upload gets the original frame and verdict, with ``Idempotent-Replay: true``.
@@ -219,9 +218,11 @@ async def post_frame(
     if not done.replay:
         FRAMES_RECEIVED.labels(target.id).inc()
     INGEST_SECONDS.observe(time.perf_counter() - start)
-    if done.replay:
-        response.headers["Idempotent-Replay"] = "true"
-    return frame_out(done.frame, done.verdict)
+    # answered as a Response (FastAPI's "return a Response directly"): the body is already a
+    # FrameOut, and the route's response_model documents it without validating it again
+    body = frame_out(done.frame, done.verdict).model_dump_json()
+    headers = {"Idempotent-Replay": "true"} if done.replay else None
+    return Response(body, status_code=201, media_type="application/json", headers=headers)
 
 
 def _out(camera: Camera, last_captured_at: datetime | None) -> CameraOut:
