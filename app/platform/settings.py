@@ -27,7 +27,11 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="VANTAGE_", env_file=".env", extra="ignore")
 
-    env: Literal["development", "test", "production"] = "development"
+    env: Literal["development", "test", "production"] = Field(
+        default="development",
+        description="development, test or production; production refuses admin and metrics "
+        "tokens shorter than 24 characters.",
+    )
     data_dir: Path = Field(default=Path("data"), description="Database file, frames, admin token.")
     database_url: str | None = Field(
         default=None, description="SQLAlchemy URL; default: SQLite file in data_dir."
@@ -203,8 +207,12 @@ class Settings(BaseSettings):
     alert_retry_hours: float = Field(
         default=24.0, gt=0, description="Retry an undelivered alert this long after it was raised."
     )
-    log_level: str = "INFO"
-    log_json: bool = True
+    log_level: str = Field(
+        default="INFO", description="Python logging level of the service's and uvicorn's lines."
+    )
+    log_json: bool = Field(
+        default=True, description="Log lines as JSON objects (false: plain text, for a terminal)."
+    )
 
     @property
     def effective_image_threads(self) -> int:
