@@ -90,6 +90,7 @@ def _intrinsics_out(c: calibration.Intrinsics, used: list[str]) -> dict[str, Any
         "dist": c.dist.tolist(),
         "rms_px": c.rms,
         "per_view_rms_px": c.per_view_rms.tolist(),
+        "views_flagged": [used[i] for i in calibration.flagged_views(c.per_view_rms)],
         "std": c.std,
         "views_used": used,
         "image_size": list(c.image_size),

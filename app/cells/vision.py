@@ -23,7 +23,7 @@ def decode(data: bytes, *, max_pixels: int) -> NDArray[np.uint8]:
         return decode_image(data, max_pixels=max_pixels)
     except NotJpegError:
         raise UnsupportedMediaType(
-            "the file is not a JPEG or PNG image", code="not_image"
+            "the file is not a JPEG, PNG or TIFF image", code="not_image"
         ) from None
     except TooManyPixelsError as exc:
         raise Unprocessable(str(exc), code="too_many_pixels") from None

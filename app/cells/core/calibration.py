@@ -42,18 +42,51 @@ are refined in the full image. The detectors' time grows faster than the pixel c
 12 MP photo with a board the classic one took 21 s, on one without 236 s."""
 
 
+SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+"""The sector-based detector searching hard and localising to its best (OpenCV's own advice for
+calibration); the classic detector is the fallback."""
+
+REFINE_SHARE = 0.35
+"""``cornerSubPix``'s half-window is this share of the smallest spacing of neighbouring corners
+[px], so that a window never reaches a neighbouring corner and pulls the corner onto it."""
+REFINE_MIN, REFINE_MAX = 2, 11
+"""Bounds of that half-window [px] (11: OpenCV's sample, for squares of 25 px and more)."""
+
+
+def refine_half_window(corners: NDArray[np.float32], cols: int, rows: int) -> int:
+    """``cornerSubPix``'s half-window for these corners (cols·rows, 1, 2), row by row [px]."""
+    grid = corners.reshape(rows, cols, 2).astype(np.float64)
+    across = np.linalg.norm(np.diff(grid, axis=1), axis=2)
+    down = np.linalg.norm(np.diff(grid, axis=0), axis=2)
+    spacing = min(across.min(initial=np.inf), down.min(initial=np.inf))
+    if not np.isfinite(spacing):
+        return REFINE_MIN
+    return int(np.clip(round(REFINE_SHARE * spacing), REFINE_MIN, REFINE_MAX))
+
+
+def _refined(
+    grey: NDArray[np.uint8], corners: NDArray[np.float32], cols: int, rows: int
+) -> NDArray[np.float32]:
+    half = refine_half_window(corners, cols, rows)
+    refined = cv2.cornerSubPix(grey, corners, (half, half), (-1, -1), SUBPIX_CRITERIA)
+    return np.asarray(refined, dtype=np.float32)
+
+
 def find_corners(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float32] | None:
     """The board's inner corners refined to sub-pixel, shape (cols·rows, 1, 2), or None.
 
-    Tries the classic detector with ``cornerSubPix`` first (the reference results were made so),
-    then the sector-based detector, which copes better with blur and uneven light. A large
-    image is searched at ``DETECT_SIDE`` and the corners found refined at full resolution.
+    The sector-based detector (``SB_FLAGS``) first, the classic one when it finds nothing; either
+    way refined by ``cornerSubPix`` with a window sized to the board's smallest corner spacing
+    (``REFINE_SHARE``). Dissertation ch. 3 §I finds corners with Bouguet's toolbox; this is
+    OpenCV's equivalent at its most accurate. A large image is searched at ``DETECT_SIDE`` and
+    the corners found refined at full resolution.
     """
     if min(grey.shape[:2]) < MIN_SIDE:
         return None
     scale = max(grey.shape[:2]) / DETECT_SIDE
     if scale <= 1:
-        return _detect(grey, cols, rows)
+        found = _detect(grey, cols, rows)
+        return None if found is None else _refined(grey, found, cols, rows)
     small = np.asarray(
         cv2.resize(grey, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA),
         dtype=np.uint8,
@@ -65,21 +98,29 @@ def find_corners(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.fl
         return None
     sy, sx = grey.shape[0] / small.shape[0], grey.shape[1] / small.shape[1]
     # pixel centres: x_full + 0.5 = (x_small + 0.5) · scale
-    full = (found + 0.5) * np.array([sx, sy], np.float32) - 0.5
-    refined = cv2.cornerSubPix(grey, full, (11, 11), (-1, -1), SUBPIX_CRITERIA)
-    return np.asarray(refined, dtype=np.float32)
+    full = ((found + 0.5) * np.array([sx, sy], np.float32) - 0.5).astype(np.float32)
+    return _refined(grey, full, cols, rows)
 
 
 def _detect(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float32] | None:
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    ok, corners = cv2.findChessboardCorners(grey, (cols, rows), flags=flags)
-    if ok:
-        refined = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1), SUBPIX_CRITERIA)
-        return np.asarray(refined, dtype=np.float32)
-    ok, corners = _cv.findChessboardCornersSB(
-        grey, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE
-    )
-    return np.asarray(corners, dtype=np.float32) if ok else None
+    """The corners as a detector gives them, before refinement, in ``canonical`` order."""
+    ok, corners = _cv.findChessboardCornersSB(grey, (cols, rows), flags=SB_FLAGS)
+    if not ok:
+        flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+        ok, corners = cv2.findChessboardCorners(grey, (cols, rows), flags=flags)
+    return canonical(np.asarray(corners, dtype=np.float32).reshape(-1, 1, 2)) if ok else None
+
+
+def canonical(corners: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The corners numbered from the end nearer the image's top (the left, for a level
+    diagonal). A board of cols × rows corners looks the same turned by 180°, so a detector may
+    number it from either end, and the two detectors do so differently: the cameras of a pair
+    must number the corners of one view alike. The rule turns only where the board's diagonal
+    lies level in the image, far from a board held upright or on its side (the ends of a
+    diagonal from a 9 × 6 board's first corner to its last stand 32° off level)."""
+    dx, dy = corners[-1, 0] - corners[0, 0]
+    reverse = dy < 0 if abs(dy) > 1e-3 * abs(dx) else dx < 0
+    return corners[::-1].copy() if reverse else corners
 
 
 SAME_VIEW_PX = 1.0
@@ -117,6 +158,17 @@ class Intrinsics:
 
 
 STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+OUTLIER_FACTOR = 3.0
+"""A view whose reprojection RMS exceeds this many times the views' median is flagged: a
+corner mislocated, a blurred or mismatched view, which the operator should look at."""
+
+
+def flagged_views(per_view_rms: NDArray[np.float64]) -> list[int]:
+    """Indices of views whose RMS [px] is over ``OUTLIER_FACTOR`` × the median of all views."""
+    median = float(np.median(per_view_rms)) if per_view_rms.size else 0.0
+    return [i for i, v in enumerate(per_view_rms) if v > OUTLIER_FACTOR * median]
+
 
 MIN_TILT_SPREAD_DEG = 5.0
 """The boards' planes must differ by at least this much [°] between some two views. Parallel

@@ -7,6 +7,7 @@ The header is read before anything is decoded, so a small file that declares an 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -148,25 +149,60 @@ def decode_rgb(
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
+TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*")
+"""A TIFF's first bytes: little- or big-endian (Bouguet's toolbox ships its boards as TIFF)."""
+
+
+def tiff_size(data: bytes | memoryview) -> tuple[int, int]:
+    """(width, height) [px] from a TIFF's first image directory (tags 256 and 257), read
+    before decoding so that the pixel limit holds. Raises CorruptJpegError when absent."""
+    raw = bytes(data)
+    order: Literal["little", "big"] = "little" if raw[:2] == b"II" else "big"
+    try:
+        ifd = int.from_bytes(raw[4:8], order)
+        count = int.from_bytes(raw[ifd : ifd + 2], order)
+        found: dict[int, int] = {}
+        for k in range(count):
+            entry = raw[ifd + 2 + 12 * k : ifd + 14 + 12 * k]
+            tag, kind = int.from_bytes(entry[0:2], order), int.from_bytes(entry[2:4], order)
+            if tag in (256, 257):  # ImageWidth, ImageLength: SHORT (3) or LONG (4)
+                size = 2 if kind == 3 else 4
+                found[tag] = int.from_bytes(entry[8 : 8 + size], order)
+    except (IndexError, ValueError):
+        found = {}
+    if 256 not in found or 257 not in found:
+        raise CorruptJpegError("TIFF without its image width and length")
+    return found[256], found[257]
+
+
+def _check_pixels(kind: str, width: int, height: int, max_pixels: int) -> None:
+    if width * height > max_pixels:
+        raise TooManyPixelsError(
+            f"{kind} declares {width}×{height} = {width * height} pixels; the limit is {max_pixels}"
+        )
+
+
 def decode_image(data: bytes | memoryview, *, max_pixels: int) -> NDArray[np.uint8]:
-    """A JPEG or PNG decoded to RGB (H, W, 3), uint8, its size checked from the header first.
+    """A JPEG, PNG or TIFF decoded to RGB (H, W, 3), uint8, its size checked from the header
+    first.
 
     Raises NotJpegError for any other format, TooManyPixelsError, CorruptJpegError.
     """
     raw = bytes(data[:32])
+    if raw.startswith(SOI):
+        return decode_rgb(data, max_pixels=max_pixels)[1]
     if raw.startswith(PNG_SIGNATURE):
         if len(raw) < 24 or raw[12:16] != b"IHDR":
             raise CorruptJpegError("PNG without its IHDR header")
         width, height = int.from_bytes(raw[16:20], "big"), int.from_bytes(raw[20:24], "big")
-        if width * height > max_pixels:
-            pixels = width * height
-            raise TooManyPixelsError(
-                f"PNG declares {width}×{height} = {pixels} pixels; the limit is {max_pixels}"
-            )
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB)
-        if image is None:
-            raise CorruptJpegError("PNG could not be decoded")
-        return np.asarray(image, dtype=np.uint8)
-    if raw.startswith(SOI):
-        return decode_rgb(data, max_pixels=max_pixels)[1]
-    raise NotJpegError("not a JPEG or PNG image")
+        _check_pixels("PNG", width, height, max_pixels)
+        kind = "PNG"
+    elif raw.startswith(TIFF_SIGNATURES):
+        _check_pixels("TIFF", *tiff_size(data), max_pixels)
+        kind = "TIFF"
+    else:
+        raise NotJpegError("not a JPEG, PNG or TIFF image")
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB)
+    if image is None:
+        raise CorruptJpegError(f"{kind} could not be decoded")
+    return np.asarray(image, dtype=np.uint8)
