@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import Field, field_validator
 
 from app.platform.schemas import Id, Out, Schema
@@ -33,6 +34,10 @@ class OutlineOut(Out):
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+ROTATION_TOLERANCE = 1e-4
+"""How far RᵀR may stray from I: rotations written out to 5–6 decimals pass."""
 
 
 class CalibratedCamera(Schema):
@@ -70,6 +75,30 @@ class CalibratedCamera(Schema):
         if len(v) not in (4, 5):
             raise ValueError("must be [k1, k2, p1, p2] or [k1, k2, p1, p2, k3]")
         return v
+
+    @field_validator("K")
+    @classmethod
+    def _a_camera_matrix(cls, k: list[list[float]]) -> list[list[float]]:
+        """Eq. 2.9's form: fx, fy > 0 (a negative focal length puts every point behind the
+        camera) and a last row [0, 0, 1]."""
+        if not (k[0][0] > 0 and k[1][1] > 0):
+            raise ValueError(f"fx = {k[0][0]:g} and fy = {k[1][1]:g} must both be positive")
+        if k[1][0] != 0 or k[2] != [0, 0, 1]:
+            raise ValueError("must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+        return k
+
+    @field_validator("R")
+    @classmethod
+    def _a_rotation(cls, r: list[list[float]]) -> list[list[float]]:
+        """A proper rotation: orthonormal within ``ROTATION_TOLERANCE`` and det R = +1 (−1 is a
+        mirror, which no camera's pose is)."""
+        m = np.asarray(r, dtype=np.float64)
+        off = float(np.abs(m.T @ m - np.eye(3)).max())
+        if off > ROTATION_TOLERANCE:
+            raise ValueError(f"is not a rotation: RᵀR differs from I by up to {off:.2g}")
+        if np.linalg.det(m) < 0:
+            raise ValueError("is a mirror (det R = −1), not a rotation")
+        return r
 
 
 class RigSpec(Schema):

@@ -661,3 +661,36 @@ def test_a_rig_registered_twice_at_once_is_one_rig_and_a_409(
     assert r.headers["content-type"] == "application/problem+json"
     assert "already exists" in r.json()["detail"]
     assert [g["id"] for g in client.get("/rigs", headers=admin).json()] == ["cell-1"]
+
+
+GOOD_K = [[800, 0, 320], [0, 800, 240], [0, 0, 1]]
+EYE = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+
+
+@pytest.mark.parametrize(
+    ("camera", "fault"),
+    [
+        ({"K": [[-800, 0, 320], [0, -800, 240], [0, 0, 1]]}, "must both be positive"),
+        ({"K": [[800, 0, 320], [0, -800, 240], [0, 0, 1]]}, "must both be positive"),
+        ({"K": [[800, 0, 320], [0, 800, 240], [0, 0, 2]]}, "[0, 0, 1]"),
+        ({"R": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}, "mirror"),
+        ({"R": [[1, 0.1, 0], [0, 1, 0], [0, 0, 1]]}, "not a rotation"),
+    ],
+    ids=["negative focal lengths", "negative fy", "K[2,2] = 2", "mirror", "sheared"],
+)
+def test_a_rig_camera_that_is_no_camera_is_refused_by_name(
+    client: TestClient, admin: dict[str, str], camera: dict[str, Any], fault: str
+) -> None:
+    """Such a rig was accepted and every point came back null "behind the camera" (with
+    fy < 0 the outlier rejection took a square root of a negative number)."""
+    cams = [
+        {"K": GOOD_K, "R": EYE, "t": [0, 0, 0]},
+        {"K": GOOD_K, "R": EYE, "t": [1, 0, 0], **camera},
+    ]
+    r = client.post(
+        "/rigs", json={"id": "bad", "kind": "calibrated", "cameras": cams}, headers=admin
+    )
+    assert r.status_code == 422
+    assert r.json()["detail"].startswith("body.cameras.1.")  # the second camera, by its index
+    assert fault in r.json()["detail"]
+    assert client.get("/rigs/bad", headers=admin).status_code == 404
