@@ -27,7 +27,7 @@ test: $(VENV)/.installed
 	$(BIN)/pytest -n 2 -m "not slow"
 
 test-slow: $(VENV)/.installed
-	$(BIN)/pytest -m slow
+	$(BIN)/pytest -n 2 -m slow
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check app tests bench migrations
