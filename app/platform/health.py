@@ -18,6 +18,7 @@ from app import __version__
 from app.platform.frames import retention
 from app.platform.frames.storage import DiskFull, StoreUnavailable
 from app.platform.http.deps import Admin, MetricsReader, get_sessionmaker
+from app.platform.http.responses import AUTH_ERRORS
 from app.platform.schemas import Health
 
 router = APIRouter(tags=["health"])
@@ -107,7 +108,7 @@ def metrics(_: MetricsReader) -> Response:
     return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
 
-@router.post("/admin/retention/sweep", tags=["admin"])
+@router.post("/admin/retention/sweep", tags=["admin"], responses=AUTH_ERRORS)
 def sweep_now(request: Request, _: Admin) -> dict[str, int]:
     """Run the frame-retention sweep now (it also runs on its own, hourly)."""
     settings = request.app.state.settings

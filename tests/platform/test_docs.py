@@ -46,3 +46,25 @@ def test_a_gzipped_asset_has_a_weak_etag_and_is_revalidated(client: TestClient) 
     assert zipped.headers["etag"] == f"W/{strong}"
     again = client.get(url, headers={"Accept-Encoding": "gzip", "If-None-Match": f"W/{strong}"})
     assert again.status_code == 304
+
+
+def test_the_docs_know_how_to_authenticate(client: TestClient) -> None:
+    """``/docs`` has an Authorize button (Bearer and HTTP Basic declared), and every operation
+    that may answer 401 says it takes them; public ones say nothing."""
+    schema = client.get("/openapi.json").json()
+    schemes = schema["components"]["securitySchemes"]
+    assert schemes["bearer"] == {**schemes["bearer"], "type": "http", "scheme": "bearer"}
+    assert schemes["basic"] == {**schemes["basic"], "type": "http", "scheme": "basic"}
+    operations = {
+        (m.upper(), p): o
+        for p, item in schema["paths"].items()
+        for m, o in item.items()
+        if isinstance(o, dict)
+    }
+    for key, op in operations.items():
+        assert ("security" in op) == ("401" in op["responses"]), key
+    both = [{"bearer": []}, {"basic": []}]
+    assert operations["POST", "/cameras/{camera_id}/frames"]["security"] == both
+    assert operations["POST", "/admin/retention/sweep"]["security"] == both
+    assert "security" not in operations["GET", "/air/latest"]
+    assert "security" not in operations["GET", "/health"]
