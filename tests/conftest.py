@@ -25,22 +25,10 @@ from tests.factories import (
     Clock,
     empty_tables,
     migrate,
+    recreate_database,
 )
 
 register_kinds()  # what app.main hands the ingest path, for tests that call it directly
-
-
-def worker_database(url: str, worker: str) -> str:
-    """A database named after ``url``'s and the xdist worker (``test_gw0``), made anew on the
-    same server."""
-    server = make_url(url)
-    name = f"{server.database}_{worker}"
-    admin = create_engine(server, isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
-        conn.execute(text(f"CREATE DATABASE {name}"))
-    admin.dispose()
-    return server.set(database=name).render_as_string(hide_password=False)
 
 
 @pytest.fixture(scope="session")
@@ -48,7 +36,7 @@ def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     url = os.environ.get("VANTAGE_TEST_DATABASE_URL")
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if url and worker:  # each of pytest-xdist's workers empties tables of a database its own
-        url = worker_database(url, worker)
+        url = recreate_database(url, f"{make_url(url).database}_{worker}")
     if url:
         engine = create_engine(url)
         with engine.begin() as conn:

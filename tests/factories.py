@@ -55,6 +55,25 @@ def migrate(url: str, revision: str = "head") -> None:
     command.upgrade(alembic_config(url), revision)
 
 
+def recreate_database(url: str, name: str) -> str:
+    """The URL of database ``name`` on ``url``'s PostgreSQL server, dropped if it was there and
+    made anew (empty)."""
+    server = make_url(url)
+    _drop_database(url, name, create=True)
+    return server.set(database=name).render_as_string(hide_password=False)
+
+
+def _drop_database(url: str, name: str, *, create: bool = False) -> None:
+    admin = create_engine(make_url(url), isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
+            if create:
+                conn.execute(text(f"CREATE DATABASE {name}"))
+    finally:
+        admin.dispose()
+
+
 @contextmanager
 def postgres_database(purpose: str) -> Iterator[str]:
     """A new database beside the PostgreSQL the tests use (``VANTAGE_TEST_DATABASE_URL``),
@@ -63,18 +82,11 @@ def postgres_database(purpose: str) -> Iterator[str]:
     test_url = os.environ.get("VANTAGE_TEST_DATABASE_URL")
     if not test_url or not test_url.startswith("postgresql"):
         pytest.skip("needs the PostgreSQL of VANTAGE_TEST_DATABASE_URL")
-    server = make_url(test_url)
     name = f"vantage_{purpose}_{os.getpid()}"
-    admin = create_engine(server, isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
-        conn.execute(text(f"CREATE DATABASE {name}"))
     try:
-        yield server.set(database=name).render_as_string(hide_password=False)
+        yield recreate_database(test_url, name)
     finally:
-        with admin.connect() as conn:
-            conn.execute(text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
-        admin.dispose()
+        _drop_database(test_url, name)
 
 
 def empty_tables(engine: Engine) -> None:

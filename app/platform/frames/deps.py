@@ -24,7 +24,13 @@ from app.platform.frames import rate_limit
 from app.platform.frames.camera_info import CameraInfo, TokenCache
 from app.platform.frames.cameras import FrameKey
 from app.platform.frames.kinds import KINDS
-from app.platform.http.deps import CameraId, Principal, credentials_of, get_sessionmaker
+from app.platform.http.deps import (
+    CameraId,
+    Principal,
+    credentials_of,
+    get_sessionmaker,
+    other_owner,
+)
 from app.platform.http.errors import (
     Forbidden,
     NotFound,
@@ -93,11 +99,7 @@ def _camera_by_token(request: Request, digest: str) -> CameraInfo | Principal | 
         camera = session.scalar(select(Camera).where(Camera.token_hash == digest))
         if camera is not None:
             return replace(_info(session, camera), token_hash=digest)
-        for role, owner_of in request.app.state.token_owners:
-            owner = owner_of(session, digest)
-            if owner is not None:
-                return Principal(role, owner)
-    return None
+        return other_owner(request, session, digest)
 
 
 def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:

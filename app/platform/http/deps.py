@@ -116,11 +116,20 @@ def _identify(request: Request, session: Session) -> Principal:
         if basic_user is not None and basic_user != camera_id:
             raise Unauthorized("the Basic user name is not the camera this token belongs to")
         return Principal("camera", camera_id)
+    principal = other_owner(request, session, digest)
+    if principal is None:
+        raise Unauthorized("unknown token")
+    return principal
+
+
+def other_owner(request: Request, session: Session, digest: str) -> Principal | None:
+    """The caller a token (its hash) belongs to among the roles the domains add
+    (``app.state.token_owners``: robots), or None."""
     for role, owner_of in request.app.state.token_owners:
         owner = owner_of(session, digest)
         if owner is not None:
             return Principal(role, owner)
-    raise Unauthorized("unknown token")
+    return None
 
 
 def get_principal(request: Request) -> Principal:
