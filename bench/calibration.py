@@ -2,7 +2,8 @@
 the service's corner finding (``app.cells.core.calibration.find_corners``) beside the classic
 detector with OpenCV's sample refinement (an 11-pixel half-window), same views, same fit. Then
 the same two on a family of boards rendered through a known camera (``tests.factories.
-rendered_views``, seeds 100-129, six random poses each; no threshold was chosen on them).
+rendered_views``, seeds 100-129, six random poses each; no threshold was chosen on them), and
+whether two cameras 120 mm apart number one board alike (150 poses, any roll, seed 7).
 
     python bench/calibration.py
 """
@@ -80,6 +81,40 @@ def family(name: str, find: Finder) -> None:
     )
 
 
+def numbering() -> None:
+    from tests.cells.scenes import checkerboard_photo
+
+    k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    rng = np.random.default_rng(7)
+    obj = C.board_points(9, 6, 25.0)
+    alike = apart = missed = 0
+    for trial in range(150):
+        tilt = rng.normal(0, 0.35, 2)
+        roll = cv2.Rodrigues(np.array([0.0, 0.0, rng.uniform(0, 2 * np.pi)]))[0]
+        r = cv2.Rodrigues(np.array([tilt[0], tilt[1], 0.0]))[0] @ roll
+        rvec = cv2.Rodrigues(r)[0].ravel()
+        left = -r @ np.array([100.0, 62.5, 0]) + np.array([*rng.normal(0, 20, 2), 650.0])
+        right = left + np.array([-120.0, 0, 0])
+        starts = []
+        for n, t in enumerate((left, right)):
+            found = C.find_corners(
+                checkerboard_photo(k, rvec, t, (640, 480), seed=2 * trial + n), 9, 6
+            )
+            if found is None:
+                break
+            first = cv2.projectPoints(obj[:1], rvec, t, k, None)[0].ravel()
+            starts.append(
+                np.linalg.norm(found[0, 0] - first) < np.linalg.norm(found[-1, 0] - first)
+            )
+        if len(starts) < 2:
+            missed += 1
+        elif starts[0] == starts[1]:
+            alike += 1
+        else:
+            apart += 1
+    print(f"\npairs numbered alike {alike}, differently {apart}, board not found in one {missed}")
+
+
 if __name__ == "__main__":
     if not DATA.exists():
         sys.exit(f"no data at {DATA}")
@@ -92,3 +127,4 @@ if __name__ == "__main__":
     print("|---|---|---|---|")
     family("classic, 11 px half-window", classic)
     family("service (SB, adaptive window)", service)
+    numbering()
