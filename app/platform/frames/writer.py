@@ -334,9 +334,7 @@ class GroupCommitWriter:
                     break
                 if not job.future.cancelled():  # a read only, as in ``work``
                     batch.append(job)
-        # uploads last: a read or write of another job after them would send their rows held
-        # back (``deferred_inserts``) in two statements a table instead of one
-        return sorted(batch, key=lambda job: job.frame)
+        return batch
 
     def _session(self) -> Session:
         if self._engine is None or not self._holding:
