@@ -31,6 +31,13 @@ class OutlineOut(Out):
     part: Literal["dark", "light"] = Field(
         description="Whether the part was taken as darker or lighter than its background."
     )
+    residual_px: float = Field(
+        description="RMS distance of the outline's edge pixels from the fitted shape [px]."
+    )
+    edge_support: float = Field(
+        description="Share of the fitted shape's length backed by an edge pixel within "
+        "1.5 px [0–1]. An image that supports no outline is answered 422 outline_not_found."
+    )
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]

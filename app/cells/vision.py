@@ -67,8 +67,8 @@ def find_outline(
     grey, offset = _grey(decode(data, max_pixels=max_pixels), roi)
     try:
         result = imaging.outline(grey, params)
-    except ValueError as exc:
-        raise Unprocessable(f"no outline found: {exc}", code="no_outline") from None
+    except ValueError as exc:  # OutlineNotFound among them: the reason, with its figures
+        raise Unprocessable(f"no outline found: {exc}", code="outline_not_found") from None
     return OutlineResult(result, offset, grey)
 
 

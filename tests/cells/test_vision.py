@@ -58,7 +58,9 @@ class TestOutline:
         out = post(client, "/vision/outline", data, admin).json()
         assert out["part"] == "light"
         assert corner_error(np.array(out["corners"]), PRISM_OUTLINE) <= 2.0
-        assert post(client, "/vision/outline", data, admin, part="dark").json()["corners"] == []
+        told_dark = post(client, "/vision/outline", data, admin, part="dark")
+        assert told_dark.status_code == 422
+        assert told_dark.json()["code"] == "outline_not_found"
         assert (
             post(client, "/vision/outline", encode(prism_scene()), admin).json()["part"] == "dark"
         )

@@ -19,6 +19,7 @@ from typing import Literal
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
 Grey = NDArray[np.uint8]
 Segment = tuple[float, float, float, float]
@@ -117,53 +118,89 @@ def part_is_light(image: Grey) -> bool:
     return float(np.median(edges)) < otsu_level(image)
 
 
-MIN_SOLIDITY = 0.96
-"""A region whose area is at least this fraction of its convex hull's counts as convex."""
+MAX_CONCAVITY = 2.5
+"""A region whose deepest dent from its convex hull is at most this deep counts as convex
+[px]: the staircase of a digitised straight side dents it by about a pixel."""
+
+PLATEAU_STEP = 1.03
+"""Between two scanned levels, the largest dark region growing by more than this factor is a
+step (a face, the shadow or the table joining); smaller growth is the blur's ramp."""
 
 
-def part_level(image: Grey) -> int:
-    """The grey level that separates the part from its shadow and the background.
+def _largest_region(mask: NDArray[np.uint8]) -> NDArray[np.int32] | None:
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    return np.asarray(max(contours, key=cv2.contourArea), dtype=np.int32)
 
-    Thresholding at ever darker levels, the largest dark region shrinks in steps: background
-    gone (part and shadow left), shadow gone (the part), then the lighter faces of the part
-    itself. Each step is a plateau of levels over which the region's area hardly changes. A
-    prismatic part or a cylinder has a convex silhouette, while a part missing a face usually
-    does not; the part is taken as the darkest convex plateau that keeps at least 60 % of the
-    largest convex one's area, and the middle of that plateau is returned (away from the noise
-    of both neighbours). Done on a 1/4-size copy; Otsu's level when nothing qualifies.
+
+def concavity(region: NDArray[np.int32]) -> float:
+    """The depth of the region's deepest dent from its convex hull [px]."""
+    hull = cv2.convexHull(region, returnPoints=False)
+    if hull is None or len(hull) < 3:
+        return 0.0
+    try:
+        defects = cv2.convexityDefects(region, np.sort(hull, axis=0))
+    except cv2.error:  # a contour that crosses itself: not a part's silhouette
+        return math.inf
+    return 0.0 if defects is None else float(defects.reshape(-1, 4)[:, 3].max()) / 256.0
+
+
+def part_level(image: Grey, sigma: float = 1.5) -> int | None:
+    """The grey level that separates a dark part from its shadow and the background [level],
+    or None when no region qualifies.
+
+    Thresholding the smoothed image (σ [px], as for the contour) at ever lighter levels, the
+    largest dark region grows in steps: the part's darkest faces, the whole part, the part with
+    its shadow, the table. A box's or a cylinder's silhouette is convex; a part with its cast
+    shadow is dented where the shadow leaves the part, and the table reaches the image's
+    border. The part is taken from the lightest run of levels whose region is convex
+    (``MAX_CONCAVITY``), stays off the border and covers less than half the image: the middle
+    of that run's last plateau (after its last step), away from the blur of both
+    neighbouring steps. When the shadow lies along the part, the two are one convex region and
+    cannot be told apart by levels; the shadow step then keeps the shadow's edge out. The
+    dissertation tunes the level by hand (chapter 3 §IV).
     """
-    small = image[::4, ::4]
-    top = otsu_level(small)
-    samples: list[tuple[int, float, float]] = []
-    for level in range(top, int(small.min()), -1):
-        mask = (small <= level).astype(np.uint8)
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        if not contours:
+    _check_grey(image)
+    smooth = np.asarray(cv2.GaussianBlur(image, (0, 0), sigma), dtype=np.uint8)
+    height, width = smooth.shape
+    samples: list[tuple[int, float, bool]] = []
+    for level in range(int(smooth.min()), 255, 2):
+        region = _largest_region((smooth <= level).astype(np.uint8))
+        if region is None:
+            continue
+        area = float(cv2.contourArea(region))
+        if area > 0.5 * smooth.size:
             break
-        region = max(contours, key=cv2.contourArea)
-        area = cv2.contourArea(region)
-        if area < 0.002 * mask.size:
-            break
-        solidity = area / max(cv2.contourArea(cv2.convexHull(region)), 1e-9)
-        samples.append((level, area, solidity))
-    plateaus: list[list[tuple[int, float, float]]] = []
+        x, y, w, h = cv2.boundingRect(region)
+        ok = (
+            area >= 0.001 * smooth.size
+            and x > 1
+            and y > 1
+            and x + w < width - 1
+            and y + h < height - 1
+            and concavity(region) <= MAX_CONCAVITY
+        )
+        samples.append((level, area, ok))
+    runs: list[list[tuple[int, float, bool]]] = []
     for sample in samples:
-        if plateaus and sample[1] >= 0.97 * plateaus[-1][0][1]:
-            plateaus[-1].append(sample)
-        else:
-            plateaus.append([sample])
-    convex = [
-        p for p in plateaus if len(p) >= 8 and float(np.median([s[2] for s in p])) >= MIN_SOLIDITY
-    ]
-    if not convex:
-        return top
-    largest = max(p[0][1] for p in convex)
-    darkest = [p for p in convex if p[0][1] >= 0.6 * largest][-1]
-    return darkest[len(darkest) // 2][0]
+        if sample[2] and runs and runs[-1][-1][0] == sample[0] - 2 and runs[-1][-1][2]:
+            runs[-1].append(sample)
+        elif sample[2]:
+            runs.append([sample])
+    runs = [r for r in runs if len(r) >= 3]
+    if not runs:
+        return None
+    run = runs[-1]
+    last_step = max(
+        (i for i in range(1, len(run)) if run[i][1] > PLATEAU_STEP * run[i - 1][1]), default=0
+    )
+    plateau = run[last_step:] if len(run) - last_step >= 2 else run
+    return plateau[len(plateau) // 2][0]
 
 
 def suppress_shadow(
-    image: Grey, *, alpha: float = 1.0, theta: float | None = None
+    image: Grey, *, alpha: float = 1.0, theta: float | None = None, part: int | None = None
 ) -> tuple[Grey, float, int]:
     """Equalise → shift (3.1) → equalise (chapter 3 §IV).
 
@@ -173,13 +210,15 @@ def suppress_shadow(
     The shift pushes the bright background and the lighter cast shadow to 255 together, so the
     shadow's border is no longer an edge; the darker part stays. The dissertation tunes θ by
     hand; when ``theta`` is None everything lighter than the part saturates: θ = 255 − α · t,
-    with t the part's level (``part_level``) carried through the first equalisation. This
+    with t the part's level (``part``, else ``part_level``) carried through the first
+    equalisation. This
     assumes the dissertation's setting: a part darker than its shadow, on a light background.
     """
     _check_grey(image)
     eq = equalize(image)
     if theta is None:
-        t = part_level(image)
+        found = part_level(image) if part is None else part
+        t = otsu_level(image) if found is None else found
         below = eq[image <= t]
         theta = 255.0 - alpha * float(below.max() if below.size else t) - 1.0
     lut = cdf_of(image) * 255.0
@@ -234,6 +273,37 @@ def auto_high(magnitude: NDArray[np.float32]) -> float:
     top = float(nonzero.max())
     scaled = np.clip(nonzero / top * 255.0, 0, 255).astype(np.uint8).reshape(-1, 1)
     return otsu_level(scaled) / 255.0 * top
+
+
+def subpixel_edges(image: Grey, edges: NDArray[np.uint8], sigma: float) -> NDArray[np.float64]:
+    """The edge pixels moved to the gradient's peak across the edge, shape (n, 2) [px].
+
+    Canny marks whole pixels, which puts a nearly horizontal or vertical side up to half a
+    pixel off, the same way along its whole length, so no line fit averages it out. Across
+    the edge (along the gradient of the image smoothed with σ [px]) the magnitude is sampled
+    one pixel either side, and a parabola through the three samples puts the peak (within a
+    pixel of the marked one)."""
+    found = cv2.findNonZero(edges)
+    if found is None:
+        return np.empty((0, 2))
+    pts = found.reshape(-1, 2).astype(np.float32)
+    blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma)
+    gx = cv2.Sobel(blurred, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(blurred, cv2.CV_32F, 0, 1, ksize=3)
+    magnitude = cv2.magnitude(gx, gy)
+    xi, yi = pts[:, 0].astype(int), pts[:, 1].astype(int)
+    g = np.column_stack([gx[yi, xi], gy[yi, xi]])
+    n = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+
+    def sample(offset: float) -> NDArray[np.float32]:
+        at = (pts + offset * n).astype(np.float32)
+        out = cv2.remap(magnitude, at[:, :1], at[:, 1:], cv2.INTER_LINEAR)
+        return np.asarray(out, dtype=np.float32).ravel()
+
+    before, here, after = sample(-1.0), magnitude[yi, xi], sample(1.0)
+    curvature = before - 2.0 * here + after
+    step = np.where(curvature < 0, 0.5 * (before - after) / np.minimum(curvature, -1e-9), 0.0)
+    return np.asarray(pts + np.clip(step, -1.0, 1.0)[:, None] * n, dtype=np.float64)
 
 
 def hough_segments(
@@ -385,18 +455,30 @@ def corners_from_segments(segments: list[Segment]) -> NDArray[np.float64]:
     """
     if len(segments) < 3:
         raise ValueError(f"a polygon needs at least 3 sides; got {len(segments)} segments")
-    chain = order_segments(segments)
+    pts = _chain_corners(order_segments(segments))
+    start = np.argmin(np.hypot(pts[:, 0] - segments[0][0], pts[:, 1] - segments[0][1]))
+    return np.roll(pts, -start, axis=0)
+
+
+def _chain_corners_in_order(chain: list[Segment]) -> NDArray[np.float64]:
+    """Corner k of a closed chain is where side k meets side k + 1 (infinite lines)."""
     corners = []
     for a, b in zip(chain, chain[1:] + chain[:1], strict=True):
         p = intersect(a, b)
         if p is None:
             raise ValueError("two adjacent sides are parallel: not a closed polygon")
         corners.append(p)
-    pts = np.array(corners)
-    if signed_area(pts) > 0:  # clockwise as seen: reverse
-        pts = pts[::-1]
-    start = np.argmin(np.hypot(pts[:, 0] - segments[0][0], pts[:, 1] - segments[0][1]))
-    return np.roll(pts, -start, axis=0)
+    return np.array(corners)
+
+
+def _counter_clockwise(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    return corners[::-1] if signed_area(corners) > 0 else corners
+
+
+def _chain_corners(chain: list[Segment]) -> NDArray[np.float64]:
+    """Corners of a closed chain of sides, each adjacent pair intersected as infinite lines,
+    counter-clockwise as seen; shape (n, 2) [px]."""
+    return _counter_clockwise(_chain_corners_in_order(chain))
 
 
 @dataclass(frozen=True, slots=True)
@@ -416,6 +498,10 @@ class Outline:
     lines: list[Segment]
     contour: NDArray[np.float64]
     """The outer contour, simplified, shape (m, 2) [px]."""
+    residual: float
+    """RMS distance of the outline's edge pixels from the fitted shape [px]."""
+    support: float
+    """Share of the fitted shape's length with an edge pixel within ``SUPPORT_DISTANCE`` [0–1]."""
     ellipses: list[Ellipse] = field(default_factory=list)
     edges: NDArray[np.uint8] | None = None
     conditioned: NDArray[np.uint8] | None = None
@@ -426,6 +512,11 @@ class Outline:
     image inverted for a light part)."""
 
 
+class OutlineNotFound(ValueError):
+    """The image supports no outline: no part stands out, or neither a polygon nor a curved
+    shape fits its edges. The message says which, with the figures."""
+
+
 @dataclass(frozen=True, slots=True)
 class OutlineParams:
     stretch: bool = True
@@ -434,20 +525,33 @@ class OutlineParams:
     alpha: float = 1.0
     theta: float | None = None
     canny: CannyParams = CannyParams()
-    hough_threshold: int = 20
+    hough_threshold: int = 15
     min_length: float | None = None
-    """Shortest side kept after joining [px]; default 4 % of the outer contour's length. Hough
-    itself keeps fragments down to a quarter of that, for the joining step to mend."""
+    """Shortest side kept after joining and refitting [px]; default 2.5 % of the outer
+    contour's length, at least 10 px. Hough itself keeps fragments down to a third of that,
+    for the joining step to mend."""
     max_gap: float = 5.0
     max_angle: float = 5.0
     max_lateral: float = 2.0
     polygon_tolerance: float = 3.0
-    """A contour point further than this from every side is not explained by the polygon [px]."""
+    """An edge pixel further than this from every side is not explained by the shape [px]."""
     polygon_fraction: float = 0.9
-    """Fraction of contour points the sides must explain for the outline to be a polygon."""
+    """Share of the outline's edge pixels the shape must explain."""
+    min_support: float = 0.75
+    """Share of the shape's length its edges must back."""
+    max_residual: float = 1.0
+    """Largest RMS distance of the edge pixels from the shape [px]."""
     part: Literal["auto", "dark", "light"] = "auto"
     """A part darker than its background (the dissertation's), lighter, or told by
     ``part_is_light``."""
+
+
+FIT_CANNY = CannyParams(sigma=0.8, high=0.2)
+"""Canny for the edges the sides are fitted to: a part whose face is close to its table's
+level leaves a side far weaker than the strongest edge, which sets MATLAB's scale."""
+
+SUPPORT_DISTANCE = 1.5
+"""A point of a fitted shape is backed by an edge pixel within this distance [px]."""
 
 
 def _points(mask: NDArray[np.uint8]) -> NDArray[np.float64]:
@@ -456,45 +560,266 @@ def _points(mask: NDArray[np.uint8]) -> NDArray[np.float64]:
     return np.empty((0, 2)) if found is None else found.reshape(-1, 2).astype(np.float64)
 
 
-def _outer_contour(base: Grey, level: int | None, sigma: float) -> NDArray[np.int32]:
-    """The outer contour of the largest region at or below ``level`` (Otsu's when None) in the
-    smoothed image: the part, without its shadow when ``level`` comes from the shadow step.
-    Found on the smoothed stretched image rather than the conditioned one, whose second
-    equalisation spreads a noisy face of the part over the whole range."""
+def _outer_contour(base: Grey, level: int, sigma: float) -> NDArray[np.int32]:
+    """The outer contour of the largest region at or below ``level`` in the smoothed image:
+    the part, without its shadow. Found on the smoothed stretched image rather than the
+    conditioned one, whose second equalisation spreads a noisy face of the part over the
+    whole range."""
     smooth = cv2.GaussianBlur(base, (0, 0), sigma)
-    level = otsu_level(np.asarray(smooth, dtype=np.uint8)) if level is None else level
     mask = (smooth <= level).astype(np.uint8)
     mask = np.asarray(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)), np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
-        raise ValueError("no object found: no region stands out from the background")
+        raise OutlineNotFound("no region stands out from the background")
     return np.asarray(max(contours, key=cv2.contourArea), dtype=np.int32)
 
 
-def _explained(
-    contour: NDArray[np.float64], segments: list[Segment], tol: float
-) -> NDArray[np.bool_]:
-    """Which contour points lie within ``tol`` of some segment (as a finite segment)."""
+def _distances(points: NDArray[np.float64], segments: list[Segment]) -> NDArray[np.float64]:
+    """Distance of each point from the nearest of the finite segments [px], shape (n,)."""
     if not segments:
-        return np.zeros(len(contour), dtype=bool)
+        return np.full(len(points), np.inf)
     s = np.asarray(segments, dtype=np.float64)
     a, b = s[:, :2], s[:, 2:]
     ab = b - a
-    t = ((contour[:, None, :] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12)
-    nearest = a + np.clip(t, 0, 1)[..., None] * ab
-    d = np.linalg.norm(contour[:, None, :] - nearest, axis=-1)
-    return np.asarray(d.min(axis=1) <= tol, dtype=np.bool_)
+    out = np.empty(len(points))
+    for i in range(0, len(points), 4096):  # bounded memory on long contours
+        chunk = points[i : i + 4096]
+        t = ((chunk[:, None, :] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12)
+        nearest = a + np.clip(t, 0, 1)[..., None] * ab
+        out[i : i + 4096] = np.linalg.norm(chunk[:, None, :] - nearest, axis=-1).min(axis=1)
+    return out
+
+
+def _explained(
+    points: NDArray[np.float64], segments: list[Segment], tol: float
+) -> NDArray[np.bool_]:
+    """Which points lie within ``tol`` of some segment (as a finite segment)."""
+    return np.asarray(_distances(points, segments) <= tol, dtype=np.bool_)
+
+
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    explained: float
+    residual: float
+    support: float
+
+
+def _fit(
+    points: NDArray[np.float64], model: list[Segment], near_edge: NDArray[np.float32], tol: float
+) -> _Fit:
+    """How well a shape (as segments) fits the outline's edge pixels: the share within
+    ``tol``, the RMS distance of those [px] (the pixels beyond ``tol`` are counted by the
+    share, not allowed to swamp the RMS), and the share of the shape's length within
+    ``SUPPORT_DISTANCE`` of an edge pixel (``near_edge``: distance to the nearest one)."""
+    d = _distances(points, model)
+    inside = d <= tol
+    explained = float(inside.mean()) if len(d) else 0.0
+    residual = float(np.sqrt(np.mean(d[inside] ** 2))) if inside.any() else math.inf
+    height, width = near_edge.shape
+    backed = total = 0
+    for x1, y1, x2, y2 in model:
+        n = max(2, math.ceil(math.hypot(x2 - x1, y2 - y1)))
+        xs, ys = np.linspace(x1, x2, n), np.linspace(y1, y2, n)
+        xi, yi = np.rint(xs).astype(int), np.rint(ys).astype(int)
+        ok = (xi >= 0) & (yi >= 0) & (xi < width) & (yi < height)
+        backed += int((near_edge[yi[ok], xi[ok]] <= SUPPORT_DISTANCE).sum())
+        total += n
+    return _Fit(explained, residual, backed / total if total else 0.0)
+
+
+def _chain_along(
+    sides: list[Segment], contour: NDArray[np.float64], tol: float, min_points: float
+) -> list[Segment]:
+    """The sides in the order they run along the part's contour. Each contour point belongs to
+    the nearest side within ``tol`` [px]; a side that owns fewer than ``min_points`` points is
+    dropped (and ownership recounted), the rest are ordered by where their points lie.
+
+    Departs from the dissertation's nearest-endpoint chaining (§V.A, ``order_segments``),
+    which goes astray when a side is missing or a fragment cuts a blurred corner: the contour
+    knows the order, and a chord across a corner owns only the few points of the rounding.
+    Owning by the nearest side, rather than by any side within ``tol``, keeps a short side
+    between two gently turning long ones: their extensions come within ``tol`` of much of it.
+    """
+    n = len(contour)
+    kept = list(sides)
+    while kept:
+        d = np.column_stack([_distances(contour, [side]) for side in kept])
+        owner = np.where(d.min(axis=1) <= tol, d.argmin(axis=1), -1)
+        counts = np.bincount(owner[owner >= 0], minlength=len(kept))
+        weakest = int(np.argmin(counts))
+        if counts[weakest] >= min_points:
+            break
+        kept.pop(weakest)
+    if not kept:
+        return []
+    positions = []
+    for k in range(len(kept)):
+        angle = np.nonzero(owner == k)[0] / n * 2 * math.pi
+        position = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean()))
+        positions.append(position % (2 * math.pi))
+    return [kept[k] for k in np.argsort(positions)]
+
+
+def _line_rms(points: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+    """RMS distance of points from their total-least-squares line [px], and its direction."""
+    centred = points - points.mean(axis=0)
+    _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    return float(sv[-1] / math.sqrt(len(points))), vt[0]
+
+
+def _split_kinks(
+    chain: list[Segment],
+    contour: NDArray[np.float64],
+    points: NDArray[np.float64],
+    tol: float,
+    min_length: float,
+) -> list[Segment]:
+    """Each side whose own stretch of contour two lines fit much better than one, split there
+    into two, each refitted to the edge ``points`` (the split of split-and-merge). Hough
+    fragments of two sides meeting at a gentle corner (10–20°) join across it into one
+    compromise line; the contour shows the corner. The stretch's ends (``POLISH_TRIM``) are
+    left out: there the blur rounds it into the neighbouring sides."""
+    out: list[Segment] = []
+    if len(chain) < 2:
+        return chain
+    d = np.column_stack([_distances(contour, [side]) for side in chain])
+    owner = np.where(d.min(axis=1) <= SPLIT_REACH, d.argmin(axis=1), -1)
+    for i, side in enumerate(chain):
+        own = np.nonzero(owner == i)[0]
+        if len(own) < 2 * min_length:
+            out.append(side)
+            continue
+        gaps = np.diff(np.append(own, own[0] + len(contour)))
+        run = contour[np.roll(own, -(int(np.argmax(gaps)) + 1))]  # in contour order
+        trim = max(2, round(POLISH_TRIM * len(run)))
+        run = run[trim:-trim]
+        one, _ = _line_rms(run)
+        if one <= SPLIT_RMS:
+            out.append(side)
+            continue
+        best, at = math.inf, 0
+        m = round(0.4 * min_length)
+        for k in range(m, len(run) - m, 2):
+            (r1, d1), (r2, d2) = _line_rms(run[: k + 1]), _line_rms(run[k:])
+            two = math.sqrt((r1**2 * (k + 1) + r2**2 * (len(run) - k)) / (len(run) + 1))
+            turn = math.degrees(math.acos(min(1.0, abs(float(d1 @ d2)))))
+            if two < best and turn >= MERGE_TURN:
+                best, at = two, k
+        if best > 0.5 * one:
+            out.append(side)
+            continue
+        for lo, hi in ((run[0], run[at]), (run[at], run[-1])):
+            out.append(refine((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), points))
+    return out
+
+
+SPLIT_REACH = 8.0
+"""Contour points up to this far from their nearest side are its own when splitting [px]."""
+
+SPLIT_RMS = 0.4
+"""A side's contour further than this (RMS) from one line may have a corner in it [px]."""
+
+
+def _turns(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How much the outline turns at each corner [°]."""
+    d = np.diff(np.vstack([corners, corners[:1]]), axis=0)
+    heading = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    return np.asarray(np.abs((heading - np.roll(heading, 1) + 180.0) % 360.0 - 180.0))
+
+
+def _polygon(
+    chain: list[Segment], points: NDArray[np.float64], min_side: float
+) -> NDArray[np.float64] | None:
+    """Corners of the chained sides. Adjacent sides turning by less than ``MERGE_TURN`` are one
+    side broken by noise: they become one, refitted to the edge ``points``. A side whose edge
+    between its two corners comes out shorter than ``min_side`` [px] is a chord across a
+    blurred corner: dropped, its neighbours meet. None when fewer than 3 sides remain."""
+    chain = list(chain)
+    while len(chain) >= 3:
+        headings = np.array([_angle(s) for s in chain])
+        diff = np.abs(headings - np.roll(headings, 1))
+        diff = np.minimum(diff, 180.0 - diff)
+        k = int(np.argmin(diff))
+        if diff[k] < MERGE_TURN:
+            chain[k - 1] = refine(_farthest(chain[k - 1], chain[k]), points)
+            chain.pop(k)
+            continue
+        try:
+            corners = _chain_corners_in_order(chain)
+        except ValueError:
+            return None
+        edges = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
+        k = int(np.argmin(edges))  # side k runs from corner k - 1 to corner k
+        if edges[k] >= min_side:
+            return _counter_clockwise(corners)
+        chain.pop(k)
+    return None
+
+
+def _polish(
+    corners: NDArray[np.float64], points: NDArray[np.float64], *, rounds: int = 2
+) -> NDArray[np.float64]:
+    """The corners again, each side refitted (total least squares) to the edge ``points``
+    within ``POLISH_BAND`` of it and between its corners, leaving out ``POLISH_TRIM`` of each
+    end: near a corner the blur rounds the outline and the other side's pixels come close.
+    At a gentle corner an error across a side moves the corner along it by 1/sin(turn) as
+    much, so the sides are fitted to what is straight of them only. Counter-clockwise in,
+    counter-clockwise out; a side with fewer than 5 pixels keeps its line."""
+    n = len(corners)
+    for _ in range(rounds):
+        lines: list[Segment] = []
+        for k in range(n):
+            a, b = corners[k - 1], corners[k]  # side k runs from corner k - 1 to corner k
+            length = float(np.linalg.norm(b - a))
+            u = (b - a) / max(length, 1e-9)
+            rel = points - a
+            along = rel @ u
+            across = np.abs(rel @ np.array([-u[1], u[0]]))
+            trim = min(POLISH_TRIM * length, 4.0)
+            near = points[(across <= POLISH_BAND) & (along >= trim) & (along <= length - trim)]
+            side = (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
+            lines.append(refine(side, near, band=POLISH_BAND) if len(near) >= 5 else side)
+        try:
+            polished = _chain_corners_in_order(lines[1:] + lines[:1])
+        except ValueError:
+            return corners
+        corners = polished
+    return corners
+
+
+RIM_WIDTH = 3
+"""Width of the band along the part's contour whose edge pixels the polish fits [px]."""
+
+POLISH_BAND = 1.5
+"""Edge pixels within this distance of a side are its own when polishing [px]."""
+
+POLISH_TRIM = 0.1
+"""Share of a side left out at each end when polishing (at most 5 px)."""
+
+MERGE_TURN = 6.0
+"""Adjacent sides closer in direction than this are one side [°]."""
+
+MIN_TURN = 7.0
+"""A polygon turns by at least this much at each corner [°]; gentler turns are chords of a
+curve. Well-posed outlines turn by 10° or more; the margin is for the corners' own error."""
+
+CURVED_MIN_SIDE = 0.12
+"""In a curved outline, straight sides are at least this fraction of the contour's length."""
 
 
 def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
-    """The outline of the part in a greyscale image: corners and sides, or contour and ellipses.
+    """The outline of the part in a greyscale image: corners and sides, or contour and ellipses,
+    with how well the shape fits its edges; ``OutlineNotFound`` when none fits.
 
-    Steps: a light part's image inverted (``params.part``) → stretch (4.1) → optional shadow
-    suppression (3.1 with 4.3) → Canny → the outer contour of the part → Hough segments on the
-    edges along that contour (inner edges between a part's faces are not its outline) →
-    fragments joined (3.2–3.3) → short sides dropped → corners (§V.A). When the straight sides
-    do not explain the contour (a cylinder's elliptic arcs), the outline is ``curved``: the
-    contour, the straight sides, and ellipses fitted to the arcs.
+    Steps: a light part's image inverted (``params.part``) → stretch (4.1) → the part's level
+    (``part_level``) → shadow suppression (3.1 with 4.3) → Canny → the outer contour of the
+    part → Hough segments on the edges along that contour (inner edges between a part's faces
+    are not its outline) → fragments joined (3.2–3.3) → each side refitted to its edge pixels
+    and joined again → sides chained along the contour (``_chain_along``) → corners as the
+    intersections of adjacent sides (§V.A). The polygon stands when its sides explain the
+    outline's edge pixels, its length is backed by edges and every corner turns; otherwise,
+    when straight sides and fitted ellipse arcs explain the contour, the outline is
+    ``curved``; otherwise nothing is claimed.
     """
     _check_grey(grey)
     if min(grey.shape) < 8:
@@ -503,40 +828,72 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     if light:  # the steps below find a dark part on a light ground: turn it round
         grey = np.asarray(cv2.bitwise_not(grey), dtype=np.uint8)
     base = stretch(grey) if params.stretch else grey
-    work = base
-    theta, level = None, None
+    sigma = params.canny.sigma
+    level = part_level(base, sigma)
+    if level is None:
+        raise OutlineNotFound(
+            "no part stands out: no convex region off the image's border is darker than its "
+            "surroundings" + (" (the part was taken as lighter)" if light else "")
+        )
+    work, theta = base, None
     if params.shadow:
-        work, theta, level = suppress_shadow(work, alpha=params.alpha, theta=params.theta)
+        work, theta, _ = suppress_shadow(base, alpha=params.alpha, theta=params.theta, part=level)
     edges, low, high = canny(work, params.canny)
-    contour_px = _outer_contour(base, level, params.canny.sigma)
+    contour_px = _outer_contour(base, level, sigma)
     contour = contour_px.reshape(-1, 2).astype(np.float64)
     perimeter = cv2.arcLength(contour_px, True)
     band = np.zeros_like(edges)
     cv2.drawContours(band, [contour_px], -1, 255, thickness=7)
-    outer_edges = np.asarray(cv2.bitwise_and(edges, band), dtype=np.uint8)
-    min_length = params.min_length or max(8.0, 0.04 * perimeter)
+    # the edges of the part itself (the stretched image, before the shadow step remaps the
+    # levels around the boundary), with a lower threshold, only around the part
+    x, y, w, h = cv2.boundingRect(contour_px)
+    m = 12
+    x0, y0 = max(0, x - m), max(0, y - m)
+    box = np.ascontiguousarray(base[y0 : y + h + m, x0 : x + w + m])
+    part_edges = np.zeros_like(edges)
+    part_edges[y0 : y0 + box.shape[0], x0 : x0 + box.shape[1]] = canny(box, FIT_CANNY)[0]
+    fit_edges = np.asarray(cv2.bitwise_and(part_edges, band), dtype=np.uint8)
+    # Hough on the conditioned image's edges along the contour (the dissertation's), joined
+    # by those of the part itself: a face close to the table's level leaves a side the
+    # conditioned image's Canny, scaled to its strongest edge, does not see
+    outer_edges = np.asarray(
+        cv2.bitwise_and(cv2.bitwise_or(edges, part_edges), band), dtype=np.uint8
+    )
+    min_length = params.min_length or max(15.0, 0.02 * perimeter)
     raw = hough_segments(
         outer_edges,
         threshold=params.hough_threshold,
-        min_length=max(4.0, min_length / 4),
+        min_length=max(4.0, min_length / 3),
         max_gap=params.max_gap,
     )
-    sides = join_fragments(raw, max_angle=params.max_angle, max_lateral=params.max_lateral)
-    sides = [s for s in sides if _length(s) >= min_length]
-    # fit each side to the edges of the part itself (the stretched image, before the shadow
-    # step remaps the levels around the boundary)
-    if params.shadow:  # only around the part: a quarter of the work of the whole frame
-        x, y, w, h = cv2.boundingRect(contour_px)
-        m = 12
-        x0, y0 = max(0, x - m), max(0, y - m)
-        box = np.ascontiguousarray(base[y0 : y + h + m, x0 : x + w + m])
-        edge_points = _points(canny(box, params.canny)[0]) + np.array([x0, y0], dtype=np.float64)
-    else:
-        edge_points = _points(edges)
-    sides = [refine(s, edge_points) for s in sides]
+    joined = join_fragments(raw, max_angle=params.max_angle, max_lateral=params.max_lateral)
+    # each side refitted to the part's edge pixels, then joined again: refitted fragments of
+    # one side now line up; only then are the short ones dropped (a short side is often
+    # several fragments)
+    edge_points = subpixel_edges(
+        box, part_edges[y0 : y0 + box.shape[0], x0 : x0 + box.shape[1]], FIT_CANNY.sigma
+    ) + np.array([x0, y0], dtype=np.float64)
+    # the polish takes only the edge pixels on the contour: an inner edge a few pixels in (a
+    # thin face at the rim) would pull a side off the outline
+    rim = np.zeros_like(edges)
+    cv2.drawContours(rim, [contour_px], -1, 255, thickness=RIM_WIDTH)
+    xi = np.clip(np.rint(edge_points[:, 0]).astype(int), 0, rim.shape[1] - 1)
+    yi = np.clip(np.rint(edge_points[:, 1]).astype(int), 0, rim.shape[0] - 1)
+    rim_points = edge_points[rim[yi, xi] > 0]
+    refitted = [refine(s, edge_points) for s in joined]
+    sides = join_fragments(refitted, max_angle=params.max_angle, max_lateral=params.max_lateral)
+    sides = [refine(s, edge_points) for s in sides if _length(s) >= min_length]
     simplified = cv2.approxPolyDP(contour_px, 1.0, True).reshape(-1, 2).astype(np.float64)
+    # the fit is judged on the same edges the sides were fitted to, along the contour
+    outline_points = rim_points
+    near_edge = np.asarray(
+        cv2.distanceTransform(
+            np.asarray(cv2.bitwise_not(fit_edges), np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+        ),
+        dtype=np.float32,
+    )
+    tol = params.polygon_tolerance
     common = dict(
-        lines=sides,
         contour=simplified,
         edges=edges,
         conditioned=work,
@@ -544,74 +901,151 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
         shadow_theta=theta,
         part="light" if light else "dark",
     )
-    if len(sides) >= 3:
-        try:
-            corners: NDArray[np.float64] | None = corners_from_segments(sides)
-        except ValueError:
-            corners = None
-        outline_points = _points(outer_edges)
-        if corners is not None and _is_polygon(corners, outline_points, params):
-            return Outline(shape="polygon", corners=corners, **common)  # type: ignore[arg-type]
+    chain = _chain_along(sides, contour, tol, max(6.0, 0.4 * min_length))
+    chain = _split_kinks(chain, contour, rim_points, tol, min_length)
+    corners = _polygon(chain, edge_points, 0.75 * min_length)
+    polygon: Outline | None = None
+    polygon_bic = curved_bic = math.inf
+    verdict = "fewer than 3 straight sides"
+    if corners is not None:
+        corners = _polish(corners, rim_points)
+        closed = np.vstack([corners, corners[:1]])
+        polygon_sides = [
+            (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
+            for a, b in zip(closed[:-1], closed[1:], strict=True)
+        ]
+        fit = _fit(outline_points, polygon_sides, near_edge, tol)
+        turn = float(_turns(corners).min())
+        if _fits(fit, params) and turn >= MIN_TURN:
+            polygon = Outline(
+                shape="polygon",
+                corners=corners,
+                lines=sides,
+                residual=fit.residual,
+                support=fit.support,
+                **common,  # type: ignore[arg-type]
+            )
+            polygon_bic = _bic(outline_points, polygon_sides, tol, 2 * len(corners))
+        verdict = (
+            f"a {len(corners)}-sided polygon explains {fit.explained:.0%} of the edge pixels "
+            f"(residual {fit.residual:.2f} px), {fit.support:.0%} of its length is backed by "
+            f"edges, its gentlest corner turns {turn:.1f}°"
+        )
     # curved: the long straight sides stay, short chords along the arcs are not sides
     straight = [s for s in sides if _length(s) >= CURVED_MIN_SIDE * perimeter]
-    common["lines"] = straight
-    arcs = ~_explained(contour, straight, params.polygon_tolerance)
-    return Outline(
-        shape="curved",
-        corners=np.empty((0, 2)),
-        ellipses=_fit_arcs(contour, arcs),
-        **common,  # type: ignore[arg-type]
+    arcs = ~_explained(contour, straight, tol)
+    ellipses = _fit_arcs(contour, arcs, rim_points)
+    model = straight + _arc_segments(ellipses, contour, tol)
+    fit = _fit(outline_points, model, near_edge, tol)
+    curved: Outline | None = None
+    if ellipses and _fits(fit, params):
+        curved = Outline(
+            shape="curved",
+            corners=np.empty((0, 2)),
+            lines=straight,
+            ellipses=ellipses,
+            residual=fit.residual,
+            support=fit.support,
+            **common,  # type: ignore[arg-type]
+        )
+        curved_bic = _bic(outline_points, model, tol, 5 * len(ellipses) + 4 * len(straight))
+    # both fit: the one the edges favour once its parameters are paid for (a disc is also
+    # a polygon of twenty chords; a box's corners are also arcs of small ellipses)
+    if polygon is not None and polygon_bic <= curved_bic:
+        return polygon
+    if curved is not None:
+        return curved
+    raise OutlineNotFound(
+        f"no outline fits the part's edges: {verdict}; straight sides with "
+        f"{len(ellipses)} ellipse arcs explain {fit.explained:.0%} of the edge pixels "
+        f"(residual {fit.residual:.2f} px), {fit.support:.0%} of their length is backed by "
+        "edges"
     )
 
 
-MIN_TURN = 12.0
-"""A polygon turns by at least this much at each corner [°]; smaller turns are chords of a
-curve."""
+def _fits(fit: _Fit, params: OutlineParams) -> bool:
+    return (
+        fit.explained >= params.polygon_fraction
+        and fit.support >= params.min_support
+        and fit.residual <= params.max_residual
+    )
 
 
-def _is_polygon(
-    corners: NDArray[np.float64], points: NDArray[np.float64], params: OutlineParams
-) -> bool:
-    """Do the completed sides explain the outline's edge points, with real corners between?"""
-    closed = np.vstack([corners, corners[:1]])
-    sides = [tuple(closed[i]) + tuple(closed[i + 1]) for i in range(len(corners))]
-    explained = _explained(points, sides, params.polygon_tolerance)
-    if explained.mean() < params.polygon_fraction:
-        return False
-    d = np.diff(closed, axis=0)
-    heading = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
-    turn = np.abs((np.diff(np.append(heading, heading[0])) + 180.0) % 360.0 - 180.0)
-    return bool(turn.min() >= MIN_TURN)
+def _bic(points: NDArray[np.float64], model: list[Segment], tol: float, k: int) -> float:
+    """Bayesian information criterion of a shape with ``k`` parameters over the edge pixels,
+    each pixel's distance capped at ``tol`` (beyond it, a pixel is not the shape's)."""
+    n = max(len(points), 1)
+    d = np.minimum(_distances(points, model), tol)
+    rss = max(float((d**2).sum()), 1e-9)
+    return n * math.log(rss / n) + k * math.log(n)
 
 
-CURVED_MIN_SIDE = 0.12
-"""In a curved outline, straight sides are at least this fraction of the contour's length."""
+def _arc_segments(
+    ellipses: list[Ellipse], contour: NDArray[np.float64], tol: float
+) -> list[Segment]:
+    """The parts of the ellipses that run along the contour, as short segments: an ellipse
+    fitted to an arc continues where the part has no outline."""
+    out: list[Segment] = []
+    ring = np.hstack([contour, np.roll(contour, -1, axis=0)])
+    contour_segments: list[Segment] = [(a, b, c, d) for a, b, c, d in ring.tolist()]
+    for e in ellipses:
+        # drawn at 16× and scaled back: ellipse2Poly rounds its points to integers
+        big = cv2.ellipse2Poly(
+            (round(e.center[0] * 16), round(e.center[1] * 16)),
+            (round(e.axes[0] * 8), round(e.axes[1] * 8)),
+            round(e.angle),
+            0,
+            360,
+            2,
+        )
+        poly = np.asarray(big, dtype=np.float64).reshape(-1, 2) / 16.0
+        if len(poly) < 2:
+            continue
+        closed = np.vstack([poly, poly[:1]])
+        on = _distances(closed, contour_segments) <= tol
+        for k in range(len(poly)):
+            if on[k] and on[k + 1]:
+                a, b = closed[k], closed[k + 1]
+                out.append((float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+    return out
 
 
-def _fit_arcs(contour: NDArray[np.float64], curved: NDArray[np.bool_]) -> list[Ellipse]:
-    """Ellipses fitted to each run of contour points the straight sides do not explain."""
+def _fit_arcs(
+    contour: NDArray[np.float64], curved: NDArray[np.bool_], points: NDArray[np.float64]
+) -> list[Ellipse]:
+    """Ellipses fitted to each run of contour points the straight sides do not explain (runs of
+    at least a tenth of the contour: a blurred corner is no arc): to the
+    edge ``points`` (sub-pixel) nearest that run, the run itself when it has too few. The
+    contour runs along the inside of the region's boundary, half a pixel in."""
     n = len(contour)
     if n == 0 or not curved.any():
         return []
     if curved.all():
-        runs = [contour]
+        runs = [np.arange(n)]
     else:
         start = int(np.argmin(curved))  # begin the scan at an explained point
         order = np.roll(np.arange(n), -start)
         runs, current = [], []
         for k in order:
             if curved[k]:
-                current.append(contour[k])
+                current.append(k)
             elif current:
                 runs.append(np.array(current))
                 current = []
         if current:
             runs.append(np.array(current))
+    nearest = (
+        cKDTree(contour).query(points, distance_upper_bound=3.0)[1]
+        if len(points)
+        else np.empty(0, dtype=int)
+    )
     ellipses = []
     for run in runs:
-        if len(run) < max(10, n // 20):
+        if len(run) < max(10, n // 10):
             continue
-        (cx, cy), (a, b), angle = cv2.fitEllipse(run.astype(np.float32))
+        own = points[np.isin(nearest, run)]
+        fitted = own if len(own) >= len(run) // 2 else contour[run]
+        (cx, cy), (a, b), angle = cv2.fitEllipse(fitted.astype(np.float32))
         ellipses.append(Ellipse((float(cx), float(cy)), (float(a), float(b)), float(angle)))
     return ellipses
 

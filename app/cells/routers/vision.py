@@ -111,7 +111,10 @@ async def outline(
     request: Request, settings: SettingsDep, q: OutlineQueryDep, _: PrincipalDep
 ) -> OutlineOut:
     """The outline of the part in one image (multipart ``file``): corners counter-clockwise and
-    sides, or for curved parts the contour and fitted ellipses."""
+    sides, or for curved parts the contour and fitted ellipses, with how well the shape fits
+    the part's edges. 422 ``outline_not_found`` (with the reason) when no polygon nor curved
+    shape is supported by the edges: a smooth gradient, a textured surface, a part whose
+    edges the image does not show."""
     result = await _find(request, settings, q)
     o, (dx, dy) = result.outline, result.offset
     shift = np.array([dx, dy], dtype=np.float64)
@@ -130,6 +133,8 @@ async def outline(
         canny_thresholds=list(o.canny_thresholds),
         shadow_theta=o.shadow_theta,
         part=o.part,
+        residual_px=o.residual,
+        edge_support=o.support,
     )
 
 
