@@ -1,13 +1,19 @@
-"""Outline pipeline: time per 640×480 image, and corner error against exact ground truth.
+"""Part outlines on a family of scenes: how often every corner lands within 2 px.
 
-Renders the test suite's prism scene (tests/cells/scenes.py: a matt box, its cast shadow,
-Gaussian noise and blur) at several dynamic ranges and shadow strengths, runs
-``app.cells.core.imaging.outline`` with and without the shadow step, and reports the largest corner
-error [px] (median over seeds), the same for a light part on a dark table, and the median time
-of the whole pipeline (luma already given: the part's side told → stretch → shadow step →
-Canny → Hough → joining → corners).
+Renders ``tests/cells/scenes.box_scene`` (a box under a random pose, light direction, part/table
+contrast in either sense, shadow 0–0.45, grey range 103–170 … 0–255, noise σ 0–2, blur σ
+0.5–1.5 px; every corner turning ≥ 10°, every side ≥ 25 px), runs
+``app.cells.core.imaging.outline`` and counts, per block of seeds:
 
-    python bench/outline.py [--seeds 5]
+- within 2 px: the polygon found has the true number of corners, each within 2 px;
+- no outline: ``OutlineNotFound`` (an honest "not sure");
+- wrong: a shape that is not the truth (another corner count, a corner further than 2 px).
+
+Blocks 0–199 and 1000–1199 are the ones the thresholds were chosen on; 5000–5199 was looked at
+once, after which one threshold (the largest residual) changed; 7000–7199 was first run for this
+table. Also the median time of one 640×480 outline.
+
+    python bench/outline.py [--blocks 0 1000 5000 7000] [--size 200]
 """
 
 from __future__ import annotations
@@ -16,73 +22,94 @@ import argparse
 import statistics
 import sys
 import time
+from collections import defaultdict
+from multiprocessing import Pool
 from pathlib import Path
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.cells.core.imaging import OutlineParams, outline  # noqa: E402
-from tests.cells.scenes import PRISM_OUTLINE, light_prism_scene, prism_scene  # noqa: E402
+from app.cells.core.imaging import OutlineNotFound, outline  # noqa: E402
+from tests.cells.scenes import box_scene, corner_error  # noqa: E402
 
 
-def corner_error(found: np.ndarray) -> float:
-    if found.shape != PRISM_OUTLINE.shape:
-        return float("inf")
-    return min(
-        float(np.linalg.norm(np.roll(found, -k, axis=0) - PRISM_OUTLINE, axis=1).max())
-        for k in range(len(found))
-    )
+def one(seed: int) -> dict[str, object]:
+    scene = box_scene(seed)
+    try:
+        found = outline(scene.image)
+        error = corner_error(found.corners, scene.corners)
+        verdict = "ok" if error <= 2.0 else "wrong"
+    except OutlineNotFound:
+        error, verdict = float("inf"), "none"
+    width = scene.hi - scene.lo
+    return {
+        "seed": seed,
+        "verdict": verdict,
+        "error": error,
+        "range": "narrow (< 120)"
+        if width < 120
+        else "middle (120–190)"
+        if width < 190
+        else "wide (≥ 190)",
+        "shadow": "none"
+        if scene.shadow == 0
+        else "light (< 0.2)"
+        if scene.shadow < 0.2
+        else "strong (0.2–0.45)",
+        "part": "light on dark" if scene.light_part else "dark on light",
+    }
+
+
+def table(rows: list[dict[str, object]], key: str) -> None:
+    groups: dict[object, list[dict[str, object]]] = defaultdict(list)
+    for row in rows:
+        groups[row[key]].append(row)
+    print(f"| {key} | scenes | within 2 px | no outline | wrong |")
+    print("|---|---|---|---|---|")
+    for name in sorted(groups, key=str):
+        g = groups[name]
+        n = len(g)
+        counts = {v: sum(1 for r in g if r["verdict"] == v) for v in ("ok", "none", "wrong")}
+        print(
+            f"| {name} | {n} | {counts['ok'] / n:.1%} | {counts['none'] / n:.1%} | "
+            f"{counts['wrong'] / n:.1%} |"
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--blocks", type=int, nargs="+", default=[0, 1000, 5000, 7000])
+    parser.add_argument("--size", type=int, default=200)
     args = parser.parse_args()
 
-    image = prism_scene()
+    rows: dict[int, list[dict[str, object]]] = {}
+    with Pool(2) as pool:
+        for start in args.blocks:
+            rows[start] = pool.map(one, range(start, start + args.size))
+
+    print("| seeds | within 2 px | no outline | wrong | median error of those within [px] |")
+    print("|---|---|---|---|---|")
+    for start, block in rows.items():
+        n = len(block)
+        ok = [float(r["error"]) for r in block if r["verdict"] == "ok"]  # type: ignore[arg-type]
+        none = sum(1 for r in block if r["verdict"] == "none")
+        print(
+            f"| {start}–{start + n - 1} | {len(ok) / n:.1%} | {none / n:.1%} | "
+            f"{(n - len(ok) - none) / n:.1%} | {statistics.median(ok):.2f} |"
+        )
+    held_out = [r for start, block in rows.items() if start >= 5000 for r in block]
+    if held_out:
+        print("\nthe held-out blocks (seeds ≥ 5000) by grey range, shadow and contrast sense")
+        for key in ("range", "shadow", "part"):
+            print()
+            table(held_out, key)
+
+    image = box_scene(0).image
     times = []
-    for _ in range(60):
+    for _ in range(30):
         t = time.perf_counter()
         outline(image)
         times.append(time.perf_counter() - t)
-    print(
-        f"time per 640×480 image: median {statistics.median(times) * 1000:.1f} ms, "
-        f"p90 {np.percentile(times, 90) * 1000:.1f} ms"
-    )
-
-    print("\nlargest corner error [px], median over seeds (inf: no 6-corner polygon found)")
-    print("| range | shadow | with shadow step | without |")
-    print("|---|---|---|---|")
-    for lo, hi in ((103, 170), (120, 150), (60, 200), (0, 255)):
-        for shadow in (0.0, 0.3, 0.45, 0.6):
-            errors = {True: [], False: []}
-            for seed in range(args.seeds):
-                scene = prism_scene(shadow=shadow, lo=lo, hi=hi, seed=seed)
-                for step in (True, False):
-                    o = outline(scene, OutlineParams(shadow=step))
-                    errors[step].append(corner_error(o.corners))
-            w, wo = statistics.median(errors[True]), statistics.median(errors[False])
-            print(f"| {lo}–{hi} | {shadow:.2f} | {w:.2f} | {wo:.2f} |")
-
-    print("\nnoise and blur (range 103–170, shadow 0.45, with the shadow step)")
-    print("| noise σ [levels] | blur σ [px] | median error | worst of seeds |")
-    print("|---|---|---|---|")
-    for noise, blur in ((0.5, 1.0), (1.0, 1.0), (2.0, 1.0), (1.0, 1.5), (3.0, 1.0)):
-        errs = [
-            corner_error(outline(prism_scene(noise=noise, blur=blur, seed=s)).corners)
-            for s in range(args.seeds)
-        ]
-        print(f"| {noise} | {blur} | {statistics.median(errs):.2f} | {max(errs):.2f} |")
-
-    print("\na light part on a dark table (light_prism_scene), the part told automatically")
-    print("| its shadow | part found | median error | worst of seeds |")
-    print("|---|---|---|---|")
-    for shadow in (True, False):
-        found = [outline(light_prism_scene(shadow=shadow, seed=s)) for s in range(args.seeds)]
-        errs = [corner_error(o.corners) for o in found]
-        parts = "/".join(sorted({o.part for o in found}))
-        print(f"| {shadow} | {parts} | {statistics.median(errs):.2f} | {max(errs):.2f} |")
+    print(f"\ntime per 640×480 outline: median {statistics.median(times) * 1000:.0f} ms")
 
 
 if __name__ == "__main__":

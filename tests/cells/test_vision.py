@@ -66,6 +66,21 @@ class TestOutline:
         )
         assert post(client, "/vision/outline", data, admin, part="grey").status_code == 422
 
+    def test_a_gradient_is_no_outline(self, client: TestClient, admin: dict[str, str]) -> None:
+        ramp = np.tile(np.linspace(0, 255, 320), (240, 1)).astype(np.uint8)
+        r = post(client, "/vision/outline", encode(ramp), admin)
+        assert r.status_code == 422
+        assert r.headers["content-type"] == "application/problem+json"
+        assert r.json()["code"] == "outline_not_found"
+        assert "no part stands out" in r.json()["detail"]
+
+    def test_the_answer_says_how_well_it_fits(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        out = post(client, "/vision/outline", encode(prism_scene()), admin).json()
+        assert 0 < out["residual_px"] < 0.5
+        assert 0.9 < out["edge_support"] <= 1.0
+
     def test_cylinder_is_curved(self, client: TestClient, admin: dict[str, str]) -> None:
         out = post(client, "/vision/outline", encode(cylinder_scene()), admin).json()
         assert out["shape"] == "curved"
