@@ -13,6 +13,7 @@ Speed: the same, timed; and a calibrated 4-view rig with distortion, 100,000 poi
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -144,6 +145,50 @@ def main() -> None:
         f"{theirs:.0f} ms on pre-undistorted points, {theirs_raw:.0f} ms with the undistortion; "
         f"ratio ours / cv2 {ours / theirs:.2f} ({ours / theirs_raw:.2f})"
     )
+    cold_start()
+
+
+COLD = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+from app.cells.core.triangulation import View, project_views, triangulate_views
+t1 = time.perf_counter()
+k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+views = [View(k, np.array([-0.1, 0.01, 0, 0, 0.0]), np.eye(3), np.array([-x, 0.0, 0.0]))
+         for x in (0.0, 0.1, 0.2, 0.3)]
+rng = np.random.default_rng(0)
+pts = np.column_stack([rng.uniform(-0.3, 0.3, N), rng.uniform(-0.2, 0.2, N), rng.uniform(1, 3, N)])
+obs = project_views(views, pts) + rng.normal(0, 0.3, (N, 4, 2))
+t2 = time.perf_counter()
+triangulate_views(views, obs)
+t3 = time.perf_counter()
+triangulate_views(views, obs)
+t4 = time.perf_counter()
+print(t1 - t0, t3 - t2, t4 - t3)
+"""
+
+
+def cold_start(runs: int = 5) -> None:
+    """The first triangulation in a fresh process, each run its own interpreter (numba's disk
+    cache warm from the runs before)."""
+    root = str(Path(__file__).resolve().parents[1])
+    print(f"\nfirst call in a fresh process (median of {runs} processes)")
+    print("| points × views | import [s] | first call [s] | second call [s] |")
+    print("|---|---|---|---|")
+    for n in (10, 1_000, 10_000):
+        rows = []
+        for _ in range(runs + 1):  # the first run fills numba's cache, if it is empty
+            out = subprocess.run(
+                [sys.executable, "-c", f"N = {n}\n" + COLD],
+                cwd=root,
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            rows.append([float(x) for x in out.stdout.split()])
+        imp, first, second = np.median(np.array(rows[1:]), axis=0)
+        print(f"| {n:,} × 4 | {imp:.2f} | {first:.3f} | {second:.3f} |")
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from app.cells.core.triangulation import (
+    SMALL_BATCH,
     PAIRS,
     RigArrays,
     View,
@@ -205,6 +206,32 @@ class TestCalibratedRig:
         parts = [triangulate_views(views, obs[a : a + 10_000]) for a in (0, 10_000, 20_000)]
         np.testing.assert_array_equal(whole.points, np.concatenate([x.points for x in parts]))
         np.testing.assert_array_equal(whole.used, np.concatenate([x.used for x in parts]))
+
+    def test_numpy_and_compiled_paths_agree(self) -> None:
+        """Small batches go through NumPy (no compiler to load), large ones through the
+        compiled loop: the same points, views used and RMS, outliers, missing views and
+        mismatched points included."""
+        rng = np.random.default_rng(8)
+        views = calibrated_views()
+        n = 3000
+        p = points(n) + [0, 0, 1.0]
+        obs = project_views(views, p) + rng.normal(0, 0.3, (n, 4, 2))
+        obs[::5, 0] = np.nan
+        obs[1::7, 3] += 40.0
+        obs[2::11, 1:] = np.nan
+        obs[3::13, 1] = obs[3::13, 1][::-1]
+        assert n > SMALL_BATCH
+        compiled = triangulate_views(views, obs)
+        small = [
+            triangulate_views(views, obs[a : a + SMALL_BATCH]) for a in range(0, n, SMALL_BATCH)
+        ]
+        for name in ("points", "reprojection_rms", "used", "behind"):
+            got = np.concatenate([getattr(x, name) for x in small])
+            want = getattr(compiled, name)
+            if want.dtype == np.bool_:
+                np.testing.assert_array_equal(got, want, err_msg=name)
+            else:
+                np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9, err_msg=name)
 
 
 def test_baseline_is_the_largest_distance_between_lens_centres() -> None:

@@ -415,6 +415,9 @@ def triangulate_views(
     points = np.empty((n, 3))
     use = np.empty((n, v), np.bool_)
     rms = np.empty(n)
+    if n <= SMALL_BATCH:  # no compiler to load for a handful of points: NumPy, the same maths
+        _chunk_numpy(views, rig, obs, float(outlier_px), steps if refine else 0, points, use, rms)
+        return _checked(points, rms, use, rig)
     workers = min(os.cpu_count() or 1, 4) if n >= 20_000 else 1
     bounds = np.linspace(0, n, workers + 1).astype(int)
     jobs = [
@@ -426,6 +429,15 @@ def triangulate_views(
     else:
         with ThreadPoolExecutor(workers) as pool:
             list(pool.map(lambda job: _chunk(*job), jobs))
+    return _checked(points, rms, use, rig)
+
+
+def _checked(
+    points: NDArray[np.float64],
+    rms: NDArray[np.float64],
+    use: NDArray[np.bool_],
+    rig: RigArrays,
+) -> RigResult:
     # a point behind a camera that saw it was never seen: the views were mismatched
     back = behind(points, rig.rs, rig.ts, use)
     lost = back | ~np.isfinite(points).all(axis=1)  # or rays that never meet (parallel)
@@ -498,6 +510,157 @@ def _chunk(
         out_r,
     )
     points[rows], use[rows], rms[rows] = out_p, out_u, out_r
+
+
+SMALL_BATCH = 2_000
+"""Up to this many points are triangulated by ``_chunk_numpy``: a fresh process answers its
+first small request without loading numba (0.6 s to import) and its compiled loop."""
+
+
+def _linear(
+    rig: RigArrays, xn: NDArray[np.float64], mask: NDArray[np.bool_]
+) -> NDArray[np.float64]:
+    """Linear triangulation of every point (N, 3) from normalised coordinates (N, V, 2) of the
+    views in ``mask`` (N, V): per view (x r₃ − r₁)·X = t₁ − x t₃ and (y r₃ − r₂)·X = t₂ − y t₃,
+    by the 3 × 3 normal equations; NaN where they are singular. ``rig_kernel._solve``, for
+    many points at once."""
+    x = np.where(mask[..., None], xn, 0.0)
+    rows = x[..., None] * rig.rs[None, :, 2, None, :] - rig.rs[None, :, :2, :]  # (N, V, 2, 3)
+    rhs = rig.ts[None, :, :2] - x * rig.ts[None, :, 2, None]  # (N, V, 2)
+    w = mask[..., None].astype(np.float64)
+    m = np.einsum("nvai,nvaj,nva->nij", rows, rows, w)
+    b = np.einsum("nvai,nva,nva->ni", rows, rhs, w)
+    return _solve_batch(m, b)
+
+
+def _solve_batch(m: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """X from m X = b for every (3, 3) m; NaN where m is singular."""
+    det = np.linalg.det(m)
+    ok = np.isfinite(det) & (np.abs(det) > 1e-300)
+    out = np.full(b.shape, np.nan)
+    if ok.any():
+        out[ok] = np.linalg.solve(m[ok], b[ok][..., None])[..., 0]
+    return out
+
+
+def _gauss_newton(
+    rig: RigArrays,
+    pixels: NDArray[np.float64],
+    mask: NDArray[np.bool_],
+    p: NDArray[np.float64],
+    iterations: int,
+) -> NDArray[np.float64]:
+    """Gauss–Newton on the reprojection error in pixels through the distortion model (eqs.
+    2.8–2.13) for every point (N, 3) at once: ``rig_kernel._refine``, vectorised. A point
+    whose normal equations turn singular keeps its last estimate."""
+    fx, skew, u0, fy, v0 = (rig.intrinsics[:, j] for j in range(5))
+    k1, k2, p1, p2, k3 = (rig.dist[:, j] for j in range(5))
+    w = mask.astype(np.float64)
+    for _ in range(iterations):
+        cam = np.einsum("vij,nj->nvi", rig.rs, p) + rig.ts  # (N, V, 3), eq. 2.14
+        z = np.where(np.abs(cam[..., 2]) > 1e-12, cam[..., 2], 1e-12)
+        x, y = cam[..., 0] / z, cam[..., 1] / z
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))  # eq. 2.8
+        slope = 2 * (k1 + r2 * (2 * k2 + 3 * r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        dxx = radial + x * x * slope + 2 * p1 * y + 6 * p2 * x
+        dxy = x * y * slope + 2 * p1 * x + 2 * p2 * y
+        dyy = radial + y * y * slope + 6 * p1 * y + 2 * p2 * x
+        # eqs. 2.12–2.13; a view not used has no residual (its pixels may be NaN)
+        ru = np.where(mask, fx * xd + skew * yd + u0 - pixels[..., 0], 0.0)
+        rv = np.where(mask, fy * yd + v0 - pixels[..., 1], 0.0)
+        jx = (rig.rs[None, :, 0, :] - x[..., None] * rig.rs[None, :, 2, :]) / z[..., None]
+        jy = (rig.rs[None, :, 1, :] - y[..., None] * rig.rs[None, :, 2, :]) / z[..., None]
+        ddx = dxx[..., None] * jx + dxy[..., None] * jy
+        ddy = dxy[..., None] * jx + dyy[..., None] * jy
+        ju = fx[None, :, None] * ddx + skew[None, :, None] * ddy  # (N, V, 3)
+        jv = fy[None, :, None] * ddy
+        m = np.einsum("nvi,nvj,nv->nij", ju, ju, w) + np.einsum("nvi,nvj,nv->nij", jv, jv, w)
+        b = np.einsum("nvi,nv,nv->ni", ju, ru, w) + np.einsum("nvi,nv,nv->ni", jv, rv, w)
+        step = _solve_batch(m, b)
+        moved = np.isfinite(step).all(axis=1)
+        p = np.where(moved[:, None], p - np.nan_to_num(step), p)
+    return p
+
+
+def _errors(rig: RigArrays, xn: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, V) distance [≈ px] between each point's projection and each normalised observation,
+    scaled by the focal length; inf behind the camera (``rig_kernel._error``)."""
+    cam = np.einsum("vij,nj->nvi", rig.rs, p) + rig.ts
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.hypot(cam[..., 0] / cam[..., 2] - xn[..., 0], cam[..., 1] / cam[..., 2] - xn[..., 1])
+    return np.where(cam[..., 2] > 0, d * rig.fs, np.inf)
+
+
+def _chunk_numpy(
+    views: list[View],
+    rig: RigArrays,
+    obs: NDArray[np.float64],
+    outlier_px: float,
+    iterations: int,
+    points: NDArray[np.float64],
+    use: NDArray[np.bool_],
+    rms: NDArray[np.float64],
+) -> None:
+    """``rig_kernel.triangulate_all`` in NumPy, over all points at once: linear solution and
+    Gauss–Newton on all views; points with 3+ views and one off by more than ``outlier_px``
+    go to RANSAC over view pairs (the pair whose point most views agree with picks the
+    inliers, the first such pair on a tie) and are solved again from the inliers; then the
+    RMS reprojection error over the views used."""
+    n, v = obs.shape[:2]
+    xn = _normalised(views, obs)
+    seen = np.isfinite(xn).all(axis=-1)
+    count = seen.sum(axis=1)
+    use[:] = seen
+    p = _linear(rig, xn, seen)
+    ok = (count >= 2) & np.isfinite(p).all(axis=1)
+    p[~ok] = np.nan
+    p[ok] = _gauss_newton(rig, obs[ok], seen[ok], p[ok], iterations)
+    with np.errstate(invalid="ignore"):
+        worst = np.where(seen, _errors(rig, xn, p), 0.0).max(axis=1)
+    redo = np.nonzero(ok & (count >= 3) & ~(worst <= outlier_px))[0]
+    if len(redo):
+        pairs = [(a, c) for a in range(v) for c in range(a + 1, v)]
+        best = np.full(len(redo), -1)
+        best_mask = np.zeros((len(redo), v), dtype=np.bool_)
+        for a, c in pairs:
+            pair = np.zeros((len(redo), v), dtype=np.bool_)
+            pair[:, [a, c]] = True
+            pair &= seen[redo]
+            both = pair.sum(axis=1) == 2
+            trial = _linear(rig, xn[redo], pair)
+            fine = both & np.isfinite(trial).all(axis=1)
+            agree_mask = seen[redo] & (_errors(rig, xn[redo], trial) <= outlier_px)
+            agree = np.where(fine, agree_mask.sum(axis=1), -1)
+            better = agree > best
+            best = np.where(better, agree, best)
+            best_mask[better] = agree_mask[better]
+        found = best >= 2
+        rows = redo[found]
+        use[rows] = best_mask[found]
+        again = _linear(rig, xn[rows], use[rows])
+        solved = np.isfinite(again).all(axis=1)
+        again[solved] = _gauss_newton(
+            rig, obs[rows[solved]], use[rows[solved]], again[solved], iterations
+        )
+        p[rows] = again  # NaN where the inliers' equations are singular
+        ok[rows[~solved]] = False
+    points[:] = p
+    points[~ok] = np.nan
+    cam = np.einsum("vij,nj->nvi", rig.rs, p) + rig.ts
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xd = np.stack(
+            [distort(cam[:, k, :2] / cam[:, k, 2:3], rig.dist[k]) for k in range(v)], axis=1
+        )
+    du = rig.intrinsics[:, 0] * xd[..., 0] + rig.intrinsics[:, 1] * xd[..., 1]
+    du = du + rig.intrinsics[:, 2] - obs[..., 0]
+    dv = rig.intrinsics[:, 3] * xd[..., 1] + rig.intrinsics[:, 4] - obs[..., 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        total = np.where(use, du * du + dv * dv, 0.0).sum(axis=1)
+        rms[:] = np.sqrt(total / use.sum(axis=1))
+    rms[~ok] = np.nan
 
 
 def warm_up() -> None:
