@@ -580,7 +580,7 @@ def _gauss_newton(
         m = np.einsum("nvi,nvj,nv->nij", ju, ju, w) + np.einsum("nvi,nvj,nv->nij", jv, jv, w)
         b = np.einsum("nvi,nv,nv->ni", ju, ru, w) + np.einsum("nvi,nv,nv->ni", jv, rv, w)
         step = _solve_batch(m, b)
-        moved = np.isfinite(step).all(axis=1)
+        moved = np.asarray(np.isfinite(step).all(axis=1), dtype=np.bool_)
         p = np.where(moved[:, None], p - np.nan_to_num(step), p)
     return p
 
@@ -611,7 +611,7 @@ def _chunk_numpy(
     RMS reprojection error over the views used."""
     n, v = obs.shape[:2]
     xn = _normalised(views, obs)
-    seen = np.isfinite(xn).all(axis=-1)
+    seen: NDArray[np.bool_] = np.asarray(np.isfinite(xn).all(axis=-1), dtype=np.bool_)
     count = seen.sum(axis=1)
     use[:] = seen
     p = _linear(rig, xn, seen)
