@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
+from app.cells.core.triangulation import decompose_projection
 from app.platform.schemas import Id, Out, Schema
 
 
@@ -48,6 +49,13 @@ ROTATION_TOLERANCE = 1e-4
 
 
 class CalibratedCamera(Schema):
+    P: list[list[Finite]] | None = Field(
+        default=None,
+        exclude=True,
+        description="Instead of K, R and t: the 3 × 4 projection matrix P = λ K [R | t], as "
+        "multi-view data sets publish it (visible points at w > 0); decomposed into K, R and t, "
+        "which the answer shows. A mirror-handed or singular P is refused (422).",
+    )
     K: list[list[Finite]] = Field(description="3 × 3 camera matrix [px].")
     dist: list[Finite] = Field(
         default_factory=lambda: [0.0] * 5, description="[k1, k2, p1, p2, k3]."
@@ -61,6 +69,23 @@ class CalibratedCamera(Schema):
         description="[width, height] [px] of the images K was calibrated for: the laser "
         "endpoints refuse images of another size (422 wrong_image_size).",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_projection(cls, data: Any) -> Any:
+        """A camera given as ``P`` (3 × 4, as multi-view data sets publish it) instead of K, R
+        and t: decomposed (``decompose_projection``); its images are taken as undistorted."""
+        if not isinstance(data, dict) or "P" not in data:
+            return data
+        given = [k for k in ("K", "R", "t") if k in data]
+        if given:
+            raise ValueError(f"give P, or K, R and t; not both (also given: {', '.join(given)})")
+        rest = {k: v for k, v in data.items() if k != "P"}
+        try:
+            k, r, t = decompose_projection(np.asarray(data["P"], dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"P: {exc}") from None
+        return {**rest, "K": k.tolist(), "R": r.tolist(), "t": t.tolist()}
 
     @field_validator("K", "R")
     @classmethod

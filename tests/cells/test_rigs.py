@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -694,3 +695,62 @@ def test_a_rig_camera_that_is_no_camera_is_refused_by_name(
     assert r.json()["detail"].startswith("body.cameras.1.")  # the second camera, by its index
     assert fault in r.json()["detail"]
     assert client.get("/rigs/bad", headers=admin).status_code == 404
+
+
+def _projection(k: np.ndarray, r: np.ndarray, t: np.ndarray, scale: float) -> list[list[float]]:
+    return (scale * k @ np.hstack([r, np.asarray(t)[:, None]])).tolist()
+
+
+def test_cameras_given_as_projection_matrices(client: TestClient, admin: dict[str, str]) -> None:
+    """Multi-view data sets publish P = λ K [R | t]: decomposed, the rig measures as with K, R,
+    t; the answer shows the decomposition (skew kept, any positive λ)."""
+    k = np.array([[800.0, 0.4, 320], [0, 790, 240], [0, 0, 1]])
+    poses = [cv2.Rodrigues(np.radians([2.0, (i - 1.5) * 8, 1.0]))[0] for i in range(3)]
+    ts = [-r @ np.array([(i - 1) * 0.3, 0.02 * i, 0.0]) for i, r in enumerate(poses)]
+    cams = [
+        {"P": _projection(k, r, t, scale)}
+        for r, t, scale in zip(poses, ts, (1.0, 0.01, 37.5), strict=True)
+    ]
+    body = {"id": "multi", "kind": "calibrated", "cameras": cams}
+    r = client.post("/rigs", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    shown = client.get("/rigs/multi", headers=admin).json()["spec"]["cameras"]
+    for camera, rot, t in zip(shown, poses, ts, strict=True):
+        np.testing.assert_allclose(camera["K"], k, atol=1e-9)
+        np.testing.assert_allclose(camera["R"], rot, atol=1e-12)
+        np.testing.assert_allclose(camera["t"], t, atol=1e-12)
+        assert "P" not in camera
+    views = [View(k, np.zeros(5), rot, t) for rot, t in zip(poses, ts, strict=True)]
+    p = points(10) + [0, 0, 1.0]
+    obs = project_views(views, p).tolist()
+    out = client.post("/rigs/multi/triangulate", json={"observations": obs}, headers=admin)
+    np.testing.assert_allclose(out.json()["points"], p, rtol=1e-7)
+
+
+@pytest.mark.parametrize(
+    ("camera", "fault"),
+    [
+        ({"P": _projection(np.diag([800.0, 800, 1]), np.eye(3), np.zeros(3), -1.0)}, "mirror"),
+        (
+            {"P": _projection(np.diag([800.0, 800, 1]), np.diag([1.0, -1, 1]), np.zeros(3), 1.0)},
+            "mirror",
+        ),
+        ({"P": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]]}, "singular"),
+        ({"P": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "3 × 4"),
+        ({"P": _projection(np.eye(3), np.eye(3), np.zeros(3), 1.0), "K": GOOD_K}, "not both"),
+    ],
+    ids=["negative-scale", "reflected", "singular", "not-3x4", "P-and-K"],
+)
+def test_a_projection_matrix_that_is_no_camera_is_refused(
+    client: TestClient, admin: dict[str, str], camera: dict[str, Any], fault: str
+) -> None:
+    cams = [{"K": GOOD_K, "R": EYE, "t": [0, 0, 0]}, {"t": [1, 0, 0], **camera}]
+    if "P" in camera:
+        del cams[1]["t"]
+    r = client.post(
+        "/rigs", json={"id": "bad-p", "kind": "calibrated", "cameras": cams}, headers=admin
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith("body.cameras.1")
+    assert fault in r.json()["detail"]
+    assert client.get("/rigs/bad-p", headers=admin).status_code == 404

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from app.cells.core.triangulation import (
-    SMALL_BATCH,
     PAIRS,
+    SMALL_BATCH,
     RigArrays,
     View,
     baseline,

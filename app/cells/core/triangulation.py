@@ -338,6 +338,40 @@ class RigResult:
     views)."""
 
 
+def decompose_projection(
+    p: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """K (fx, fy > 0, K[2,2] = 1), R (det +1) and t of a 3 × 4 projection matrix P = λ K [R | t]
+    (eq. 2.14 with 2.12–2.13), as multi-view data sets publish cameras.
+
+    RQ-decompose P's left 3 × 3 block M = K̃ R; flip signs in pairs (a column of K̃ with the row
+    of R) until K̃'s diagonal is positive, which leaves K̃ R unchanged; λ = K̃[2,2] > 0, K = K̃/λ,
+    t = K̃⁻¹ p₄. P is taken as published, visible points at w > 0: its scale's sign is kept, so a
+    det M < 0 leaves det R = −1, a mirror-handed camera (or P scaled by a negative number),
+    which no lens gives: ValueError saying so. A singular M (a camera at infinity, or not a
+    camera) is a ValueError too."""
+    from scipy.linalg import rq
+
+    p = np.asarray(p, dtype=np.float64)
+    if p.shape != (3, 4) or not np.isfinite(p).all():
+        raise ValueError(f"P must be 3 × 4 and finite; got shape {p.shape}")
+    m = p[:, :3]
+    scale = float(np.abs(m).max())
+    if scale == 0 or abs(np.linalg.det(m / scale)) < 1e-12:
+        raise ValueError("P's left 3 × 3 block is singular: not a finite projective camera")
+    k, r = rq(m)
+    signs = np.sign(np.diag(k))
+    k, r = k * signs, signs[:, None] * r  # K̃ D, D R with D = diag(signs): the product holds
+    if np.linalg.det(r) < 0:
+        raise ValueError(
+            "P is mirror-handed: its left 3 × 3 block has a negative determinant, so no "
+            "rotation with positive focal lengths gives it (if it was scaled by a negative "
+            "number, give −P)"
+        )
+    t = np.linalg.solve(k, p[:, 3])
+    return k / k[2, 2] + 0.0, r, t  # + 0.0: no −0.0 in the answer
+
+
 def _dist5(dist: NDArray[np.float64]) -> NDArray[np.float64]:
     """Distortion coefficients as k1, k2, p1, p2, k3 (missing ones zero)."""
     k = np.zeros(5)
