@@ -23,6 +23,13 @@ T = TypeVar("T")
 
 _PIXELS = TypeAdapter(list[tuple[Finite, Finite] | None])
 _PLANE = TypeAdapter(tuple[Finite, Finite, Finite, Finite])
+_PAN_TILT = TypeAdapter(list[tuple[Finite, Finite] | None])
+
+
+def pan_tilt_field(raw: list[str]) -> list[list[float] | None] | None:
+    """The ``pan_tilt_deg`` form field (JSON, per camera [pan, tilt] in degrees or null)."""
+    angles = _field(raw, "pan_tilt_deg", _PAN_TILT)
+    return None if angles is None else [None if a is None else list(a) for a in angles]
 
 
 def _field(raw: list[str], name: str, adapter: TypeAdapter[T]) -> T | None:

@@ -13,7 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.cells import calibrations
-from app.cells.core import laser_grid
+from app.cells.core import laser_grid, pantilt
 from app.cells.core.triangulation import (
     CrossRig,
     RigArrays,
@@ -120,8 +120,31 @@ def cross_of(row: Rig) -> CrossRig:
     )
 
 
-def views_of(row: Rig) -> list[View]:
-    return [_view(c) for c in row.spec["cameras"]]
+def views_of(row: Rig, pan_tilt_deg: list[list[float] | None] | None = None) -> list[View]:
+    """The rig's calibrated cameras, those on pan/tilt heads turned to ``pan_tilt_deg`` (per
+    camera [pan, tilt] in degrees, None without a head): 422 when a head's angles are missing
+    or angles are given for a camera without one."""
+    cameras = row.spec["cameras"]
+    heads = [c.get("head") for c in cameras]
+    if pan_tilt_deg is None:
+        pan_tilt_deg = [None] * len(cameras)
+    if len(pan_tilt_deg) != len(cameras):
+        raise Unprocessable(f"pan_tilt_deg: {len(pan_tilt_deg)} entries for {len(cameras)} cameras")
+    views = []
+    for i, (camera, head, angles) in enumerate(zip(cameras, heads, pan_tilt_deg, strict=True)):
+        view = _view(camera)
+        if head is None and angles is not None:
+            raise Unprocessable(f"pan_tilt_deg[{i}]: camera {i} is not on a pan/tilt head")
+        if head is not None:
+            if angles is None:
+                raise Unprocessable(
+                    f"pan_tilt_deg[{i}]: camera {i} is on a pan/tilt head: give its pan and tilt"
+                )
+            pan, tilt = np.radians(angles)
+            r, t = pantilt.head_pose(view.R, view.t, head["pivot"], float(pan), float(tilt))
+            view = View(view.K, view.dist, r, t)
+        views.append(view)
+    return views
 
 
 def _view(camera: dict[str, Any]) -> View:
@@ -139,10 +162,14 @@ def sizes_of(row: Rig) -> list[tuple[int, int] | None]:
     ]
 
 
-def geometry_of(row: Rig) -> laser_grid.Geometry:
+def geometry_of(
+    row: Rig, pan_tilt_deg: list[list[float] | None] | None = None
+) -> laser_grid.Geometry:
     if row.kind == "cross":
+        if pan_tilt_deg is not None:
+            raise Unprocessable("pan_tilt_deg: the cross's cameras are on no pan/tilt heads")
         return laser_grid.cross_geometry(cross_of(row))
-    return laser_grid.views_geometry(views_of(row))
+    return laser_grid.views_geometry(views_of(row, pan_tilt_deg))
 
 
 NULL_REASONS = {
@@ -177,12 +204,20 @@ def _reasons(
     ]
 
 
-def triangulate(row: Rig, obs: NDArray[np.float64], method: str) -> Triangulated:
-    """Points from pixel observations (N, cameras, 2) [px], NaN for a view that missed one."""
+def triangulate(
+    row: Rig,
+    obs: NDArray[np.float64],
+    method: str,
+    pan_tilt_deg: list[list[float] | None] | None = None,
+) -> Triangulated:
+    """Points from pixel observations (N, cameras, 2) [px], NaN for a view that missed one;
+    cameras on pan/tilt heads turned to ``pan_tilt_deg``."""
     few = np.isfinite(obs).all(axis=-1).sum(axis=1) < 2
     if row.kind != "cross":
-        res = triangulate_views(views_of(row), obs)
+        res = triangulate_views(views_of(row, pan_tilt_deg), obs)
         return Triangulated(res.points, res.reprojection_rms, _reasons(res.points, few, res.behind))
+    if pan_tilt_deg is not None:
+        raise Unprocessable("pan_tilt_deg: the cross's cameras are on no pan/tilt heads")
     rig = cross_of(row)
     # a point seen once is solved from a stand-in (its depth would be undetermined) and dropped
     safe = np.where(few[:, None, None], rig.project(np.array([[0.0, 0.0, 1.0]]))[0], obs)

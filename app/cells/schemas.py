@@ -48,6 +48,16 @@ ROTATION_TOLERANCE = 1e-4
 """How far RᵀR may stray from I: rotations written out to 5–6 decimals pass."""
 
 
+class PanTiltHead(Schema):
+    pivot: list[Finite] = Field(
+        min_length=3,
+        max_length=3,
+        description="[X, Y, Z] where the head's pan and tilt axes cross, in the rig's frame "
+        "[world units]. The camera's K, R and t are its calibration at pan = tilt = 0; pan "
+        "turns about the rig's Z axis, then tilt about the panned X axis (eq. 4.49).",
+    )
+
+
 class CalibratedCamera(Schema):
     P: list[list[Finite]] | None = Field(
         default=None,
@@ -68,6 +78,11 @@ class CalibratedCamera(Schema):
         max_length=2,
         description="[width, height] [px] of the images K was calibrated for: the laser "
         "endpoints refuse images of another size (422 wrong_image_size).",
+    )
+    head: PanTiltHead | None = Field(
+        default=None,
+        description="The camera sits on a pan/tilt head: every triangulation and laser "
+        "request then gives its pan and tilt (pan_tilt_deg).",
     )
 
     @model_validator(mode="before")
@@ -181,11 +196,21 @@ class RigOut(Out):
     )
 
 
+PanTilt = Annotated[
+    list[Annotated[list[Finite], Field(min_length=2, max_length=2)] | None] | None,
+    Field(
+        description="Calibrated rigs with cameras on pan/tilt heads: per camera [pan, tilt] "
+        "[°] as the head stood for these observations, null for a camera without a head.",
+    ),
+]
+
+
 class TriangulateIn(Schema):
     observations: list[list[list[Finite] | None]] = Field(
         description="Per point, per camera: [u, v] in pixels, or null when not seen.",
         max_length=200_000,
     )
+    pan_tilt_deg: PanTilt = None
     method: Literal["least_squares", "weighted", "mean"] = Field(
         default="least_squares",
         description="Cross rigs: all 8 coordinates (ML), inverse-variance weights, or the "

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from app.cells.core.pantilt import (
     Mount,
+    head_pose,
     perspective,
     project_dissertation,
     rotation,
@@ -64,3 +66,24 @@ def test_perspective_is_eq_4_4() -> None:
         project_dissertation(mount, f, p), [[f * 0.3 / (f + 2.0), f * -0.2 / (f + 2.0)]], rtol=1e-12
     )
     assert perspective(f)[3, 2] == pytest.approx(-1 / f)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_head_turns_the_camera_about_its_pivot(seed: int) -> None:
+    """head_pose against the same move built by hand: the lens centre swings about the pivot
+    by the head's rotation, the camera's axes turn with it."""
+    rng = np.random.default_rng(seed)
+    r0 = Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix()
+    centre0 = rng.normal(0, 0.5, 3)
+    t0 = -r0 @ centre0
+    pivot = centre0 + rng.normal(0, 0.05, 3)
+    pan, tilt = rng.uniform(-1, 1), rng.uniform(-0.5, 0.5)
+    r, t = head_pose(r0, t0, pivot, pan, tilt)
+    turn = rotation(pan, tilt)[:3, :3]  # world → head frame (eq. 4.49)
+    centre = pivot + turn.T @ (centre0 - pivot)
+    np.testing.assert_allclose(r, r0 @ turn, atol=1e-12)
+    np.testing.assert_allclose(-r.T @ t, centre, atol=1e-12)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    r_zero, t_zero = head_pose(r0, t0, pivot, 0.0, 0.0)
+    np.testing.assert_allclose(r_zero, r0, atol=1e-15)
+    np.testing.assert_allclose(t_zero, t0, atol=1e-15)

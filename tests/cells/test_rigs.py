@@ -754,3 +754,113 @@ def test_a_projection_matrix_that_is_no_camera_is_refused(
     assert r.json()["detail"].startswith("body.cameras.1")
     assert fault in r.json()["detail"]
     assert client.get("/rigs/bad-p", headers=admin).status_code == 404
+
+
+class TestPanTiltHeads:
+    """Cameras on pan/tilt heads: declared with their pose at zero and the head's pivot; each
+    request gives the angles. Observations are rendered from cameras moved by hand (the lens
+    centre swung about the pivot), not through the service's own composition."""
+
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    PIVOTS = [None, [0.3, 0.0, -0.05], [0.6, 0.1, -0.04]]
+    ANGLES = [None, [12.0, -5.0], [-20.0, 8.0]]
+
+    def zero_pose(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        r = cv2.Rodrigues(np.radians([0.0, (1 - i) * 10.0, 0.0]))[0]
+        return r, -r @ np.array([0.3 * i, 0.0, 0.0])
+
+    def moved(self, i: int) -> View:
+        r0, t0 = self.zero_pose(i)
+        pivot, angles = self.PIVOTS[i], self.ANGLES[i]
+        if pivot is None or angles is None:
+            return View(self.K, np.zeros(5), r0, t0)
+        pan, tilt = np.radians(angles)
+        ct, st, cp, sp = np.cos(pan), np.sin(pan), np.cos(tilt), np.sin(tilt)
+        turn = np.array([[ct, st, 0], [-st * cp, ct * cp, sp], [st * sp, -ct * sp, cp]])
+        centre = np.array(pivot) + turn.T @ (-r0.T @ t0 - np.array(pivot))
+        r = r0 @ turn
+        return View(self.K, np.zeros(5), r, -r @ centre)
+
+    def register(self, client: TestClient, admin: dict[str, str]) -> None:
+        cams = []
+        for i, pivot in enumerate(self.PIVOTS):
+            r0, t0 = self.zero_pose(i)
+            cam: dict[str, Any] = {"K": self.K.tolist(), "R": r0.tolist(), "t": t0.tolist()}
+            if pivot is not None:
+                cam["head"] = {"pivot": pivot}
+            cams.append(cam)
+        body = {"id": "heads", "kind": "calibrated", "cameras": cams}
+        assert client.post("/rigs", json=body, headers=admin).status_code == 201
+
+    def test_triangulation_with_the_heads_turned(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        self.register(client, admin)
+        views = [self.moved(i) for i in range(3)]
+        p = points(20) + [0.3, 0, 1.2]
+        obs = project_views(views, p).tolist()
+        r = client.post(
+            "/rigs/heads/triangulate",
+            json={"observations": obs, "pan_tilt_deg": self.ANGLES},
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        np.testing.assert_allclose(r.json()["points"], p, rtol=1e-9)
+        assert max(r.json()["reprojection_rms_px"]) < 1e-6
+        # the same pixels with the heads taken as standing at zero: wrong by far
+        zero = [None, [0.0, 0.0], [0.0, 0.0]]
+        r = client.post(
+            "/rigs/heads/triangulate",
+            json={"observations": obs, "pan_tilt_deg": zero},
+            headers=admin,
+        )
+        assert min(x or 1e9 for x in r.json()["reprojection_rms_px"]) > 5
+
+    @pytest.mark.parametrize(
+        ("angles", "fault"),
+        [
+            (None, "camera 1 is on a pan/tilt head"),
+            ([None, [1, 2]], "2 entries for 3 cameras"),
+            ([[1, 2], [1, 2], [1, 2]], "camera 0 is not on a pan/tilt head"),
+            ([None, None, [1, 2]], "camera 1 is on a pan/tilt head"),
+        ],
+    )
+    def test_angles_that_do_not_fit_the_heads(
+        self, client: TestClient, admin: dict[str, str], angles: Any, fault: str
+    ) -> None:
+        self.register(client, admin)
+        r = client.post(
+            "/rigs/heads/triangulate",
+            json={"observations": [[[320, 240]] * 3], "pan_tilt_deg": angles},
+            headers=admin,
+        )
+        assert r.status_code == 422
+        assert fault in r.json()["detail"]
+
+    def test_the_laser_dot_with_the_heads_turned(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        self.register(client, admin)
+        truth = np.array([0.32, -0.02, 1.1])
+        uv = project_views([self.moved(i) for i in range(3)], truth[None])[0]
+        y, x = np.mgrid[0:480, 0:640]
+        rng = np.random.default_rng(4)
+        files = []
+        for i in range(3):
+            image = np.full((480, 640, 3), 110.0) + rng.normal(0, 3, (480, 640, 3))
+            g = np.exp(-((x - uv[i, 0]) ** 2 + (y - uv[i, 1]) ** 2) / (2 * 1.5**2))
+            image[..., 0] += 145 * g
+            image[..., 1:] -= 60 * g[..., None]
+            png = cv2.imencode(".png", np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1])[1]
+            files.append(("files", (f"{i}.png", png.tobytes(), "image/png")))
+        r = client.post(
+            "/rigs/heads/laser/dot",
+            files=files,
+            data={"pan_tilt_deg": json.dumps(self.ANGLES)},
+            headers=admin,
+        )
+        assert r.status_code == 200, r.text
+        assert np.linalg.norm(np.array(r.json()["point"]) - truth) < 0.001
+        r = client.post("/rigs/heads/laser/dot", files=files, headers=admin)
+        assert r.status_code == 422
+        assert "pan/tilt head" in r.json()["detail"]

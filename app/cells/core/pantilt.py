@@ -87,3 +87,24 @@ def project_dissertation(mount: Mount, f: float, world: ArrayLike) -> NDArray[np
     h = np.column_stack([np.asarray(world, dtype=np.float64), np.ones(len(np.asarray(world)))])
     c = h @ (perspective(f) @ mount.matrix()).T
     return np.asarray(c[:, :2] / c[:, 3:4], dtype=np.float64)
+
+
+def head_pose(
+    r0: ArrayLike, t0: ArrayLike, pivot: ArrayLike, pan: float, tilt: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The pose (R, t; x_cam = R X + t) of a camera on a pan/tilt head turned to pan θ, tilt φ
+    [rad], from its pose (r0, t0) at θ = φ = 0 and the head's pivot (where its pan and tilt
+    axes cross, world coordinates).
+
+    The head turns the camera about the pivot: a world point X is seen by the turned camera as
+    the unturned camera sees G⁻¹ R G X, G the move of the origin to the pivot (eq. 4.48), R the
+    pan about Z then tilt about X (eq. 4.49): world → head frame, which at zero angles is the
+    world's. Eq. 4.55's chain with the camera's own gimbal, pan/tilt and lens offset folded
+    into (r0, t0), which a calibration measures directly."""
+    g = np.asarray(pivot, dtype=np.float64).ravel()
+    turned = translation(*(-g)) @ rotation(pan, tilt) @ translation(*g)
+    camera = np.eye(4)
+    camera[:3, :3] = np.asarray(r0, dtype=np.float64)
+    camera[:3, 3] = np.asarray(t0, dtype=np.float64).ravel()
+    m = camera @ turned
+    return np.ascontiguousarray(m[:3, :3]), np.ascontiguousarray(m[:3, 3])

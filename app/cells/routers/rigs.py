@@ -125,7 +125,7 @@ def triangulate(
                 if len(uv) != 2:
                     raise Unprocessable(f"point {i}, camera {k}: expected [u, v]")
                 obs[i, k] = uv
-    out = rigs.triangulate(row, obs, body.method)
+    out = rigs.triangulate(row, obs, body.method, body.pan_tilt_deg)
     return TriangulateOut(
         points=[None if not np.isfinite(p).all() else p.tolist() for p in out.points],
         reprojection_rms_px=_clean(out.reprojection_rms),
@@ -166,9 +166,14 @@ LaserQuery = Annotated[
 
 
 def _dot(
-    row: Rig, files: list[tuple[str | None, bytes]], max_pixels: int, colour: laser.Colour
+    row: Rig,
+    files: list[tuple[str | None, bytes]],
+    max_pixels: int,
+    colour: laser.Colour,
+    pan_tilt: list[str],
 ) -> LaserDotOut:
-    dot = grid.locate_dot(rigs.geometry_of(row), files, max_pixels, rigs.sizes_of(row), colour)
+    geometry = rigs.geometry_of(row, grid.pan_tilt_field(pan_tilt))
+    dot = grid.locate_dot(geometry, files, max_pixels, rigs.sizes_of(row), colour)
     return LaserDotOut(
         point=dot.point.tolist(),
         pixels=[list(p) if p is not None else None for p in dot.pixels],
@@ -180,7 +185,7 @@ def _dot(
     "/{rig_id}/laser/dot",
     response_model=LaserDotOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
-    openapi_extra=multipart_body(files="files"),
+    openapi_extra=multipart_body(files="files", pan_tilt_deg="text"),
 )
 async def laser_dot(
     rig_id: RigId,
@@ -191,10 +196,19 @@ async def laser_dot(
     colour: LaserQuery = "red",
 ) -> LaserDotOut:
     """Locate the laser dot: one image per camera (multipart ``files``, in camera order); the
-    dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it."""
-    row, form = await _rig_and_form(rig_id, request, session, settings, "files")
+    dot's 3-D point and its pixel in each view; 422 naming the cameras that miss it. Cameras on
+    pan/tilt heads: ``pan_tilt_deg`` (JSON, per camera [pan, tilt] or null)."""
+    row, form = await _rig_and_form(rig_id, request, session, settings, "files", "pan_tilt_deg")
     return await image_work(
-        request, partial(_dot, row, form.files_of("files"), settings.max_pixels, colour)
+        request,
+        partial(
+            _dot,
+            row,
+            form.files_of("files"),
+            settings.max_pixels,
+            colour,
+            form.fields.get("pan_tilt_deg", []),
+        ),
     )
 
 
@@ -203,7 +217,7 @@ async def laser_dot(
     response_model=LaserGridOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
-        files="files", dot_files="files", origin="text", base_plane="text"
+        files="files", dot_files="files", origin="text", base_plane="text", pan_tilt_deg="text"
     ),
 )
 async def laser_grid_measure(
@@ -218,15 +232,25 @@ async def laser_grid_measure(
     order) → every node in 3-D, surface area, volume and the base plane. The dot gives the
     grid's origin: its images (``dot_files``) or its pixels (``origin``, JSON, per camera
     [u, v] or null, e.g. from ``/laser/dot``). ``base_plane`` (JSON [a, b, c, d]) is fitted to
-    the support surface when not given."""
+    the support surface when not given. Cameras on pan/tilt heads: ``pan_tilt_deg`` (JSON,
+    per camera [pan, tilt] or null)."""
     row, form = await _rig_and_form(
-        rig_id, request, session, settings, "files", "dot_files", "origin", "base_plane"
+        rig_id,
+        request,
+        session,
+        settings,
+        "files",
+        "dot_files",
+        "origin",
+        "base_plane",
+        "pan_tilt_deg",
     )
+    geometry = rigs.geometry_of(row, grid.pan_tilt_field(form.fields.get("pan_tilt_deg", [])))
     return await image_work(
         request,
         partial(
             grid.measure,
-            rigs.geometry_of(row),
+            geometry,
             form.files_of("files"),
             dot_files=form.files_of("dot_files"),
             origin=form.fields.get("origin", []),
