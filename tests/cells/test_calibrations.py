@@ -169,6 +169,20 @@ def test_a_board_opencv_cannot_detect_is_422(
     assert "3–100" in r.json()["detail"]
 
 
+def test_a_board_larger_than_the_images_is_422_and_nothing_stored(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """90 × 70 inner corners cannot show in 120 × 90 photos (under 2 px a square)."""
+    image = cv2.imencode(".png", np.full((90, 120, 3), 128, np.uint8))[1].tobytes()
+    files = [("files", (f"{i}.png", image, "image/png")) for i in range(3)]
+    data = {"pattern_cols": "90", "pattern_rows": "70", "square_size": "1"}
+    r = client.post("/calibrations", files=files, data=data, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert len(r.json()["views_rejected"]) == 3
+    assert client.get("/calibrations", headers=admin).json() == []
+
+
 def test_a_known_camera_from_rendered_views(client: TestClient, admin: dict[str, str]) -> None:
     """Ground truth by construction: boards rendered through K_RENDER (corners exact to
     ~0.05 px) give back that K."""
