@@ -1,5 +1,6 @@
 """Panel cameras' part of the ingest path (``KindHandler``), handed to the platform by
-``app.main``: how a panel frame is decoded, its fleet features, and its verdict's shape."""
+``app.main``: its fleet features, and its verdict's shape. Panel frames are decoded at full size:
+the T² statistic is of the modes of the picture's own pixels (chapter 5 §III)."""
 
 from __future__ import annotations
 
@@ -14,23 +15,12 @@ from sqlalchemy.orm import Session
 from app.platform.db.models import Camera, Verdict
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.cameras import check_in_service
-from app.platform.frames.jpeg import JpegHeader
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.schemas import PanelVerdictOut
 from app.solar import panels
 from app.solar.core import fleet
 from app.solar.models import Baseline, Panel, PanelVerdict, Robot
-
-MIN_REDUCED_SIDE = 120
-"""Panel frames are decoded at the largest of 1/2, 1/4, 1/8 that keeps this many pixels on the
-short side [px]: the panel statistics do not need more, and decoding costs less."""
-
-
-def decode_reduction(header: JpegHeader) -> int:
-    """The DCT reduction of a panel frame (1 = full size)."""
-    short = min(header.width, header.height)
-    return next((r for r in (8, 4, 2) if short // r >= MIN_REDUCED_SIDE), 1)
 
 
 def _features(pixels: Pixels) -> NDArray[np.float64] | None:
@@ -39,10 +29,11 @@ def _features(pixels: Pixels) -> NDArray[np.float64] | None:
 
 
 def _describe(session: Session, camera: Camera, info: CameraInfo) -> CameraInfo:
-    """``has_reference``: the panel has a baseline of the camera's view (region), so the fleet
-    model's features need not be computed."""
+    """``has_reference``: the panel has a baseline of the camera's view (region) fit to judge,
+    so the fleet model's features need not be computed."""
     panel = session.get(Panel, camera.panel_id) if camera.panel_id is not None else None
-    if panel is None or panels.baseline_for(session, panel, info.region) is None:
+    row = None if panel is None else panels.baseline_for(session, panel, info.region)
+    if row is None or panels.baseline_unfit(row) is not None:
         return info
     return replace(info, has_reference=True)
 
@@ -93,7 +84,6 @@ def _baseline_frames(session: Session) -> Iterator[str]:
 HANDLER = KindHandler(
     conclude=panels.classify_frame,
     verdict_out=verdict_out,
-    reduction=decode_reduction,
     features=_features,
     describe=_describe,
     check_camera=_check_camera,

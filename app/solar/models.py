@@ -72,6 +72,10 @@ class Baseline(Base):
     roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
     """The region of interest its images were measured in (null: whole images). It judges only
     frames measured in the same region: modes of another part of the view are not comparable."""
+    full_resolution: Mapped[bool] = mapped_column(Boolean, default=True, server_default=false())
+    """Trained on the modes of full-size images (chapter 5 §III). Baselines from before were
+    trained on modes of images decoded at 1/2–1/8 scale, the modes of block averages: stale,
+    judging nothing until retrained (rows not written by this code default to false)."""
 
 
 class TaskStatus(enum.StrEnum):
@@ -158,5 +162,8 @@ class PanelVerdict(Verdict):
     late: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     """Taken before the panel's latest judged frame, or before the cleaning awaiting
     confirmation was done: judged, but it did not drive the panel's state."""
+    full_resolution: Mapped[bool] = mapped_column(Boolean, default=True, server_default=false())
+    """Its modes are of the full-size frame; verdicts from before, of a 1/2–1/8 scale decode:
+    a baseline cannot be trained from those."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}

@@ -271,6 +271,28 @@ def judging(session: Session, panel: Panel, camera_id: str) -> Baseline:
     return row
 
 
+@dataclass(frozen=True, slots=True)
+class Unfit:
+    """Why a baseline may not judge: ``code`` (baseline_stale, baseline_too_broad) and what to
+    do about it."""
+
+    code: str
+    baseline_id: str
+    detail: str
+
+
+def baseline_unfit(row: Baseline) -> Unfit | None:
+    """Why a baseline may not judge, or None: trained on modes of reduced images (stale)."""
+    if not row.full_resolution:
+        return Unfit(
+            "baseline_stale",
+            row.id,
+            f"baseline {row.id} is stale: trained on modes of frames decoded at reduced scale; "
+            "retrain it from new frames or images (POST /panels/{id}/baseline)",
+        )
+    return None
+
+
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
     """A panel camera's verdict: the panel's own T² baseline of the camera's view (region),
     else the fleet model.
@@ -297,7 +319,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     task = open_task(session, panel.id, lock=True)
     # the baseline of this camera's view (region); a view without one, like a panel without
     # any, is judged by the fleet model when there is one
-    row = baseline_for(session, panel, camera.region)
+    found = baseline_for(session, panel, camera.region)
+    unfit = baseline_unfit(found) if found is not None else None
+    row = None if unfit is not None else found  # a baseline that cannot judge judges nothing
     model_row = None if row is not None else latest_fleet_model(session)
     fleet_available = model_row is not None
     if decoded.quality is not None:
@@ -313,6 +337,10 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         verdict.method, verdict.p_dirty = "fleet", p_dirty
         verdict.threshold = model.threshold
         verdict.clean = p_dirty < model.threshold
+        if unfit is not None:
+            verdict.reason = f"judged by the fleet model: {unfit.detail}"[:200]
+    elif unfit is not None:
+        verdict.reason = unfit.detail[:200]
     elif panel.baseline_id is not None:  # modes of another part of the view: not comparable
         verdict.reason = (
             f"no baseline of this panel was measured in this camera's "
@@ -438,6 +466,8 @@ class View:
     camera_id: str
     baseline_id: str | None
     trend: Trend
+    unfit: Unfit | None = None
+    """Why that baseline judges nothing, when it does not."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -448,6 +478,8 @@ class Status:
     last: tuple[Frame, PanelVerdict] | None
     trend: Trend
     views: list[View]
+    warnings: list[Unfit]
+    """The panel's baselines that judge nothing, and why."""
 
 
 def views(session: Session, panel: Panel, now: datetime) -> list[View]:
@@ -466,7 +498,8 @@ def views(session: Session, panel: Panel, now: datetime) -> list[View]:
             if baseline is not None
             else Trend(0, None, None, None, None)
         )
-        out.append(View(camera.id, baseline.id if baseline else None, trend))
+        unfit = baseline_unfit(baseline) if baseline is not None else None
+        out.append(View(camera.id, baseline.id if baseline else None, trend, unfit))
     return out
 
 
@@ -476,17 +509,24 @@ def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
         raise NotFound(f"no panel {panel_id!r}")
     now = policy.now()
     task = open_task(session, panel_id)
-    fleet_available = panel.baseline_id is None and latest_fleet_model(session) is not None
+    newest = session.get(Baseline, panel.baseline_id) if panel.baseline_id else None
+    unfit = baseline_unfit(newest) if newest is not None else None
+    fleet_available = (newest is None or unfit is not None) and latest_fleet_model(
+        session
+    ) is not None
     state = state_of(
         facts(panel, task, now, fleet_available=fleet_available), debounce=policy.debounce
     )
+    seen = views(session, panel, now)
+    warnings = {u.baseline_id: u for u in [unfit, *(v.unfit for v in seen)] if u is not None}
     return Status(
         panel,
         state,
         task,
         latest_verdict(session, panel_id),
         soiling_trend(session, panel, now),
-        views(session, panel, now),
+        seen,
+        list(warnings.values()),
     )
 
 

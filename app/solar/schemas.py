@@ -91,6 +91,10 @@ class BaselineOut(Out):
         description="The region of interest its images were measured in (null: whole images); "
         "it judges only frames measured in the same region."
     )
+    full_resolution: bool = Field(
+        description="Trained on modes of full-size images. False: a baseline from before modes "
+        "were taken at full size, stale, judging nothing until retrained."
+    )
 
 
 class TaskOut(Out):
@@ -139,6 +143,12 @@ class PanelVerdictSummary(PanelVerdictOut):
     captured_at: datetime
 
 
+class BaselineWarning(Out):
+    code: Literal["baseline_stale", "baseline_too_broad"]
+    baseline_id: str
+    detail: str
+
+
 class PanelStatus(Out):
     panel_id: str
     state: PanelStateName
@@ -155,6 +165,11 @@ class PanelStatus(Out):
         default_factory=list,
         description="Each camera in service: the baseline judging its frames (the panel's newest "
         "of its region) and their trend.",
+    )
+    warnings: list[BaselineWarning] = Field(
+        default_factory=list,
+        description="The panel's baselines that judge nothing, and why (the fleet model judges "
+        "instead, when there is one): stale (trained on modes of reduced images), or too broad.",
     )
 
 

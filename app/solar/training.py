@@ -65,6 +65,7 @@ def modes_of_frames(
             PanelVerdict.roi,
             PanelVerdict.usable,
             PanelVerdict.reason,
+            PanelVerdict.full_resolution,
         )
         .join(Frame, Frame.id == PanelVerdict.frame_id)
         .where(PanelVerdict.frame_id.in_(frame_ids), PanelVerdict.panel_id == panel_id)
@@ -77,6 +78,15 @@ def modes_of_frames(
             missing=missing,
         )
     verdicts.check_usable([(r[0], r[6]) for r in rows if not r[5]])
+    reduced = [r[0] for r in rows if not r[7]]
+    if reduced:
+        raise Unprocessable(
+            f"{len(reduced)} frames were measured before modes were taken at full size (their "
+            f"modes are of a 1/2–1/8 scale decode): {', '.join(reduced[:10])}; train from "
+            "newer frames or upload the images",
+            code="reduced_scale_frames",
+            frames=reduced,
+        )
     regions = {r[0]: r[4] for r in rows}
     region = regions[frame_ids[0]]
     elsewhere = [f for f in frame_ids if regions[f] != region]

@@ -43,6 +43,7 @@ from app.solar.models import Baseline, Panel
 from app.solar.schemas import (
     BaselineFromFrames,
     BaselineOut,
+    BaselineWarning,
     EvaluationOut,
     PanelCreate,
     PanelOut,
@@ -328,6 +329,10 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
                 trend=TrendOut.model_validate(v.trend),
             )
             for v in status.views
+        ],
+        warnings=[
+            BaselineWarning(code=w.code, baseline_id=w.baseline_id, detail=w.detail)
+            for w in status.warnings
         ],
     )
 

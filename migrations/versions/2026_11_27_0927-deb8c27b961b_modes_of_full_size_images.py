@@ -1,0 +1,37 @@
+"""baselines and panel verdicts say whether their modes are of full-size images
+
+Rows from before were measured on frames decoded at 1/2-1/8 scale: false, i.e. stale.
+
+Revision ID: deb8c27b961b
+Revises: f18c5d78201c
+Create Date: 2026-11-27 09:27:34.304708
+"""
+
+from collections.abc import Sequence
+
+import sqlalchemy as sa
+from alembic import op
+
+
+revision: str = 'deb8c27b961b'
+down_revision: str | None = 'f18c5d78201c'
+branch_labels: str | Sequence[str] | None = None
+depends_on: str | Sequence[str] | None = None
+
+
+def upgrade() -> None:
+    with op.batch_alter_table('baselines', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('full_resolution', sa.Boolean(), server_default=sa.false(), nullable=False))
+
+    with op.batch_alter_table('panel_verdicts', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('full_resolution', sa.Boolean(), server_default=sa.false(), nullable=False))
+
+
+
+def downgrade() -> None:
+    with op.batch_alter_table('panel_verdicts', schema=None) as batch_op:
+        batch_op.drop_column('full_resolution')
+
+    with op.batch_alter_table('baselines', schema=None) as batch_op:
+        batch_op.drop_column('full_resolution')
+
