@@ -72,6 +72,9 @@ class Baseline(Base):
     roi: Mapped[list[int] | list[list[int]] | None] = mapped_column(JSON)
     """The region of interest its images were measured in (null: whole images). It judges only
     frames measured in the same region: modes of another part of the view are not comparable."""
+    detectable_veil: Mapped[float | None] = mapped_column(Float)
+    """The smallest dust veil its F test detects with probability 0.9 (``core.power``); none on
+    baselines from before it was estimated."""
     full_resolution: Mapped[bool] = mapped_column(Boolean, default=True, server_default=false())
     """Trained on the modes of full-size images (chapter 5 §III). Baselines from before were
     trained on modes of images decoded at 1/2–1/8 scale, the modes of block averages: stale,

@@ -21,6 +21,7 @@ from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
 from app.platform.policy import Policy
 from app.solar.cleaning import shown_as
+from app.solar.core import power
 from app.solar.core.fleet import LogisticModel
 from app.solar.core.panel_state import (
     PanelFacts,
@@ -282,7 +283,8 @@ class Unfit:
 
 
 def baseline_unfit(row: Baseline) -> Unfit | None:
-    """Why a baseline may not judge, or None: trained on modes of reduced images (stale)."""
+    """Why a baseline may not judge, or None: trained on modes of reduced images (stale), or
+    too broad to notice a useful dust veil (``core.power``)."""
     if not row.full_resolution:
         return Unfit(
             "baseline_stale",
@@ -290,6 +292,15 @@ def baseline_unfit(row: Baseline) -> Unfit | None:
             f"baseline {row.id} is stale: trained on modes of frames decoded at reduced scale; "
             "retrain it from new frames or images (POST /panels/{id}/baseline)",
         )
+    if row.detectable_veil is not None:
+        broad = power.too_broad(row.detectable_veil, row.covariance)
+        if broad is not None:
+            return Unfit(
+                "baseline_too_broad",
+                row.id,
+                f"baseline {row.id} is too broad to judge: {broad}; retrain it from photos of "
+                "this panel by its camera",
+            )
     return None
 
 

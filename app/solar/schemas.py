@@ -75,6 +75,12 @@ class BaselineFromFrames(Schema):
     frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
 
 
+class BaselineWarning(Out):
+    code: Literal["baseline_stale", "baseline_too_broad"]
+    baseline_id: str
+    detail: str
+
+
 class BaselineOut(Out):
     id: str
     panel_id: str
@@ -94,6 +100,17 @@ class BaselineOut(Out):
     full_resolution: bool = Field(
         description="Trained on modes of full-size images. False: a baseline from before modes "
         "were taken at full size, stale, judging nothing until retrained."
+    )
+    detectable_veil: float | None = Field(
+        default=None,
+        description="The smallest dust veil (strength s: each pixel blended s of the way to "
+        "brown-grey dust) its F test detects with probability 0.9, estimated at training.",
+    )
+    warnings: list[BaselineWarning] = Field(
+        default_factory=list,
+        description="Why it judges nothing, if so: baseline_stale, or baseline_too_broad (its "
+        "photos vary far more than one panel's, or it would notice only a veil over 0.3); the "
+        "fleet model judges the panel instead, when there is one.",
     )
 
 
@@ -141,12 +158,6 @@ class ViewOut(Out):
 class PanelVerdictSummary(PanelVerdictOut):
     frame_id: str
     captured_at: datetime
-
-
-class BaselineWarning(Out):
-    code: Literal["baseline_stale", "baseline_too_broad"]
-    baseline_id: str
-    detail: str
 
 
 class PanelStatus(Out):

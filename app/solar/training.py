@@ -25,6 +25,7 @@ from app.platform.frames.camera_info import (
 )
 from app.platform.frames.cameras import check_in_service
 from app.platform.http.errors import Unprocessable
+from app.solar.core import power
 from app.solar.core.fleet import FEATURES
 from app.solar.models import Baseline, FleetModel, PanelVerdict
 from app.solar.panels import lock_panel
@@ -151,6 +152,9 @@ def train_baseline(
         shrinkage=fit.shrinkage,
         frame_ids=frame_ids,
         roi=roi,
+        detectable_veil=power.detectable_veil(
+            fit.n, fit.mean_modes, fit.covariance, fit.f_critical
+        ),
     )
     session.add(row)
     session.flush()

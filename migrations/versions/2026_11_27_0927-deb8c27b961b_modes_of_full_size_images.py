@@ -1,4 +1,5 @@
-"""baselines and panel verdicts say whether their modes are of full-size images
+"""baselines and panel verdicts say whether their modes are of full-size images; baselines
+what dust veil they can detect
 
 Rows from before were measured on frames decoded at 1/2-1/8 scale: false, i.e. stale.
 
@@ -22,6 +23,7 @@ depends_on: str | Sequence[str] | None = None
 def upgrade() -> None:
     with op.batch_alter_table('baselines', schema=None) as batch_op:
         batch_op.add_column(sa.Column('full_resolution', sa.Boolean(), server_default=sa.false(), nullable=False))
+        batch_op.add_column(sa.Column('detectable_veil', sa.Float(), nullable=True))
 
     with op.batch_alter_table('panel_verdicts', schema=None) as batch_op:
         batch_op.add_column(sa.Column('full_resolution', sa.Boolean(), server_default=sa.false(), nullable=False))
@@ -33,5 +35,6 @@ def downgrade() -> None:
         batch_op.drop_column('full_resolution')
 
     with op.batch_alter_table('baselines', schema=None) as batch_op:
+        batch_op.drop_column('detectable_veil')
         batch_op.drop_column('full_resolution')
 

@@ -975,3 +975,35 @@ class TestTheFarmAtAGlance:
         robot = bearer(farm["robots"]["r1"])
         assert client.get("/panel-states", headers=robot).status_code == 403
         assert client.get("/panel-states").status_code == 401
+
+
+class TestBaselinePower:
+    """A baseline says what it can detect, and refuses to judge when that is nothing useful."""
+
+    def test_a_baseline_of_one_panel_knows_its_veil(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        b = train(client, admin, clean_set(8)).json()
+        assert 0 < b["detectable_veil"] < 0.3
+        assert b["warnings"] == []
+        assert status(client, admin)["warnings"] == []
+
+    def test_photos_of_different_panels_are_too_broad_and_the_fleet_judges(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        colours = [(56, 60, 84), (120, 110, 90), (30, 40, 140), (90, 140, 70), (200, 60, 60)]
+        photos = [panel_jpeg(np.array(c, float), seed=i) for i, c in enumerate(colours)]
+        r = train(client, admin, photos)
+        assert r.status_code == 201, r.text
+        [warning] = r.json()["warnings"]
+        assert warning["code"] == "baseline_too_broad"
+        assert "different panels" in warning["detail"]
+        assert [w["code"] for w in status(client, admin)["warnings"]] == ["baseline_too_broad"]
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert v["clean"] is None
+        assert "too broad" in v["reason"]
+        train_fleet(client, admin)
+        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * SAND, seed=3)
+        assert (v["method"], v["clean"]) == ("fleet", False)
+        assert "too broad" in v["reason"]
+        assert status(client, admin)["state"] != "no_baseline"

@@ -198,7 +198,7 @@ def _train_from_files(
         roi=camera.region,
         now=policy.now(),
     )
-    return BaselineOut.model_validate(row)
+    return baseline_out(row)
 
 
 def _train_from_frames(
@@ -221,7 +221,7 @@ def _train_from_frames(
         roi=region,
         now=policy.now(),
     )
-    return BaselineOut.model_validate(row)
+    return baseline_out(row)
 
 
 @router.post(
@@ -301,8 +301,20 @@ def get_baseline(
     if camera_id is None:
         if panel.baseline_id is None:
             raise NotFound(f"panel {panel_id!r} has no baseline")
-        return BaselineOut.model_validate(session.get(Baseline, panel.baseline_id))
-    return BaselineOut.model_validate(panels.judging(session, panel, camera_id))
+        return baseline_out(session.get(Baseline, panel.baseline_id))
+    return baseline_out(panels.judging(session, panel, camera_id))
+
+
+def warning_out(unfit: panels.Unfit) -> BaselineWarning:
+    return BaselineWarning(code=unfit.code, baseline_id=unfit.baseline_id, detail=unfit.detail)
+
+
+def baseline_out(row: Baseline | None) -> BaselineOut:
+    """A baseline with what keeps it from judging, if anything."""
+    assert row is not None
+    unfit = panels.baseline_unfit(row)
+    out = BaselineOut.model_validate(row)
+    return out.model_copy(update={"warnings": [] if unfit is None else [warning_out(unfit)]})
 
 
 def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
@@ -330,10 +342,7 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
             )
             for v in status.views
         ],
-        warnings=[
-            BaselineWarning(code=w.code, baseline_id=w.baseline_id, detail=w.detail)
-            for w in status.warnings
-        ],
+        warnings=[warning_out(w) for w in status.warnings],
     )
 
 
