@@ -180,6 +180,11 @@ class PanelVerdictOut(VerdictBase):
         "region (a panel watched from several views has one per view).",
     )
     p_dirty: float | None = Field(default=None, description="Fleet model: p(needs cleaning).")
+    condition: str | None = Field(
+        default=None,
+        description="Fleet model: what it saw, clean, dust, bird_drop or snow (a snow-covered "
+        "panel gets clean: null and opens no brushing task); dirty from older models.",
+    )
     late: bool = Field(
         default=False,
         description="Taken before the panel's latest judged frame, or before the cleaning "

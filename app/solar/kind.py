@@ -70,6 +70,7 @@ def verdict_out(verdict: Verdict) -> PanelVerdictOut:
         method=verdict.method,
         baseline_id=verdict.baseline_id,
         p_dirty=verdict.p_dirty,
+        condition=verdict.condition,
         late=bool(verdict.late),
         **verdict_common(verdict),
     )

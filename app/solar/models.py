@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from datetime import datetime
+from typing import Any
 
 from sqlalchemy import (
     JSON,
@@ -132,7 +133,16 @@ class FleetModel(Base):
     threshold: Mapped[float] = mapped_column(Float)
     n_clean: Mapped[int] = mapped_column(Integer)
     n_dirty: Mapped[int] = mapped_column(Integer)
+    """Photos needing cleaning: dust and droppings."""
     cv_balanced_accuracy: Mapped[float | None] = mapped_column(Float)
+    kernel: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    """A kernel model (``core.fleet.KernelModel``): support, dual, intercept, gamma, platt;
+    none for the linear models of before (``coef``, ``intercept``)."""
+    heads: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    """Logistic heads on the same standardised features: snow (vs the rest) and bird_drop
+    (vs dust), each {coef, intercept}, when trained."""
+    n_snow: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    n_bird_drop: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class Robot(TimestampMixin, Base):
@@ -165,6 +175,9 @@ class PanelVerdict(Verdict):
     late: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     """Taken before the panel's latest judged frame, or before the cleaning awaiting
     confirmation was done: judged, but it did not drive the panel's state."""
+    condition: Mapped[str | None] = mapped_column(String(16))
+    """What the fleet model saw: clean, dust, bird_drop, snow (or dirty, from a model that
+    tells no more)."""
     full_resolution: Mapped[bool] = mapped_column(Boolean, default=True, server_default=false())
     """Its modes are of the full-size frame; verdicts from before, of a 1/2–1/8 scale decode:
     a baseline cannot be trained from those."""

@@ -22,7 +22,7 @@ from app.platform.http.errors import NotFound
 from app.platform.policy import Policy
 from app.solar.cleaning import shown_as
 from app.solar.core import power
-from app.solar.core.fleet import LogisticModel
+from app.solar.core.fleet import Head, KernelModel, LogisticModel
 from app.solar.core.panel_state import (
     PanelFacts,
     PanelState,
@@ -152,13 +152,34 @@ def as_core_baseline(row: Baseline) -> soiling.Baseline:
     )
 
 
-def as_core_model(row: FleetModel) -> LogisticModel:
-    return LogisticModel(
+def as_core_model(row: FleetModel) -> LogisticModel | KernelModel:
+    """The stored fleet model: a kernel model with its heads, or a linear one from before."""
+    if row.kernel is None:
+        return LogisticModel(
+            feature_names=tuple(row.feature_names),
+            mean=np.asarray(row.mean),
+            scale=np.asarray(row.scale),
+            coef=np.asarray(row.coef),
+            intercept=row.intercept,
+            threshold=row.threshold,
+        )
+    k, heads = row.kernel, row.heads or {}
+
+    def head(name: str) -> Head | None:
+        h = heads.get(name)
+        return None if h is None else Head(np.asarray(h["coef"], np.float64), h["intercept"])
+
+    return KernelModel(
         feature_names=tuple(row.feature_names),
-        mean=np.asarray(row.mean),
-        scale=np.asarray(row.scale),
-        coef=np.asarray(row.coef),
-        intercept=row.intercept,
+        mean=np.asarray(row.mean, np.float64),
+        scale=np.asarray(row.scale, np.float64),
+        support=np.asarray(k["support"], np.float64),
+        dual=np.asarray(k["dual"], np.float64),
+        intercept=float(k["intercept"]),
+        gamma=float(k["gamma"]),
+        platt=(float(k["platt"][0]), float(k["platt"][1])),
+        snow=head("snow"),
+        bird_drop=head("bird_drop"),
         threshold=row.threshold,
     )
 
@@ -347,7 +368,11 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         p_dirty = float(model.probability(decoded.features))
         verdict.method, verdict.p_dirty = "fleet", p_dirty
         verdict.threshold = model.threshold
-        verdict.clean = p_dirty < model.threshold
+        verdict.condition = model.condition(decoded.features)
+        if verdict.condition == "snow":  # not a case for brushing: no verdict on soiling
+            verdict.reason = "snow-covered: no brushing until it melts"
+        else:
+            verdict.clean = p_dirty < model.threshold
         if unfit is not None:
             verdict.reason = f"judged by the fleet model: {unfit.detail}"[:200]
     elif unfit is not None:

@@ -216,6 +216,11 @@ class FleetModelOut(Out):
     created_at: datetime
     feature_names: list[str]
     n_clean: int
-    n_dirty: int
-    cv_balanced_accuracy: float | None = Field(description="5-fold balanced accuracy.")
+    n_dirty: int = Field(description="Photos needing cleaning: dust and bird_drop.")
+    n_bird_drop: int = 0
+    n_snow: int = 0
+    cv_balanced_accuracy: float | None = Field(
+        description="Needs cleaning against clean: balanced accuracy over 5 folds, the model's "
+        "choice of C and γ made again inside each (nested)."
+    )
     threshold: float

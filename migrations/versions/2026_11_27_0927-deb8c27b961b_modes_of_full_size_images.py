@@ -1,5 +1,5 @@
 """baselines and panel verdicts say whether their modes are of full-size images; baselines
-what dust veil they can detect
+what dust veil they can detect; fleet models of a kernel and heads for snow and droppings
 
 Rows from before were measured on frames decoded at 1/2-1/8 scale: false, i.e. stale.
 
@@ -27,11 +27,25 @@ def upgrade() -> None:
 
     with op.batch_alter_table('panel_verdicts', schema=None) as batch_op:
         batch_op.add_column(sa.Column('full_resolution', sa.Boolean(), server_default=sa.false(), nullable=False))
+        batch_op.add_column(sa.Column('condition', sa.String(length=16), nullable=True))
+
+    with op.batch_alter_table('fleet_models', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('kernel', sa.JSON(), nullable=True))
+        batch_op.add_column(sa.Column('heads', sa.JSON(), nullable=True))
+        batch_op.add_column(sa.Column('n_snow', sa.Integer(), server_default='0', nullable=False))
+        batch_op.add_column(sa.Column('n_bird_drop', sa.Integer(), server_default='0', nullable=False))
 
 
 
 def downgrade() -> None:
+    with op.batch_alter_table('fleet_models', schema=None) as batch_op:
+        batch_op.drop_column('n_bird_drop')
+        batch_op.drop_column('n_snow')
+        batch_op.drop_column('heads')
+        batch_op.drop_column('kernel')
+
     with op.batch_alter_table('panel_verdicts', schema=None) as batch_op:
+        batch_op.drop_column('condition')
         batch_op.drop_column('full_resolution')
 
     with op.batch_alter_table('baselines', schema=None) as batch_op:

@@ -1007,3 +1007,44 @@ class TestBaselinePower:
         assert (v["method"], v["clean"]) == ("fleet", False)
         assert "too broad" in v["reason"]
         assert status(client, admin)["state"] != "no_baseline"
+
+
+SNOW = np.array([210.0, 213.0, 218.0])
+
+
+class TestSnow:
+    def test_a_snowed_panel_is_reported_as_such_and_opens_no_task(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        rng = np.random.default_rng(8)
+        files, labels = [], []
+        for i in range(8):
+            c = CLEAN_RGB + rng.normal(0, 6, 3)
+            for name, rgb in (("clean", c), ("dust", 0.5 * c + 0.5 * SAND), ("snow", SNOW)):
+                photo = panel_jpeg(rgb + rng.normal(0, 4, 3), seed=100 * i + len(files))
+                files.append(("files", (f"{name}{i}.jpg", photo, "image/jpeg")))
+                labels.append(name)
+        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert (r.json()["n_snow"], r.json()["n_dirty"], r.json()["n_clean"]) == (8, 8, 8)
+        v = post_frame(client, farm, SNOW, seed=5)
+        assert (v["method"], v["condition"], v["clean"]) == ("fleet", "snow", None), v
+        assert "snow" in v["reason"]
+        v = post_frame(client, farm, SNOW, seed=6)
+        assert status(client, admin)["open_task"] is None
+        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * SAND, seed=7)
+        assert (v["condition"], v["clean"]) == ("dust", False)
+
+    def test_labels_outside_the_set_are_refused_and_nothing_stored(
+        self, client: TestClient, admin: dict[str, str]
+    ) -> None:
+        files = [
+            ("files", (f"{i}.jpg", panel_jpeg(CLEAN_RGB, seed=i), "image/jpeg")) for i in range(2)
+        ]
+        r = client.post(
+            "/fleet/model", files=files, data={"labels": ["clean", "muddy"]}, headers=admin
+        )
+        assert r.status_code == 422
+        assert r.json()["code"] == "unknown_label"
+        assert "muddy" in r.json()["detail"]
+        assert client.get("/fleet/model", headers=admin).status_code == 404

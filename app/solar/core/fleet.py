@@ -1,10 +1,11 @@
-"""Features of a panel photograph for the fleet model: colour, contrast and texture.
+"""Features of a panel photograph for the fleet model, and the fleet model itself.
 
 A per-panel baseline needs clean photos of that panel; a panel without one is judged by a fleet
 model trained on labelled photos of many panels. Three modes are not enough across panel types
-and cameras, so the fleet model sees how saturated, how contrasted and how speckled the panel
-looks. Features are computed on a copy reduced to at most ``MAX_SIDE`` pixels, which keeps the
-cost well under that of decoding the frame.
+and cameras, so the fleet model sees how saturated, how contrasted, how speckled and how
+textured the panel looks: haze and dust features on a copy reduced to at most ``MAX_SIDE``
+pixels, grey-level co-occurrence (GLCM) and local binary pattern (LBP) texture and colour
+statistics (scikit-image, OpenCV) on a copy area-averaged to ``TEXTURE_SIDE``.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from skimage.feature import graycomatrix, graycoprops, local_binary_pattern
 
 MAX_SIDE = 128
 """Long side of the reduced copy the features are computed on [px]."""
@@ -29,6 +31,32 @@ FEATURES = (
     "grey_cv",
     "speckle_fraction",
 )
+HAZE_FEATURES = FEATURES
+
+_GLCM_PROPS = ("contrast", "homogeneity", "energy", "correlation", "dissimilarity")
+_GLCM_DISTANCES = (1, 3)
+TEXTURE_FEATURES = (
+    tuple(f"glcm_{p}_d{d}" for p in _GLCM_PROPS for d in _GLCM_DISTANCES)
+    + tuple(f"lbp_{k}" for k in range(10))
+    + tuple(
+        f"{space}_{stat}_{c}"
+        for space, channels in (("hsv", "hsv"), ("lab", "lab"))
+        for stat in ("mean", "std")
+        for c in channels
+    )
+    + tuple(f"lab_p{q}_{c}" for q in (10, 90) for c in "lab")
+)
+"""Texture: GLCM contrast, homogeneity, energy, correlation and dissimilarity at 1 and 3 px
+(averaged over 4 directions, 32 grey levels); the 10-bin histogram of uniform LBP (8
+neighbours, radius 1); colour: HSV and CIELAB means and standard deviations, CIELAB 10th and
+90th percentiles."""
+
+ALL_FEATURES = HAZE_FEATURES + TEXTURE_FEATURES
+"""What ``features`` computes, in its order; a model uses those it names."""
+
+TEXTURE_SIDE = 256
+"""Long side of the area-averaged copy the texture is measured on [px]: texture is a matter of
+scale, so every larger photo is brought to one."""
 """Dust is a haze: it lifts the darkest channel of every pixel (the dark channel, as in
 single-image dehazing) and whitens the panel (min/max channel ratio); a clean cell is saturated
 blue or black; droppings are bright specks on a darker background."""
@@ -56,7 +84,38 @@ def _percentiles(channel: NDArray[np.generic], qs: tuple[float, ...]) -> list[fl
 
 
 def features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
-    """The ``FEATURES`` of an RGB image of shape (H, W, 3), uint8, as a vector of shape (9,)."""
+    """The ``ALL_FEATURES`` of an RGB image of shape (H, W, 3), uint8, as a vector."""
+    return np.concatenate([haze_features(image), texture_features(image)])
+
+
+def texture_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """The ``TEXTURE_FEATURES`` of an RGB image of shape (H, W, 3), uint8."""
+    h, w = image.shape[:2]
+    k = min(1.0, TEXTURE_SIDE / max(h, w))  # reduced, never enlarged: enlarging invents texture
+    size = (max(8, round(w * k)), max(8, round(h * k)))
+    small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    glcm = graycomatrix(
+        grey // 8,
+        distances=list(_GLCM_DISTANCES),
+        angles=[0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4],
+        levels=32,
+        symmetric=True,
+        normed=True,
+    )
+    co = [graycoprops(glcm, prop).mean(axis=1) for prop in _GLCM_PROPS]  # per distance
+    lbp = local_binary_pattern(grey, 8, 1, "uniform").astype(np.int64)
+    lbp_hist = np.bincount(lbp.ravel(), minlength=10)[:10] / lbp.size
+    hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.float64)
+    lab = cv2.cvtColor(small, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float64)
+    colour = [hsv.mean(0), hsv.std(0), lab.mean(0), lab.std(0)]
+    colour += list(np.percentile(lab, [10, 90], axis=0))
+    out = np.concatenate([np.concatenate(co), lbp_hist, np.concatenate(colour)])
+    return np.asarray(np.nan_to_num(out, nan=0.0), dtype=np.float64)  # a flat image: no texture
+
+
+def haze_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """The ``HAZE_FEATURES`` of an RGB image of shape (H, W, 3), uint8, shape (9,)."""
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"expected an RGB image of shape (H, W, 3), uint8; got {image.shape}")
     small = reduce(image)
@@ -100,6 +159,81 @@ class LogisticModel:
     threshold: float = 0.5
 
     def probability(self, f: ArrayLike) -> NDArray[np.float64]:
-        """p(needs cleaning) for feature vectors of shape (..., k)."""
-        z = ((np.asarray(f, dtype=np.float64) - self.mean) / self.scale) @ self.coef
+        """p(needs cleaning) for ``ALL_FEATURES`` vectors of shape (..., K)."""
+        z = ((pick(f, self.feature_names) - self.mean) / self.scale) @ self.coef
         return np.asarray(1.0 / (1.0 + np.exp(-(z + self.intercept))), dtype=np.float64)
+
+    def condition(self, f: ArrayLike) -> str:
+        """clean or dirty: the linear model tells no more."""
+        return "dirty" if float(self.probability(f)) >= self.threshold else "clean"
+
+
+def pick(f: ArrayLike, names: tuple[str, ...]) -> NDArray[np.float64]:
+    """The columns ``names`` of ``ALL_FEATURES`` vectors (..., K) [or of vectors of just
+    those, as older models' callers pass]."""
+    x = np.asarray(f, dtype=np.float64)
+    if x.shape[-1] == len(names):
+        return x
+    return np.asarray(x[..., [ALL_FEATURES.index(n) for n in names]], dtype=np.float64)
+
+
+def _sigmoid(z: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    return np.asarray(1.0 / (1.0 + np.exp(-np.asarray(z, dtype=np.float64))), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class Head:
+    """A standardised logistic regression on the same features: p = σ(w · (f − μ)/s + b)."""
+
+    coef: NDArray[np.float64]
+    intercept: float
+
+    def probability(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
+        return _sigmoid(z @ self.coef + self.intercept)
+
+
+@dataclass(frozen=True, slots=True)
+class KernelModel:
+    """Needs cleaning or not: a support-vector machine with a Gaussian (RBF) kernel on the
+    standardised features, f(z) = Σᵢ αᵢ exp(−γ ‖zᵢ − z‖²) + b, its decision turned into a
+    probability by Platt's sigmoid σ(a f + c) fitted to cross-validated decisions. Optional
+    heads tell snow from the rest and droppings from dust (``condition``)."""
+
+    feature_names: tuple[str, ...]
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    support: NDArray[np.float64]
+    """(n_sv, K) standardised support vectors."""
+    dual: NDArray[np.float64]
+    """(n_sv,) αᵢ (the dual coefficients, signed)."""
+    intercept: float
+    gamma: float
+    platt: tuple[float, float]
+    snow: Head | None = None
+    bird_drop: Head | None = None
+    threshold: float = 0.5
+
+    def standardised(self, f: ArrayLike) -> NDArray[np.float64]:
+        return (pick(f, self.feature_names) - self.mean) / self.scale
+
+    def decision(self, f: ArrayLike) -> NDArray[np.float64]:
+        z = np.atleast_2d(self.standardised(f))
+        d2 = ((z[:, None, :] - self.support[None]) ** 2).sum(-1)
+        out = np.exp(-self.gamma * d2) @ self.dual + self.intercept
+        return np.asarray(out if np.ndim(f) > 1 else out[0], dtype=np.float64)
+
+    def probability(self, f: ArrayLike) -> NDArray[np.float64]:
+        """p(needs cleaning), Platt-calibrated."""
+        a, c = self.platt
+        return _sigmoid(a * self.decision(f) + c)
+
+    def condition(self, f: ArrayLike) -> str:
+        """snow, clean, dust or bird_drop (dust when the model learnt no droppings)."""
+        z = self.standardised(f)
+        if self.snow is not None and float(self.snow.probability(z)) >= 0.5:
+            return "snow"
+        if float(self.probability(f)) < self.threshold:
+            return "clean"
+        if self.bird_drop is None:
+            return "dust"
+        return "bird_drop" if float(self.bird_drop.probability(z)) >= 0.5 else "dust"

@@ -27,7 +27,7 @@ from app.solar.schemas import FleetModelOut
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
 
-LABELS = {"clean": False, "dirty": True}
+LABELS = (*training.FLEET_LABELS, "dirty")
 
 
 def _train(
@@ -40,8 +40,7 @@ def _train(
     camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
     decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
     features = np.array([d.features for d in decoded], dtype=np.float64)
-    dirty = np.array([LABELS[label] for label in labels], dtype=bool)
-    row = training.fit_fleet(features, dirty, now=policy.now())
+    row = training.fit_fleet(features, labels, now=policy.now())
     session.add(row)
     session.flush()
     return FleetModelOut.model_validate(row)
@@ -57,9 +56,12 @@ def _train(
 async def train(
     request: Request, session: SessionDep, settings: SettingsDep, policy: PolicyDep, _: Admin
 ) -> FleetModelOut:
-    """Train the fleet model from labelled photos of many panels (≥ 5 of each label).
+    """Train the fleet model from labelled photos of many panels: ≥ 5 clean and ≥ 5 needing
+    cleaning (dust or bird_drop); snow photos teach it snow (a snow-covered panel is reported
+    as such and opens no brushing task), bird_drop photos droppings from dust (≥ 3 each).
 
-    Multipart: repeated ``files`` and, in the same order, ``labels`` (clean or dirty).
+    Multipart: repeated ``files`` and, in the same order, ``labels`` (clean, dust, bird_drop,
+    snow; dirty is read as dust).
     """
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send multipart/form-data with files and labels")
@@ -71,7 +73,9 @@ async def train(
         raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")
     bad = sorted({label for label in labels if label not in LABELS})
     if bad:
-        raise Unprocessable(f"labels must be clean or dirty; got {', '.join(bad)}")
+        raise Unprocessable(
+            f"labels must be {', '.join(LABELS)}; got {', '.join(bad)}", code="unknown_label"
+        )
     return await image_work(
         request, partial(_train, session, files, labels, settings.max_pixels, policy)
     )
