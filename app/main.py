@@ -23,7 +23,7 @@ from app.air.isopleth_cache import MapCache
 from app.cells import kind as cells_kind
 from app.cells import router as cells
 from app.cells.core import triangulation
-from app.platform import health
+from app.platform import health, outbox
 from app.platform import webhooks as platform_webhooks
 from app.platform.auth import admin_token_hash, hash_token
 from app.platform.db import schema
@@ -46,6 +46,7 @@ from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
+from app.solar import events as solar_events
 from app.solar import kind as solar_kind
 from app.solar import router as solar
 
@@ -182,6 +183,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     "alerts are POSTed unsigned: set VANTAGE_ALERT_WEBHOOK_SECRET so that the"
                     " receiver can tell them from forged ones"
                 )
+        # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)
+        farm_events = asyncio.create_task(
+            outbox.run(
+                app.state.sessionmaker,
+                solar_events.TOPIC,
+                app.state.policy,
+                settings.alert_poll_seconds,
+            )
+        )
         sweeper = asyncio.create_task(
             retention.run(
                 app.state.sessionmaker,
@@ -199,9 +209,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         gc.freeze()
         yield
         gc.unfreeze()
-        sweeper.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await sweeper
+        for task in (sweeper, farm_events):
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         if notifier is not None:
             notifier.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
+from http.server import BaseHTTPRequestHandler, HTTPServer
 from pathlib import Path
 from typing import Any
 
@@ -586,3 +587,35 @@ def train(client: TestClient, admin: dict[str, str], files: list[bytes], **param
         headers=admin,
         params=params,
     )
+
+
+def recorder(
+    *answers: int,
+) -> tuple[type[BaseHTTPRequestHandler], list[tuple[bytes, dict[str, str]]]]:
+    """A receiver keeping each POST's body and headers (names lower-cased), answering them
+    ``answers`` in turn (then 204), and the list it keeps them in."""
+    got: list[tuple[bytes, dict[str, str]]] = []
+
+    class Receiver(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            got.append((body, {k.lower(): v for k, v in self.headers.items()}))
+            self.send_response(answers[len(got) - 1] if len(got) <= len(answers) else 204)
+            self.end_headers()
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    return Receiver, got
+
+
+@contextmanager
+def served(handler: type[BaseHTTPRequestHandler]) -> Iterator[str]:
+    """``handler`` serving on a local port for the block: its base URL."""
+    server = HTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{server.server_port}"
+    finally:
+        server.shutdown()
+        server.server_close()

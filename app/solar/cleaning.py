@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session
 
 from app.platform.http.errors import Conflict, NotFound
 from app.platform.policy import Policy
+from app.solar import events
 from app.solar.core.panel_state import TaskPhase, task_phase
 from app.solar.lookup import get_panel, get_robot
 from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
@@ -28,13 +29,14 @@ def _claimable(now: datetime) -> ColumnElement[bool]:
     )
 
 
-def _grant(task: CleaningTask, robot_id: str, policy: Policy) -> CleaningTask:
+def _grant(session: Session, task: CleaningTask, robot_id: str, policy: Policy) -> CleaningTask:
     now = policy.now()
     task.status = TaskStatus.claimed
     task.robot_id = robot_id
     task.claimed_at = now
     task.lease_expires_at = now + policy.lease
     task.attempts += 1
+    events.task_event(session, task, "task.claimed", now)
     return task
 
 
@@ -48,7 +50,7 @@ def claim_next(session: Session, robot_id: str, policy: Policy) -> CleaningTask 
         .limit(1)
         .with_for_update(skip_locked=True)
     ).first()
-    return _grant(task, robot_id, policy) if task is not None else None
+    return _grant(session, task, robot_id, policy) if task is not None else None
 
 
 def _locked(session: Session, task_id: str) -> CleaningTask:
@@ -65,7 +67,7 @@ def claim(session: Session, task_id: str, robot_id: str, policy: Policy) -> Clea
     task = _locked(session, task_id)
     phase = task_phase(task.status, task.lease_expires_at, policy.now())
     if phase is TaskPhase.pending or (phase is TaskPhase.claimed and task.robot_id == robot_id):
-        return _grant(task, robot_id, policy)
+        return _grant(session, task, robot_id, policy)
     if phase is TaskPhase.claimed:
         raise Conflict(f"task {task_id} is claimed by another robot", code="claimed_by_other")
     raise Conflict(f"task {task_id} is {task.status.value}; it cannot be claimed", code="closed")
@@ -87,6 +89,7 @@ def complete(session: Session, task_id: str, robot_id: str, policy: Policy) -> C
     task.status = TaskStatus.completed
     task.completed_at = policy.now()
     task.lease_expires_at = None
+    events.task_event(session, task, "task.completed", task.completed_at)
     return task
 
 
@@ -110,6 +113,7 @@ def fail(
     task.closed_at = policy.now()
     task.open_panel_id = None
     task.lease_expires_at = None
+    events.task_event(session, task, "task.failed", task.closed_at)
     return task
 
 

@@ -20,6 +20,7 @@ from app.platform.frames.kinds import Prepared
 from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
 from app.platform.policy import Policy
+from app.solar import events
 from app.solar.cleaning import shown_as
 from app.solar.core import power
 from app.solar.core.fleet import Head, KernelModel, LogisticModel
@@ -233,14 +234,17 @@ def apply_verdict(
             attempts=0,
         )
         session.add(task)
+        events.task_event(session, task, "task.opened", now)
     elif task is not None and t.action is not TaskAction.none:
         if t.action is TaskAction.cancel:
             # a stale claim (expired lease) is cancelled too: the panel is clean
             close_task(task, TaskStatus.cancelled, "not_needed", now)
         elif t.action is TaskAction.close_effective:
             close_task(task, TaskStatus.closed, "effective", now)
+            events.task_event(session, task, "cleaning.effective", now)
         else:
             close_task(task, TaskStatus.closed, "ineffective", now)
+            events.task_event(session, task, "cleaning.ineffective", now)
         task = None
     return task
 

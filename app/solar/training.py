@@ -26,10 +26,11 @@ from app.platform.frames.camera_info import (
 )
 from app.platform.frames.cameras import check_in_service
 from app.platform.http.errors import Unprocessable
+from app.solar import events
 from app.solar.core import power
 from app.solar.core.fleet import ALL_FEATURES
 from app.solar.models import Baseline, FleetModel, PanelVerdict
-from app.solar.panels import lock_panel
+from app.solar.panels import baseline_unfit, lock_panel
 
 MIN_FLEET_PER_CLASS = 5
 
@@ -159,6 +160,9 @@ def train_baseline(
     )
     session.add(row)
     session.flush()
+    unfit = baseline_unfit(row)
+    if unfit is not None and unfit.code == "baseline_too_broad":
+        events.baseline_too_broad(session, panel.id, row.id, unfit.detail, now)
     # trained on clean images: the panel is clean now, and its debounce starts afresh
     panel.baseline_id = row.id
     panel.dirty_streak, panel.last_clean, panel.ineffective = 0, None, False

@@ -11,9 +11,8 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
-from http.server import BaseHTTPRequestHandler, HTTPServer
+from http.server import BaseHTTPRequestHandler
 from typing import Any
 
 import pytest
@@ -29,7 +28,7 @@ from app.platform.db.models import Camera
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.policy import Policy
 from app.platform.settings import Settings
-from tests.factories import T0, seed_alerts
+from tests.factories import T0, recorder, seed_alerts, served
 
 
 def at(now: datetime) -> Policy:
@@ -49,38 +48,6 @@ def sessions(database_url: str) -> Iterator[sessionmaker[Session]]:
         yield make_sessionmaker(engine)
     finally:
         engine.dispose()
-
-
-def recorder(
-    *answers: int,
-) -> tuple[type[BaseHTTPRequestHandler], list[tuple[bytes, dict[str, str]]]]:
-    """A receiver keeping each POST's body and headers (names lower-cased), answering them
-    ``answers`` in turn (then 204), and the list it keeps them in."""
-    got: list[tuple[bytes, dict[str, str]]] = []
-
-    class Receiver(BaseHTTPRequestHandler):
-        def do_POST(self) -> None:  # noqa: N802
-            body = self.rfile.read(int(self.headers["Content-Length"]))
-            got.append((body, {k.lower(): v for k, v in self.headers.items()}))
-            self.send_response(answers[len(got) - 1] if len(got) <= len(answers) else 204)
-            self.end_headers()
-
-        def log_message(self, *args: Any) -> None:
-            pass
-
-    return Receiver, got
-
-
-@contextmanager
-def served(handler: type[BaseHTTPRequestHandler]) -> Iterator[str]:
-    """``handler`` serving on a local port for the block: its base URL."""
-    server = HTTPServer(("127.0.0.1", 0), handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        yield f"http://127.0.0.1:{server.server_port}"
-    finally:
-        server.shutdown()
-        server.server_close()
 
 
 def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Session]) -> None:

@@ -146,3 +146,34 @@ class RateBudget(Base):
     used: Mapped[int] = mapped_column(Integer)
     """Frames reserved in that minute, by all processes together (may pass the limit: the
     excess was not granted)."""
+
+
+class OutboxMessage(Base):
+    """An event for a topic's webhook (``platform.outbox``), kept until delivered or too old:
+    written in the transaction that made it happen, so an event is sent if and only if its
+    cause was committed, and a restart loses none."""
+
+    __tablename__ = "outbox_messages"
+    __table_args__ = (Index("ix_outbox_messages_topic_delivered", "topic", "delivered"),)
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    topic: Mapped[str] = mapped_column(String(32))
+    type: Mapped[str] = mapped_column(String(48))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    payload: Mapped[dict[str, Any]] = mapped_column(JSON)
+    delivered: Mapped[bool] = mapped_column(Boolean, default=False)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    last_error: Mapped[str | None] = mapped_column(String(500))
+
+
+class WebhookSubscription(Base):
+    """Where a topic's events go (one receiver per topic), and the secret that signs them."""
+
+    __tablename__ = "webhook_subscriptions"
+
+    topic: Mapped[str] = mapped_column(String(32), primary_key=True)
+    url: Mapped[str] = mapped_column(String(2000))
+    secret: Mapped[str | None] = mapped_column(String(200))
+    """Standard Webhooks ``whsec_…``; none: unsigned."""
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime())
