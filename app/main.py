@@ -48,6 +48,7 @@ from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
 from app.solar import events as solar_events
 from app.solar import kind as solar_kind
+from app.solar import metrics as solar_metrics
 from app.solar import router as solar
 
 log = logging.getLogger("vantage")
@@ -269,6 +270,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
     secret = settings.alert_webhook_secret
+    app.state.db_metrics = [solar_metrics.collect]
     app.state.webhook_key = (
         None if secret is None else platform_webhooks.signing_key(secret.get_secret_value())
     )

@@ -5,20 +5,25 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+from collections.abc import Callable, Iterable, Iterator
 from typing import Literal
 
 from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest, multiprocess
+from prometheus_client.core import Metric
+from prometheus_client.registry import Collector
 from sqlalchemy import text
 from sqlalchemy.exc import DBAPIError, SQLAlchemyError
+from sqlalchemy.orm import Session, sessionmaker
 
 from app import __version__
 from app.platform.frames import retention
 from app.platform.frames.storage import DiskFull, StoreUnavailable
 from app.platform.http.deps import Admin, MetricsReader, get_sessionmaker
 from app.platform.http.responses import AUTH_ERRORS
+from app.platform.policy import Policy
 from app.platform.schemas import Health
 
 router = APIRouter(tags=["health"])
@@ -96,16 +101,38 @@ def _sqlite_writes(request: Request) -> Literal["ok", "read_only", "full"]:
     return "ok"
 
 
+DbMetrics = Callable[[Session, Policy], Iterable[Metric]]
+"""What a domain reads from the database for /metrics when scraped (``app.state.db_metrics``)."""
+
+
+class _FromDatabase(Collector):
+    def __init__(self, sessions: sessionmaker[Session], policy: Policy, sources: list[DbMetrics]):
+        self.sessions, self.policy, self.sources = sessions, policy, sources
+
+    def collect(self) -> Iterator[Metric]:
+        with self.sessions() as session:
+            for source in self.sources:
+                yield from source(session, self.policy)
+
+
 @router.get("/metrics", include_in_schema=False)
-def metrics(_: MetricsReader) -> Response:
+def metrics(request: Request, _: MetricsReader) -> Response:
     """Prometheus metrics (the metrics or the admin token): of this process, or summed over
     the workers that share its port (``PROMETHEUS_MULTIPROC_DIR``, set by ``python -m
-    app.serve --workers N``)."""
+    app.serve --workers N``); then what the domains read from the database (one reading for
+    all processes)."""
     if "PROMETHEUS_MULTIPROC_DIR" not in os.environ:
-        return Response(generate_latest(), media_type=CONTENT_TYPE_LATEST)
-    registry = CollectorRegistry()
-    multiprocess.MultiProcessCollector(registry)  # type: ignore[no-untyped-call]
-    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+        body = generate_latest()
+    else:
+        registry = CollectorRegistry()
+        multiprocess.MultiProcessCollector(registry)  # type: ignore[no-untyped-call]
+        body = generate_latest(registry)
+    sources: list[DbMetrics] = getattr(request.app.state, "db_metrics", [])
+    if sources:
+        shared = CollectorRegistry()
+        shared.register(_FromDatabase(get_sessionmaker(request), request.app.state.policy, sources))
+        body += generate_latest(shared)
+    return Response(body, media_type=CONTENT_TYPE_LATEST)
 
 
 @router.post("/admin/retention/sweep", tags=["admin"], responses=AUTH_ERRORS)

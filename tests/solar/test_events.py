@@ -141,3 +141,24 @@ def test_a_bad_webhook_is_refused_and_nothing_stored(
     assert r.json()["code"] == "bad_webhook"
     assert fault in r.json()["detail"]
     assert client.get("/solar/webhook", headers=admin).status_code == 404
+
+
+def test_metrics_count_panels_by_state_and_tasks_by_outcome(
+    client: TestClient, admin: dict[str, str], farm: dict[str, Any]
+) -> None:
+    assert client.post("/panels", json={"id": "p2"}, headers=admin).status_code == 201
+    assert train(client, admin, clean_set(8)).status_code == 201
+    for seed in range(4):
+        frame(client, farm, CLEAN_RGB + DUST, seed)
+    robot = bearer(farm["robot"])
+    task = client.post("/cleaning/claim", headers=robot).json()
+    r = client.post(
+        f"/cleaning/tasks/{task['task_id']}/fail", json={"reason": "stuck"}, headers=robot
+    )
+    assert r.status_code == 200, r.text
+    text = client.get("/metrics", headers=admin).text
+    lines = set(text.splitlines())
+    assert 'vantage_panels{state="needs_cleaning"} 1.0' in lines
+    assert 'vantage_panels{state="no_baseline"} 1.0' in lines
+    assert 'vantage_panels{state="clean"} 0.0' in lines
+    assert 'vantage_cleaning_tasks_total{outcome="failed"} 1.0' in lines
