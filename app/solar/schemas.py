@@ -224,3 +224,16 @@ class FleetModelOut(Out):
         "choice of C and γ made again inside each (nested)."
     )
     threshold: float
+
+
+class HistoryBucket(Out):
+    start: datetime
+    end: datetime
+    frames: int
+    clean: int = Field(description="Judged clean.")
+    dirty: int = Field(description="Judged in need of cleaning.")
+    not_judged: int = Field(description="No verdict: night, glare, snow, no model.")
+    t2_mean: float | None = Field(description="Mean T² of those judged by the baseline (eq. 5.19).")
+    t2_max: float | None
+    p_value_min: float | None = Field(description="Smallest p-value (eq. 5.20's F).")
+    p_dirty_mean: float | None = Field(description="Mean p_dirty of those judged by the fleet.")

@@ -8,6 +8,7 @@ import hashlib
 import hmac
 import json
 from dataclasses import replace
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -162,3 +163,49 @@ def test_metrics_count_panels_by_state_and_tasks_by_outcome(
     assert 'vantage_panels{state="no_baseline"} 1.0' in lines
     assert 'vantage_panels{state="clean"} 0.0' in lines
     assert 'vantage_cleaning_tasks_total{outcome="failed"} 1.0' in lines
+
+
+def test_a_panel_s_history_by_hour_and_day(
+    client: TestClient, admin: dict[str, str], farm: dict[str, Any]
+) -> None:
+    """Frames over two days, clean then dusty, at 10-minute steps (with a 20-hour gap): the
+    buckets hold what the verdicts, summed here from the answers, say."""
+    assert train(client, admin, clean_set(8)).status_code == 201
+    clock = farm["clock"]
+    verdicts = []
+    for i in range(30):
+        rgb = CLEAN_RGB if i < 18 else CLEAN_RGB + DUST
+        if i == 12:
+            clock.advance(hours=20)
+        clock.advance(minutes=10)
+        r = client.post(
+            "/cameras/c1/frames",
+            content=panel_jpeg(rgb, seed=i),
+            headers={**bearer(farm["camera"]), "Content-Type": "image/jpeg"},
+        )
+        verdicts.append((clock.now, r.json()["verdict"]))
+    for bucket, length in (("hour", 3600), ("day", 86400)):
+        r = client.get("/panels/p1/history", params={"bucket": bucket}, headers=admin)
+        assert r.status_code == 200, r.text
+        expected: dict[int, list[dict[str, Any]]] = {}
+        for at, v in verdicts:
+            expected.setdefault(int(at.timestamp()) // length, []).append(v)
+        got = r.json()
+        assert [
+            int(datetime.fromisoformat(b["start"]).timestamp()) // length for b in got
+        ] == sorted(expected)
+        for b in got:
+            vs = expected[int(datetime.fromisoformat(b["start"]).timestamp()) // length]
+            assert b["frames"] == len(vs)
+            assert b["clean"] == sum(v["clean"] is True for v in vs)
+            assert b["dirty"] == sum(v["clean"] is False for v in vs)
+            t2 = [v["t2"] for v in vs]
+            assert b["t2_mean"] == pytest.approx(np.mean(t2), rel=1e-9)
+            assert b["t2_max"] == pytest.approx(max(t2), rel=1e-12)
+            assert b["p_value_min"] == pytest.approx(min(v["p_value"] for v in vs), rel=1e-9)
+    since = verdicts[20][0].isoformat()
+    r = client.get("/panels/p1/history", params={"bucket": "day", "since": since}, headers=admin)
+    assert sum(b["frames"] for b in r.json()) == 10
+    assert client.get("/panels/nope/history", headers=admin).status_code == 404
+    bad = client.get("/panels/p1/history", params={"bucket": "week"}, headers=admin)
+    assert bad.status_code == 422

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from functools import partial
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -21,6 +21,7 @@ from app.platform.http.deps import (
     RobotOrAdmin,
     SessionDep,
     SettingsDep,
+    TimeRangeQuery,
     image_work,
 )
 from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
@@ -36,7 +37,7 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
 from app.platform.policy import Policy
-from app.solar import lookup, panels, registry, training
+from app.solar import history, lookup, panels, registry, training
 from app.solar.core.panel_state import PanelState
 from app.solar.kind import verdict_out
 from app.solar.models import Baseline, Panel
@@ -45,6 +46,7 @@ from app.solar.schemas import (
     BaselineOut,
     BaselineWarning,
     EvaluationOut,
+    HistoryBucket,
     PanelCreate,
     PanelOut,
     PanelStateCounts,
@@ -344,6 +346,25 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         ],
         warnings=[warning_out(w) for w in status.warnings],
     )
+
+
+@router.get(
+    "/panels/{panel_id}/history",
+    response_model=list[HistoryBucket],
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+)
+def panel_history(
+    panel_id: PanelId,
+    session: SessionDep,
+    span: TimeRangeQuery,
+    _: RobotOrAdmin,
+    bucket: Annotated[Literal["hour", "day"], Query(description="UTC hours or days.")] = "day",
+) -> list[HistoryBucket]:
+    """The panel's verdicts of frames taken in [since, until), summed by UTC hour or day,
+    oldest first: clean, dirty and not judged, T² and p-values, fleet p_dirty (the farm
+    board's trend charts)."""
+    rows = history.history(session, panel_id, since=span.since, until=span.until, bucket=bucket)
+    return [HistoryBucket(**r) for r in rows]
 
 
 @router.get(
