@@ -25,6 +25,7 @@ from app.platform.frames.camera_info import (
     uploads_in,
 )
 from app.platform.frames.cameras import check_in_service
+from app.platform.frames.kinds import Decoded
 from app.platform.http.errors import Unprocessable
 from app.solar import events
 from app.solar.core import power
@@ -52,6 +53,23 @@ def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> Came
         .order_by(Camera.id)
     ).all()
     return uploads_in(one_view(cameras), CameraKind.panel, panel_id)
+
+
+def check_one_size(names: Sequence[str | None], decoded: Sequence[Decoded]) -> None:
+    """A baseline's photos are of one camera's view: one size. 422 naming those of another
+    size than the first (a different camera, or a crop, whose modes are of another scene)."""
+    first = (decoded[0].header.width, decoded[0].header.height) if decoded else None
+    odd = [
+        f"{name or f'file {i + 1}'} ({d.header.width}×{d.header.height})"
+        for i, (name, d) in enumerate(zip(names, decoded, strict=True))
+        if (d.header.width, d.header.height) != first
+    ]
+    if odd and first is not None:
+        raise Unprocessable(
+            f"a baseline's photos are of one camera's view, one size: the first is "
+            f"{first[0]}×{first[1]}, but {', '.join(odd[:10])}",
+            code="mixed_sizes",
+        )
 
 
 def modes_of_frames(

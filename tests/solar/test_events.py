@@ -209,3 +209,15 @@ def test_a_panel_s_history_by_hour_and_day(
     assert client.get("/panels/nope/history", headers=admin).status_code == 404
     bad = client.get("/panels/p1/history", params={"bucket": "week"}, headers=admin)
     assert bad.status_code == 422
+
+
+def test_a_baseline_of_photos_of_different_sizes_is_refused(
+    client: TestClient, admin: dict[str, str], farm: dict[str, Any]
+) -> None:
+    photos = clean_set(5)
+    photos[3] = panel_jpeg(CLEAN_RGB, seed=3, size=(200, 150))
+    r = train(client, admin, photos)
+    assert r.status_code == 422
+    assert r.json()["code"] == "mixed_sizes"
+    assert "clean3.jpg (200×150)" in r.json()["detail"]
+    assert client.get("/panels/p1/baseline", headers=admin).status_code == 404

@@ -189,7 +189,9 @@ def _train_from_files(
     registry.panel_in_service(session, panel_id)
     camera = training.panel_camera(session, panel_id, camera_id)
     release(session)  # while decoding; training locks the panel and checks it again
-    modes = ingest.modes_of(ingest.decode_all(files, camera, max_pixels=max_pixels))
+    decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
+    training.check_one_size([name for name, _ in files], decoded)
+    modes = ingest.modes_of(decoded)
     row = training.train_baseline(
         session,
         panel_id,
