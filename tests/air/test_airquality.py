@@ -85,18 +85,25 @@ class TestCalibration:
         assert [c.levels for c in cal.clusters] == [(2, 3), (8,)]
         assert "pooled" in cal.warnings[0]
 
-    def test_a_singular_cluster_is_named(self) -> None:
-        """Ten levels' clusters: the error says which one cannot be fitted, and the remedy
-        (shrinkage by the rounding variance) fits it."""
+    def test_a_singular_cluster_gets_the_rounding_variance_and_a_warning(self) -> None:
+        """Level 5's blue mode is the same in all six images: its Σ̂ is singular. The
+        calibration is made with 1/12 level² on that cluster's diagonal, and says so; the
+        other clusters are eq. 6.13 unchanged."""
         modes = np.vstack([np.round(sky_modes(v, 6, seed=v)) for v in (2, 5, 8)])
-        modes[6:12, 2] = 175.0  # level 5's blue mode is the same in all six images
+        modes[6:12, 2] = 175.0
         labels = np.repeat([2, 5, 8], 6)
-        with pytest.raises(soiling.BaselineError) as err:
-            airquality.calibrate(modes, labels)
-        assert str(err.value).startswith("level 5: the B mode is the same in all 6 images")
-        assert "clean" not in str(err.value)  # a panel baseline's word, not this one's
-        cal = airquality.calibrate(modes, labels, shrinkage=soiling.QUANTISATION_VARIANCE)
+        cal = airquality.calibrate(modes, labels)
         assert [c.level for c in cal.clusters] == [2, 5, 8]
+        [warning] = cal.warnings
+        assert warning.startswith("level 5: the B mode is the same in all 6 images")
+        assert "1/12" in warning
+        by_level = {c.level: c.baseline for c in cal.clusters}
+        expected = np.cov(modes[6:12], rowvar=False, ddof=1) + np.eye(3) / 12
+        np.testing.assert_allclose(by_level[5].covariance, expected, rtol=1e-12)
+        np.testing.assert_allclose(
+            by_level[2].covariance, np.cov(modes[:6], rowvar=False, ddof=1), rtol=1e-12
+        )
+        assert by_level[2].shrinkage == 0.0
 
     def test_outside_calibration_is_said_not_guessed(self) -> None:
         cal = airquality.calibrate(sky_modes(10, 10, 1), [10] * 10)

@@ -108,9 +108,11 @@ def calibrate(
     modes: ArrayLike, levels: ArrayLike, *, significance: float = 0.05, shrinkage: float = 0.0
 ) -> Calibration:
     """One cluster per level (eqs. 6.12–6.13); levels with fewer than ``MIN_CLUSTER`` images are
-    pooled with their nearest neighbour (a warning says which).
+    pooled with their nearest neighbour (a warning says which). A cluster whose Σ̂ is singular
+    or ill-conditioned (its images share a mode in some channel) gets the quantisation
+    variance, 1/12 level², on its diagonal, with a warning; eq. 6.13 is unchanged otherwise.
 
-    Raises soiling.BaselineError when a (pooled) cluster's covariance is singular.
+    Raises soiling.BaselineError when a cluster's covariance is singular even so.
     """
     x = np.asarray(modes, dtype=np.float64)
     lv = np.asarray(levels, dtype=np.int64)
@@ -137,13 +139,28 @@ def calibrate(
     clusters = []
     for g in groups:
         members = np.isin(lv, g)
+        named = f"level {g[0]}" if len(g) == 1 else f"levels {g} (pooled)"
         try:
             baseline = soiling.fit_baseline(
                 x[members], significance=significance, shrinkage=shrinkage
             )
-        except soiling.BaselineError as exc:  # say which of up to ten clusters it is
-            named = f"level {g[0]}" if len(g) == 1 else f"levels {g} (pooled)"
-            raise soiling.BaselineError(f"{named}: {exc}") from exc
+        except soiling.BaselineError as exc:
+            if shrinkage >= soiling.QUANTISATION_VARIANCE:  # say which of up to ten it is
+                raise soiling.BaselineError(f"{named}: {exc}") from exc
+            # one grey sky at several exposures shares one mode vector: the modes are whole
+            # levels, so each channel carries at least the rounding's variance, 1/12 level²
+            try:
+                baseline = soiling.fit_baseline(
+                    x[members],
+                    significance=significance,
+                    shrinkage=soiling.QUANTISATION_VARIANCE,
+                )
+            except soiling.BaselineError as again:
+                raise soiling.BaselineError(f"{named}: {again}") from again
+            warnings.append(
+                f"{named}: {exc} — 1/12 level² (the variance of rounding modes to whole "
+                "levels) added to its covariance's diagonal"
+            )
         clusters.append(Cluster(tuple(g), int(np.median(lv[members])), baseline))
     return Calibration(tuple(clusters), tuple(warnings))
 
