@@ -21,7 +21,6 @@ from app.air.core.isopleths import (
     interpolate,
     uncertainty_bands,
 )
-from app.platform.frames import hotelling as soiling
 from tests.factories import CLEAN, HAZE
 from tests.memory import traced_peak
 
