@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -21,7 +22,7 @@ from sqlalchemy.orm import Session
 
 from app.air import alerts as webhooks
 from app.air import service as air
-from app.air.core import airquality, isopleths
+from app.air.core import airquality, breakpoints, isopleths
 from app.air.isopleth_cache import MapCache
 from app.air.models import SkyVerdict
 from app.air.schemas import (
@@ -85,6 +86,20 @@ Shrinkage = Annotated[
 ]
 
 
+def _as_levels(
+    levels: list[int] | None, pm25: list[float] | None, aqi: list[float] | None
+) -> tuple[list[int], list[str]]:
+    """Levels as given, or from reference PM2.5 or AQI values (``core.breakpoints``), with a
+    note of the mapping for the calibration's warnings."""
+    if levels is not None:
+        return levels, []
+    if pm25 is not None:
+        mapped = [breakpoints.level_of_pm25(v) for v in pm25]
+        return mapped, [f"levels from PM2.5 by the {breakpoints.SOURCE}"]
+    assert aqi is not None
+    return [breakpoints.level_of_aqi(v) for v in aqi], [f"levels from the {breakpoints.SOURCE}"]
+
+
 def _calibration_out(row: Any) -> AirCalibrationOut:
     return AirCalibrationOut.model_validate(row)
 
@@ -93,6 +108,7 @@ def _from_files(
     session: Session,
     files: list[tuple[str | None, bytes]],
     levels: list[int],
+    notes: list[str],
     camera_id: str | None,
     significance: float,
     shrinkage: float,
@@ -116,7 +132,7 @@ def _from_files(
         method=method,
         features=feats,
         camera_ids=applies_to,
-        warnings=warnings,
+        warnings=[*notes, *warnings],
     )
     return _calibration_out(row)
 
@@ -130,13 +146,14 @@ def _from_frames(
     method: str,
     applies_to: list[str],
 ) -> AirCalibrationOut:
-    if len(body.frame_ids) != len(body.levels):
-        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(body.levels)} levels")
+    levels, notes = _as_levels(body.levels, body.pm25, body.aqi)
+    if len(body.frame_ids) != len(levels):
+        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(levels)} reference values")
     stored = air.of_frames(session, body.frame_ids)
     row = air.calibrate(
         session,
         stored.modes,
-        body.levels,
+        levels,
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=body.frame_ids,
@@ -145,8 +162,30 @@ def _from_frames(
         features=stored.features,
         camera_ids=applies_to,
         regions=stored.regions,
+        warnings=notes,
     )
     return _calibration_out(row)
+
+
+def _references(
+    name: str, raw: list[str]
+) -> tuple[list[int] | None, list[float] | None, list[float] | None]:
+    """A multipart field of levels (integers 1–10) or of PM2.5 or AQI values (finite, ≥ 0)."""
+    if name == "levels":
+        try:
+            levels = [int(v) for v in raw]
+        except ValueError:
+            raise Unprocessable("levels must be integers 1–10") from None
+        if any(not 1 <= v <= 10 for v in levels):
+            raise Unprocessable("levels must be integers 1–10")
+        return levels, None, None
+    try:
+        values = [float(v) for v in raw]
+    except ValueError:
+        raise Unprocessable(f"{name} must be numbers") from None
+    if not all(math.isfinite(v) and v >= 0 for v in values):
+        raise Unprocessable(f"{name} must be finite numbers ≥ 0")
+    return (None, values, None) if name == "pm25" else (None, None, values)
 
 
 @router.post(
@@ -154,7 +193,9 @@ def _from_frames(
     status_code=201,
     response_model=AirCalibrationOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
-    openapi_extra=multipart_body(json=AirCalibrationFromFrames, files="files", levels="texts"),
+    openapi_extra=multipart_body(
+        json=AirCalibrationFromFrames, files="files", levels="texts", pm25="texts", aqi="texts"
+    ),
 )
 async def calibrate(
     request: Request,
@@ -194,22 +235,26 @@ async def calibrate(
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
 
     Multipart: repeated ``files`` and ``levels`` (1–10, same order); or JSON
-    ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames.
+    ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames. In place of ``levels``,
+    the reference ``pm25`` [µg/m³] or US ``aqi`` of each, mapped to levels by the US EPA AQI
+    breakpoints (2024; ``app.air.core.breakpoints``).
     """
     kind = content_type(request)
     if kind == "multipart/form-data":
         form = await read_form(
-            request, settings.max_upload_bytes, max_files=5000, parts=("files", "levels")
+            request,
+            settings.max_upload_bytes,
+            max_files=5000,
+            parts=("files", "levels", "pm25", "aqi"),
         )
-        files, raw = form.files_of("files"), form.fields.get("levels", [])
+        files = form.files_of("files")
+        given = {k: form.fields[k] for k in ("levels", "pm25", "aqi") if form.fields.get(k)}
+        if len(given) != 1:
+            raise Unprocessable("give one of levels, pm25 or aqi per file")
+        [(name, raw)] = given.items()
         if len(files) != len(raw):
-            raise Unprocessable(f"{len(files)} files but {len(raw)} levels; give one level each")
-        try:
-            levels = [int(v) for v in raw]
-        except ValueError:
-            raise Unprocessable("levels must be integers 1–10") from None
-        if any(not 1 <= v <= 10 for v in levels):
-            raise Unprocessable("levels must be integers 1–10")
+            raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
+        levels, notes = _as_levels(*_references(name, raw))
         return await image_work(
             request,
             partial(
@@ -217,6 +262,7 @@ async def calibrate(
                 session,
                 files,
                 levels,
+                notes,
                 camera_id,
                 significance,
                 shrinkage,

@@ -5,14 +5,39 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from app.platform.schemas import Out, Schema
 
 
 class AirCalibrationFromFrames(Schema):
     frame_ids: list[Annotated[str, Field(max_length=64)]] = Field(min_length=1, max_length=10_000)
-    levels: list[Annotated[int, Field(ge=1, le=10)]] = Field(min_length=1, max_length=10_000)
+    levels: list[Annotated[int, Field(ge=1, le=10)]] | None = Field(
+        default=None, min_length=1, max_length=10_000
+    )
+    pm25: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=10_000,
+        description="Instead of levels: the reference PM2.5 of each frame [µg/m³], mapped to "
+        "levels by the US EPA AQI breakpoints (2024).",
+    )
+    aqi: list[Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)]] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=10_000,
+        description="Instead of levels: the reference US AQI of each frame.",
+    )
+
+    @model_validator(mode="after")
+    def _one_reference(self) -> AirCalibrationFromFrames:
+        given = [k for k in ("levels", "pm25", "aqi") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                "give one of levels, pm25 or aqi per frame"
+                + (f" (given: {', '.join(given)})" if given else "")
+            )
+        return self
 
 
 class AirClusterOut(Out):

@@ -1,0 +1,129 @@
+"""Reference PM2.5 and AQI as levels (``app.air.core.breakpoints``): the US EPA AQI table
+(EPA-454/B-24-002, 2024) at every edge, and calibration from reference values over HTTP."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.air.core.breakpoints import aqi_of_pm25, level_of_aqi, level_of_pm25
+from tests.factories import sky_jpeg
+
+# (PM2.5 µg/m³, AQI) at each category's edges, as the EPA table and eq. 1 give them
+EDGES = [
+    (0.0, 0),
+    (9.0, 50),
+    (9.1, 51),
+    (35.4, 100),
+    (35.5, 101),
+    (55.4, 150),
+    (55.5, 151),
+    (125.4, 200),
+    (125.5, 201),
+    (225.4, 300),
+    (225.5, 301),
+    (325.4, 500),
+    (1000.0, 500),
+]
+
+
+@pytest.mark.parametrize(("pm25", "aqi"), EDGES)
+def test_pm25_to_aqi_at_the_table_s_edges(pm25: float, aqi: int) -> None:
+    assert aqi_of_pm25(pm25) == aqi
+
+
+def test_pm25_is_truncated_to_a_tenth_then_interpolated() -> None:
+    assert aqi_of_pm25(9.09) == 50  # truncated to 9.0
+    assert aqi_of_pm25(12.0) == round((100 - 51) / (35.4 - 9.1) * (12.0 - 9.1) + 51)  # 56
+
+
+@pytest.mark.parametrize(
+    ("aqi", "level"),
+    [
+        (0, 10), (25, 10), (26, 9), (50, 9), (51, 8), (75, 8), (76, 7), (100, 7), (101, 6),
+        (125, 6), (126, 5), (150, 5), (151, 4), (175, 4), (176, 3), (200, 3), (201, 2),
+        (300, 2), (301, 1), (500, 1), (999, 1),
+    ],
+)  # fmt: skip
+def test_aqi_to_level_at_every_edge(aqi: int, level: int) -> None:
+    assert level_of_aqi(aqi) == level
+
+
+def test_pm25_to_level_follows_the_categories() -> None:
+    assert [level_of_pm25(c) for c in (4.5, 9.0, 9.1, 35.4, 35.5, 55.5, 125.5, 225.5)] == [
+        10, 9, 8, 7, 6, 4, 2, 1,
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
+def test_no_level_for_a_bad_value(bad: float) -> None:
+    with pytest.raises(ValueError, match="finite number ≥ 0"):
+        level_of_pm25(bad)
+    with pytest.raises(ValueError, match="finite number ≥ 0"):
+        level_of_aqi(bad)
+
+
+PM25_OF_LEVEL = {1: 250.0, 3: 100.0, 5: 52.0, 7: 30.0, 10: 3.0}
+
+
+def files_and(values: dict[int, Any]) -> tuple[list[Any], list[str]]:
+    files, refs = [], []
+    for level, value in values.items():
+        for k in range(8):
+            jpeg = sky_jpeg(level, seed=100 * level + k)
+            files.append(("files", (f"{level}-{k}.jpg", jpeg, "image/jpeg")))
+            refs.append(str(value))
+    return files, refs
+
+
+def test_a_calibration_from_reference_pm25(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    files, refs = files_and(PM25_OF_LEVEL)
+    r = client.post(
+        "/air/calibration",
+        files=files,
+        data={"pm25": refs},
+        params={"camera_id": "sky0", "significance": 0.01},
+        headers=admin,
+    )
+    assert r.status_code == 201, r.text
+    assert sorted(c["level"] for c in r.json()["clusters"]) == [1, 3, 5, 7, 10]
+    assert any("US EPA AQI" in w for w in r.json()["warnings"])
+
+
+@pytest.mark.parametrize(
+    ("data", "fault"),
+    [
+        ({"pm25": ["-1"] * 40}, "≥ 0"),
+        ({"pm25": ["nan"] * 40}, "finite"),
+        ({"pm25": ["3"] * 40, "levels": ["10"] * 40}, "one of levels, pm25 or aqi"),
+        ({"aqi": ["20"] * 39}, "40 files but 39 aqi"),
+        ({"pm25": ["a lot"] * 40}, "numbers"),
+    ],
+    ids=["negative", "nan", "both", "lengths", "not-a-number"],
+)
+def test_bad_reference_values_are_refused_and_nothing_stored(
+    client: TestClient,
+    admin: dict[str, str],
+    city: dict[str, Any],
+    data: dict[str, Any],
+    fault: str,
+) -> None:
+    files, _ = files_and({1: 0, 3: 0, 5: 0, 7: 0, 10: 0})
+    r = client.post("/air/calibration", files=files, data=data, headers=admin)
+    assert r.status_code == 422, r.text
+    assert fault in r.json()["detail"]
+    assert client.get("/air/calibrations", headers=admin).json() == []
+
+
+def test_json_takes_one_reference_per_frame(client: TestClient, admin: dict[str, str]) -> None:
+    both = {"frame_ids": ["f1"], "levels": [3], "pm25": [40.0]}
+    r = client.post("/air/calibration", json=both, headers=admin)
+    assert r.status_code == 422
+    assert "one of levels, pm25 or aqi" in r.text
+    r = client.post("/air/calibration", json={"frame_ids": ["f1"], "pm25": [-2.0]}, headers=admin)
+    assert r.status_code == 422
