@@ -909,6 +909,11 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     verdict = "fewer than 3 straight sides"
     if corners is not None:
         corners = _polish(corners, rim_points)
+        # a vertex turning less than a corner does is no corner: its two sides are one
+        while len(corners) > 3 and float(_turns(corners).min()) < MIN_TURN:
+            corners = _polish(
+                np.delete(corners, int(np.argmin(_turns(corners))), axis=0), rim_points
+            )
         closed = np.vstack([corners, corners[:1]])
         polygon_sides = [
             (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
