@@ -52,6 +52,8 @@ def aqi_of_pm25(pm25: float) -> int:
     negative or non-finite one."""
     if not math.isfinite(pm25) or pm25 < 0:
         raise ValueError(f"PM2.5 must be a finite number ≥ 0 µg/m³; got {pm25}")
+    if pm25 > PM25[-1][1]:  # beyond the table (and before 10 × a huge value overflows)
+        return 500
     c = math.floor(pm25 * 10 + 1e-9) / 10  # truncated to 0.1 µg/m³, as the document says
     for c_lo, c_hi, i_lo, i_hi in PM25:
         if c <= c_hi:
@@ -63,7 +65,7 @@ def level_of_aqi(aqi: float) -> int:
     """The level 1–10 of a US AQI value (0–500, higher beyond is 1)."""
     if not math.isfinite(aqi) or aqi < 0:
         raise ValueError(f"the AQI must be a finite number ≥ 0; got {aqi}")
-    value = round(aqi)
+    value = round(min(aqi, 1000.0))
     return next((level for top, level in LEVEL_EDGES if value <= top), 1)
 
 
