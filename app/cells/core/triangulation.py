@@ -683,16 +683,9 @@ def _chunk_numpy(
         ok[rows[~solved]] = False
     points[:] = p
     points[~ok] = np.nan
-    cam = np.einsum("vij,nj->nvi", rig.rs, p) + rig.ts
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xd = np.stack(
-            [distort(cam[:, k, :2] / cam[:, k, 2:3], rig.dist[k]) for k in range(v)], axis=1
-        )
-    du = rig.intrinsics[:, 0] * xd[..., 0] + rig.intrinsics[:, 1] * xd[..., 1]
-    du = du + rig.intrinsics[:, 2] - obs[..., 0]
-    dv = rig.intrinsics[:, 3] * xd[..., 1] + rig.intrinsics[:, 4] - obs[..., 1]
+    off = project_views(views, p) - obs  # eqs. 2.8–2.14, as the compiled loop projects
     with np.errstate(invalid="ignore", divide="ignore"):
-        total = np.where(use, du * du + dv * dv, 0.0).sum(axis=1)
+        total = np.where(use, (off * off).sum(axis=-1), 0.0).sum(axis=1)
         rms[:] = np.sqrt(total / use.sum(axis=1))
     rms[~ok] = np.nan
 
