@@ -19,7 +19,6 @@ import uuid
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Any
-from urllib.parse import urlsplit
 
 from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -59,19 +58,11 @@ def enqueue(
     return message
 
 
-def check_url(url: str) -> str:
-    """A receiver's URL: http or https with a host. Raises ValueError otherwise."""
-    parts = urlsplit(url)
-    if parts.scheme not in ("http", "https") or not parts.hostname:
-        raise ValueError(f"a webhook URL is http(s)://host/…; got {url!r}")
-    return url
-
-
 def subscribe(
     session: Session, topic: str, url: str, secret: str | None, now: datetime
 ) -> WebhookSubscription:
     """Set (or replace) the topic's receiver. Raises ValueError for a bad URL or secret."""
-    check_url(url)
+    webhooks.check_url(url)
     if secret is not None:
         webhooks.signing_key(secret)
     row = session.get(WebhookSubscription, topic)

@@ -6,7 +6,6 @@ import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
-from urllib.parse import urlsplit
 
 from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -248,12 +247,12 @@ class Settings(BaseSettings):
                 " a frame's image is kept only with its row"
             )
         if self.alert_webhook_url is not None:
-            url = urlsplit(self.alert_webhook_url)
-            if url.scheme not in ("http", "https") or not url.hostname:
-                raise ValueError(
-                    "VANTAGE_ALERT_WEBHOOK_URL must be an http:// or https:// URL with a host;"
-                    f" got {self.alert_webhook_url!r}"
-                )
+            from app.platform.webhooks import check_url
+
+            try:
+                check_url(self.alert_webhook_url)
+            except ValueError as exc:
+                raise ValueError(f"VANTAGE_ALERT_WEBHOOK_URL: {exc}") from None
         if self.alert_webhook_secret is not None:
             from app.platform.webhooks import signing_key
 

@@ -25,6 +25,7 @@ import urllib.request
 import uuid
 from datetime import datetime, timedelta
 from typing import Any
+from urllib.parse import urlsplit
 
 TIMEOUT_S = 5.0
 """How long a POST waits to connect, and for each read of the answer."""
@@ -41,6 +42,14 @@ RETRY_CAP = timedelta(minutes=10)
 def backoff(attempts: int) -> timedelta:
     """The wait after the ``attempts``-th failure: 2, 4, 8 … s, at most ``RETRY_CAP``."""
     return min(timedelta(seconds=2 ** min(attempts, 20)), RETRY_CAP)
+
+
+def check_url(url: str) -> str:
+    """A receiver's URL: http or https with a host. Raises ValueError otherwise."""
+    parts = urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValueError(f"a webhook URL is http(s)://host/…; got {url!r}")
+    return url
 
 
 SECRET_PREFIX = "whsec_"
