@@ -74,6 +74,17 @@ def subscribe(
     return row
 
 
+def forget_old(sessions: sessionmaker[Session], now: datetime) -> int:
+    """Delete the events older than ``KEEP_FOR``, of every topic (the retention sweep's,
+    hourly); returns how many."""
+    with sessions() as session:
+        gone = session.execute(
+            delete(OutboxMessage).where(OutboxMessage.created_at < now - KEEP_FOR)
+        )
+        session.commit()
+    return int(getattr(gone, "rowcount", 0) or 0)
+
+
 def sweep(
     sessions: sessionmaker[Session],
     topic: str,
@@ -84,15 +95,8 @@ def sweep(
     stopping: threading.Event | None = None,
 ) -> int:
     """Try every due event of ``topic`` once (at most ``batch``); returns how many were
-    delivered. Nothing is tried while the topic has no receiver. Events older than
-    ``KEEP_FOR`` are deleted."""
+    delivered. Nothing is tried while the topic has no receiver."""
     with sessions() as session:
-        session.execute(
-            delete(OutboxMessage).where(
-                OutboxMessage.topic == topic, OutboxMessage.created_at < policy.now() - KEEP_FOR
-            )
-        )
-        session.commit()
         receiver = session.get(WebhookSubscription, topic)
         if receiver is None:
             return 0

@@ -8,7 +8,7 @@ import hashlib
 import hmac
 import json
 from dataclasses import replace
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -221,3 +221,15 @@ def test_a_baseline_of_photos_of_different_sizes_is_refused(
     assert r.json()["code"] == "mixed_sizes"
     assert "clean3.jpg (200×150)" in r.json()["detail"]
     assert client.get("/panels/p1/baseline", headers=admin).status_code == 404
+
+
+def test_the_retention_sweep_forgets_events_older_than_30_days(
+    client: TestClient, admin: dict[str, str], farm: dict[str, Any]
+) -> None:
+    sessions, now = farm["app"].state.sessionmaker, farm["clock"].now
+    with sessions() as session:
+        outbox.enqueue(session, "solar", "task.opened", {"n": 1}, now - timedelta(days=31))
+        outbox.enqueue(session, "solar", "task.opened", {"n": 2}, now - timedelta(days=29))
+        session.commit()
+    assert client.post("/admin/retention/sweep", headers=admin).status_code == 200
+    assert [e["data"] for e in client.get("/solar/events", headers=admin).json()] == [{"n": 2}]

@@ -28,6 +28,7 @@ from itertools import islice
 from sqlalchemy import ColumnElement, delete, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.platform import outbox
 from app.platform.background import in_thread
 from app.platform.db.models import Frame, Verdict
 from app.platform.frames.kinds import KINDS
@@ -71,7 +72,8 @@ def sweep(
     history_days: float | None = None,
 ) -> Swept:
     """Delete frames received more than ``history_days`` (default ``days``) ago, their files,
-    the images of those received more than ``days`` ago, and the expired packs."""
+    the images of those received more than ``days`` ago, the expired packs, and webhook events
+    older than ``outbox.KEEP_FOR``."""
     now = policy.now()
     cutoff = now - timedelta(days=kept_days(days, history_days))
     frames, files = _in_batches(sessions, store, [Frame.received_at < cutoff], _delete_rows)
@@ -89,6 +91,7 @@ def sweep(
         _move_kept(sessions, store, policy, set(packs), cutoff)
         store.delete_packs(packs)
         files += len(packs)
+    outbox.forget_old(sessions, now)  # webhook events: kept 30 days, delivered or not
     return Swept(frames, files, images)
 
 
