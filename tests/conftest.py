@@ -87,9 +87,15 @@ def admin() -> dict[str, str]:
 
 
 @pytest.fixture
-def city(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
-    clock = Clock()
-    app.state.policy = replace(app.state.policy, clock=clock)
+def clock(app: Any) -> Clock:
+    """The app's clock, moved by the test (``Clock.advance``)."""
+    c = Clock()
+    app.state.policy = replace(app.state.policy, clock=c)
+    return c
+
+
+@pytest.fixture
+def city(client: TestClient, admin: dict[str, str], clock: Clock) -> dict[str, Any]:
     tokens = {}
     rng = np.random.default_rng(1)
     for i in range(12):

@@ -7,7 +7,6 @@ import base64
 import hashlib
 import hmac
 import json
-from dataclasses import replace
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -32,9 +31,7 @@ SECRET = "whsec_" + base64.b64encode(bytes(range(32))).decode()
 
 
 @pytest.fixture
-def farm(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
-    clock = Clock()
-    app.state.policy = replace(app.state.policy, clock=clock)
+def farm(client: TestClient, admin: dict[str, str], app: Any, clock: Clock) -> dict[str, Any]:
     assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
     cam = client.post(
         "/cameras", json={"id": "c1", "kind": "panel", "panel_id": "p1"}, headers=admin

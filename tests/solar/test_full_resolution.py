@@ -3,7 +3,6 @@ baselines trained on modes of reduced images marked stale until retrained."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -51,9 +50,7 @@ def reduced_modes_of(jpeg: bytes) -> np.ndarray:
 
 
 @pytest.fixture
-def farm(client: TestClient, admin: dict[str, str], app: Any) -> dict[str, Any]:
-    clock = Clock()
-    app.state.policy = replace(app.state.policy, clock=clock)
+def farm(client: TestClient, admin: dict[str, str], app: Any, clock: Clock) -> dict[str, Any]:
     assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
     cam = client.post(
         "/cameras", json={"id": "c1", "kind": "panel", "panel_id": "p1"}, headers=admin

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-from dataclasses import replace
 from datetime import timedelta
 from typing import Any
 
@@ -27,13 +26,6 @@ from tests.factories import (
     table_counts,
     train,
 )
-
-
-@pytest.fixture
-def clock(app: Any) -> Clock:
-    c = Clock()
-    app.state.policy = replace(app.state.policy, clock=c)
-    return c
 
 
 @pytest.fixture
