@@ -28,18 +28,20 @@ from __future__ import annotations
 
 import argparse
 import csv
+from datetime import datetime
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 import numpy as np
 from scipy.stats import spearmanr
 from sklearn.ensemble import RandomForestRegressor
 from sklearn.linear_model import RidgeCV
-from sklearn.model_selection import GroupKFold, LeaveOneOut
+from sklearn.model_selection import GroupKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from app.air.core import airquality
-from app.air.service import fit_regression
+from app.air.core import airquality, breakpoints
+from app.air.kind import band_below
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.jpeg import decode_rgb
 from app.platform.frames.stats import channel_stats
@@ -76,11 +78,122 @@ def within_one(pred_levels: np.ndarray, true_levels: np.ndarray) -> float:
 
 def service_regression(f_tr: np.ndarray, lv_tr: np.ndarray, f_te: np.ndarray) -> np.ndarray:
     """Exactly what the service does with ``method=regression``: fit, then integer levels."""
-    r = fit_regression(f_tr, [int(v) for v in lv_tr])
-    model = airquality.Regression(
-        np.asarray(r["mean"]), np.asarray(r["scale"]), np.asarray(r["coef"]), float(r["intercept"])
-    )
+    model, _ = airquality.fit_regression(f_tr, lv_tr)
     return np.array([model.level(f) for f in f_te], dtype=np.float64)
+
+
+MILAN_SKY = (32, 330)
+"""Rows of the Milan webcam's sky at 1920×1080: below the top overlay ribbon, above the
+skyline; the camera's ROI (0, 32, 1920, 298)."""
+
+
+def milan_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Modes and ``SKY_FEATURES`` of a Milan frame as the service measures a camera with the
+    ROI of ``MILAN_SKY``: the region, then the skyline strip below it (``kind.band_below``)."""
+    _, image = decode_rgb(path.read_bytes(), max_pixels=10**8)
+    top, bottom = MILAN_SKY
+    roi = (0, top, image.shape[1], bottom - top)
+    region = np.ascontiguousarray(image[top:bottom])
+    modes = channel_stats(region).modes.astype(np.float64)
+    return modes, airquality.sky_features(region, band_below(image, roi))
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(spearmanr(a[ok], b[ok])[0]) if ok.sum() > 2 else float("nan")
+
+
+def smoothed(levels: np.ndarray, times: list[datetime]) -> np.ndarray:
+    """The camera's public level at each frame (``airquality.nowcasts``), from the graded
+    (finite) levels only, as the service smooths them."""
+    ok = np.isfinite(levels)
+    graded_times = [t for t, k in zip(times, ok, strict=True) if k]
+    out = airquality.nowcasts(graded_times, levels[ok].tolist(), times)
+    return np.array([np.nan if v is None else v for v in out])
+
+
+def milan(root: Path, folds: int) -> None:
+    """The fixed Milan webcam (``milan_series``): regression fitted in PM2.5 against the
+    dissertation's clusters, on folds grouped by day and on later days from earlier ones."""
+    with open(root / "labels.csv") as f:
+        rows = list(csv.DictReader(f))
+    modes, feats = (
+        np.array(a) for a in zip(*(milan_features(root / r["file"]) for r in rows), strict=True)
+    )
+    pm = np.array([float(r["pm25_ugm3"]) for r in rows])
+    day = np.array([r["date"] for r in rows])
+    rome = ZoneInfo("Europe/Rome")  # the hours are local
+    times = [
+        datetime.fromisoformat(f"{r['date']}T{r['hour_local']}").replace(tzinfo=rome) for r in rows
+    ]
+    level = np.array([breakpoints.level_of_pm25(v) for v in pm])
+    days = sorted(set(day))
+    cut = days[len(days) * 2 // 3]
+    splits = {
+        f"{folds} folds grouped by day": list(GroupKFold(folds).split(feats, pm, day)),
+        f"earlier {len(days) * 2 // 3} days → later {len(days) - len(days) * 2 // 3}": [
+            (np.flatnonzero(day < cut), np.flatnonzero(day >= cut))
+        ],
+    }
+    print(
+        f"Milan series: {len(rows)} frames over {len(days)} days; levels from PM2.5 by the "
+        f"{breakpoints.SOURCE}; ρ against −PM2.5 (a high level is clean air)"
+    )
+    for name, split in splits.items():
+        t2 = np.full(len(rows), np.nan)
+        est = np.full(len(rows), np.nan)
+        lv = np.full(len(rows), np.nan)
+        low = np.full(len(rows), np.nan)
+        high = np.full(len(rows), np.nan)
+        doubt = np.zeros(len(rows), dtype=bool)
+        tested = np.zeros(len(rows), dtype=bool)
+        why = [""] * len(rows)
+        for tr, te in split:
+            tested[te] = True
+            t2[te] = t2_predict(modes[tr], level[tr], modes[te])
+            model, _ = airquality.fit_regression(feats[tr], pm[tr], unit="pm25", groups=day[tr])
+            for i in te:
+                e = model.estimate(feats[i])
+                lv[i], est[i], low[i], high[i] = e.level, e.value, e.low, e.high
+                doubt[i] = e.uncertain is not None
+                why[i] = e.uncertain or ""
+        sel = tested
+        tt = [t for t, k in zip(times, sel, strict=True) if k]
+        print(f"  {name} ({sel.sum()} frames tested)")
+        print(
+            f"    {'clusters (modes, T²)':34s} ρ = {spearman(t2[sel], -pm[sel]):+.3f}"
+            f"   graded {np.isfinite(t2[sel]).mean():.2f}"
+        )
+        print(f"    {'regression: level':34s} ρ = {spearman(lv[sel], -pm[sel]):+.3f}")
+        print(
+            f"    {'regression: PM2.5 estimate':34s} ρ = {spearman(-est[sel], -pm[sel]):+.3f}"
+            f"   (ρ of the estimate against PM2.5)"
+        )
+        cat = np.array([airquality.category(v) for v in level])
+        said = np.array([airquality.category(v) if np.isfinite(v) else "" for v in lv])
+        sure = sel & ~doubt
+        outside = np.array([w.startswith("outside") for w in why])
+        print(
+            f"    {'regression: certain frames':34s} {sure.sum() / sel.sum():.2f} of frames; "
+            f"their category right in {np.mean(said[sure] == cat[sure]):.2f} "
+            f"(all frames' {np.mean(said[sel] == cat[sel]):.2f}); doubted as outside the "
+            f"calibration {outside[sel].mean():.2f}, as an interval across categories "
+            f"{(doubt & ~outside)[sel].mean():.2f}"
+        )
+        print(
+            f"    {'regression: smoothed level':34s} ρ = "
+            f"{spearman(smoothed(lv[sel], tt), -pm[sel]):+.3f}   (NowCast of every level)"
+        )
+        print(
+            f"    {'clusters: smoothed level':34s} ρ = "
+            f"{spearman(smoothed(t2[sel], tt), -pm[sel]):+.3f}"
+        )
+        inside = (pm[sel] >= low[sel]) & (pm[sel] <= high[sel])
+        print(
+            f"    {airquality.INTERVAL:.0%} prediction interval holds the measured PM2.5 "
+            f"in {inside.mean():.2f} of frames; median width "
+            f"{np.median(high[sel] - low[sel]):.1f} µg/m³"
+        )
 
 
 def ridge() -> object:
@@ -155,7 +268,12 @@ def report(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "sky")
+    parser.add_argument("--folds", type=int, default=7, help="folds grouped by day (Milan)")
+    parser.add_argument("--milan-only", action="store_true")
     args = parser.parse_args()
+    if args.milan_only:
+        milan(args.data / "milan_series", args.folds)
+        return
 
     root = args.data / "india_nepal"
     with open(root / "labels.csv") as f:
@@ -227,32 +345,7 @@ def main() -> None:
             f"{by_session[0]:+.3f} over {len(sessions)} sessions, p = {by_session[1]:.2f}"
         )
 
-    root = args.data / "milan_webcam"
-    with open(root / "labels.csv") as f:
-        rows = list(csv.DictReader(f))
-    pm = np.array([float(r["pm25_ugm3_ARPA_Milano_Marche_hourly"]) for r in rows])
-    modes, feats = zip(
-        *(
-            features(
-                decode_rgb((root / r["file"]).read_bytes(), max_pixels=10**8)[1],
-                (0.03, 0.35),
-                (0.36, 0.45),
-            )
-            for r in rows
-        ),
-        strict=True,
-    )
-    feats_m = np.array(feats)
-    pm_level = np.clip(10 - pm / 4, 1, 10)  # only for the within-one-category figure
-    reg = np.full(len(rows), np.nan)
-    for tr, te in LeaveOneOut().split(feats_m):
-        model = ridge()
-        model.fit(feats_m[tr], pm_level[tr])  # type: ignore[attr-defined]
-        reg[te] = model.predict(feats_m[te])  # type: ignore[attr-defined]
-    blue_red = feats_m[:, 6]
-    print(f"Milan webcam: {len(rows)} frames, leave-one-out")
-    report("features, ridge", reg, pm_level, pm, "PM2.5")
-    print(f"  {'blue/red ratio alone':22s} ρ(ratio, PM2.5) = {spearmanr(blue_red, pm)[0]:+.3f}")
+    milan(args.data / "milan_series", args.folds)
 
 
 if __name__ == "__main__":

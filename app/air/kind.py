@@ -17,15 +17,16 @@ from app.platform.db.models import Verdict
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.frames.quality import SKY_LIMITS
 from app.platform.frames.stats import Roi
-from app.platform.schemas import SkyVerdictOut
+from app.platform.schemas import SkyEstimate, SkyVerdictOut
 
 
 def band_below(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8] | None:
-    """The strip under the sky region (a fifth of the frame's height): the distant skyline,
-    whose contrast fades in haze. None when the sky region reaches the bottom."""
+    """The strip under the sky region (``airquality.SKYLINE_HEIGHT`` of the frame's height):
+    the distant skyline, whose contrast fades in haze, then nearer buildings. None when the
+    sky region reaches the bottom."""
     h = image.shape[0]
     top = roi[1] + roi[3] if roi else h
-    strip = image[top : min(h, top + max(1, h // 5))]
+    strip = image[top : min(h, top + max(1, round(h * airquality.SKYLINE_HEIGHT)))]
     return strip if strip.shape[0] >= 2 else None
 
 
@@ -39,6 +40,18 @@ def category_message(category: str | None) -> str | None:
     return f"Today's Air Quality is {category}" if category else None
 
 
+def estimate_out(verdict: SkyVerdict) -> SkyEstimate | None:
+    """The regression's estimate of a verdict, or None (graded by the clusters)."""
+    if verdict.estimate is None or verdict.estimate_unit is None:
+        return None
+    return SkyEstimate(
+        unit=verdict.estimate_unit,
+        value=verdict.estimate,
+        low=verdict.estimate_low,
+        high=verdict.estimate_high,
+    )
+
+
 def verdict_out(verdict: Verdict) -> SkyVerdictOut:
     """A sky verdict row as the frame endpoints answer it."""
     assert isinstance(verdict, SkyVerdict)
@@ -47,6 +60,8 @@ def verdict_out(verdict: Verdict) -> SkyVerdictOut:
         category=verdict.category,
         message=category_message(verdict.category),
         calibration_id=verdict.calibration_id,
+        uncertain=bool(verdict.uncertain),
+        estimate=estimate_out(verdict),
         **verdict_common(verdict),
     )
 

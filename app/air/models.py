@@ -13,6 +13,7 @@ from sqlalchemy import (
     Integer,
     SmallInteger,
     String,
+    false,
     true,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
@@ -33,6 +34,15 @@ class SkyVerdict(Verdict):
     calibration_id: Mapped[str | None] = mapped_column(ForeignKey("air_calibrations.id"))
     smoothed_level: Mapped[float | None] = mapped_column(Float)
     """The camera's NowCast-style level after this frame (``airquality.nowcasts``)."""
+    uncertain: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    """The regression doubted its level (``reason`` says why): the frame has no level and does
+    not move the camera's public one."""
+    estimate: Mapped[float | None] = mapped_column(Float)
+    """The regression's estimate in ``estimate_unit`` (PM2.5 µg/m³, US AQI or level)."""
+    estimate_low: Mapped[float | None] = mapped_column(Float)
+    estimate_high: Mapped[float | None] = mapped_column(Float)
+    """Its prediction interval (``airquality.INTERVAL``)."""
+    estimate_unit: Mapped[str | None] = mapped_column(String(8))
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.sky, "polymorphic_load": "inline"}
 

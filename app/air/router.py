@@ -24,6 +24,7 @@ from app.air import alerts as webhooks
 from app.air import service as air
 from app.air.core import airquality, breakpoints, isopleths
 from app.air.isopleth_cache import MapCache
+from app.air.kind import estimate_out
 from app.air.models import SkyVerdict
 from app.air.schemas import (
     AirAggregate,
@@ -86,18 +87,32 @@ Shrinkage = Annotated[
 ]
 
 
+@dataclass(frozen=True, slots=True)
+class References:
+    levels: list[int]
+    notes: list[str]
+    """How the levels were made, for the calibration's warnings."""
+    reference: tuple[str, list[float]] | None
+    """("pm25" or "aqi", values) when given in a reference unit: the regression's unit."""
+
+
 def _as_levels(
     levels: list[int] | None, pm25: list[float] | None, aqi: list[float] | None
-) -> tuple[list[int], list[str]]:
-    """Levels as given, or from reference PM2.5 or AQI values (``core.breakpoints``), with a
-    note of the mapping for the calibration's warnings."""
+) -> References:
+    """Levels as given, or from reference PM2.5 or AQI values (``core.breakpoints``)."""
     if levels is not None:
-        return levels, []
+        return References(levels, [], None)
     if pm25 is not None:
         mapped = [breakpoints.level_of_pm25(v) for v in pm25]
-        return mapped, [f"levels from PM2.5 by the {breakpoints.SOURCE}"]
+        return References(
+            mapped, [f"levels from PM2.5 by the {breakpoints.SOURCE}"], ("pm25", pm25)
+        )
     assert aqi is not None
-    return [breakpoints.level_of_aqi(v) for v in aqi], [f"levels from the {breakpoints.SOURCE}"]
+    return References(
+        [breakpoints.level_of_aqi(v) for v in aqi],
+        [f"levels from the {breakpoints.SOURCE}"],
+        ("aqi", aqi),
+    )
 
 
 def _calibration_out(row: Any) -> AirCalibrationOut:
@@ -107,8 +122,7 @@ def _calibration_out(row: Any) -> AirCalibrationOut:
 def _from_files(
     session: Session,
     files: list[tuple[str | None, bytes]],
-    levels: list[int],
-    notes: list[str],
+    refs: References,
     camera_id: str | None,
     significance: float,
     shrinkage: float,
@@ -124,7 +138,7 @@ def _from_files(
     row = air.calibrate(
         session,
         ingest.modes_of(decoded),
-        levels,
+        refs.levels,
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=None,
@@ -132,7 +146,8 @@ def _from_files(
         method=method,
         features=feats,
         camera_ids=applies_to,
-        warnings=[*notes, *warnings],
+        warnings=[*refs.notes, *warnings],
+        reference=refs.reference,
     )
     return _calibration_out(row)
 
@@ -146,14 +161,14 @@ def _from_frames(
     method: str,
     applies_to: list[str],
 ) -> AirCalibrationOut:
-    levels, notes = _as_levels(body.levels, body.pm25, body.aqi)
-    if len(body.frame_ids) != len(levels):
-        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(levels)} reference values")
+    refs = _as_levels(body.levels, body.pm25, body.aqi)
+    if len(body.frame_ids) != len(refs.levels):
+        raise Unprocessable(f"{len(body.frame_ids)} frames but {len(refs.levels)} reference values")
     stored = air.of_frames(session, body.frame_ids)
     row = air.calibrate(
         session,
         stored.modes,
-        levels,
+        refs.levels,
         significance=significance,
         shrinkage=shrinkage,
         frame_ids=body.frame_ids,
@@ -162,7 +177,9 @@ def _from_frames(
         features=stored.features,
         camera_ids=applies_to,
         regions=stored.regions,
-        warnings=notes,
+        warnings=refs.notes,
+        reference=refs.reference,
+        groups=stored.days,
     )
     return _calibration_out(row)
 
@@ -254,15 +271,14 @@ async def calibrate(
         [(name, raw)] = given.items()
         if len(files) != len(raw):
             raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
-        levels, notes = _as_levels(*_references(name, raw))
+        refs = _as_levels(*_references(name, raw))
         return await image_work(
             request,
             partial(
                 _from_files,
                 session,
                 files,
-                levels,
-                notes,
+                refs,
                 camera_id,
                 significance,
                 shrinkage,
@@ -396,12 +412,14 @@ def _latest_out(
         lon=place.lon,
         level=level,
         category=category,
-        message=airquality.message(category) if current and category else None,
+        message=_message(category, current, v),
         captured_at=frame.captured_at,
         smoothed_level=public if current else None,
         smoothed_category=category if current else None,
         frame_level=v.level,
         frame_category=v.category,
+        uncertain=v.uncertain,
+        estimate=estimate_out(v),
         reason=v.reason
         if current
         else f"no reading in the last 3 hours: the latest was taken "
@@ -410,10 +428,21 @@ def _latest_out(
     )
 
 
+def _message(category: str | None, current: bool, v: SkyVerdict) -> str | None:
+    """The public message: today's category; when the camera has no current public level
+    because its latest frames are uncertain, that it is not sure, not a guess."""
+    if current and category:
+        return airquality.message(category)
+    if current and v.uncertain:
+        return "No current reading: the camera cannot judge the air with confidence now"
+    return None
+
+
 CSV_CONTENT = {
     "text/csv": {
         "schema": {"type": "string"},
-        "example": "camera_id,frame_id,captured_at,level,category,smoothed_level,reason\r\n",
+        "example": "camera_id,frame_id,captured_at,level,category,smoothed_level,reason,"
+        "uncertain,estimate,estimate_low,estimate_high,estimate_unit,calibration_id\r\n",
     }
 }
 
@@ -488,6 +517,12 @@ async def readings(
                 category=r.category,
                 smoothed_level=r.smoothed_level,
                 reason=r.reason,
+                uncertain=r.uncertain,
+                estimate=r.estimate,
+                estimate_low=r.estimate_low,
+                estimate_high=r.estimate_high,
+                estimate_unit=r.estimate_unit,
+                calibration_id=r.calibration_id,
             )
             for r in rows
         ]

@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from app.platform.schemas import Out, Schema
+from app.platform.schemas import Out, Schema, SkyEstimate
 
 
 class AirCalibrationFromFrames(Schema):
@@ -77,8 +77,8 @@ class AirLatest(Out):
     )
     category: str | None = Field(description="The category of the public level.")
     message: str | None = Field(
-        description="Today's Air Quality is <category>: null when the latest reading is not "
-        "current."
+        description='Today\'s Air Quality is <category>; "No current reading: …" when the '
+        "latest frames are uncertain; null when the latest reading is not current."
     )
     captured_at: datetime | None = Field(description="When the latest reading was taken.")
     smoothed_level: float | None = Field(
@@ -89,6 +89,14 @@ class AirLatest(Out):
         description="The latest frame's own grade (null when it could not be graded: reason)."
     )
     frame_category: str | None
+    uncertain: bool = Field(
+        default=False,
+        description="The latest frame was uncertain (reason says why): it left the public "
+        "level as it was.",
+    )
+    estimate: SkyEstimate | None = Field(
+        default=None, description="The latest frame's regression estimate, if any."
+    )
     reason: str | None
     current: bool = Field(
         description="The latest reading was taken in the last 3 hours. When not, the level and"
@@ -105,6 +113,16 @@ class AirReading(Out):
     category: str | None
     smoothed_level: float | None
     reason: str | None
+    uncertain: bool = Field(default=False, description="The regression doubted this frame.")
+    estimate: float | None = Field(
+        default=None, description="The regression's estimate, in estimate_unit."
+    )
+    estimate_low: float | None = Field(default=None, description="Its 80 % interval's low end.")
+    estimate_high: float | None = Field(default=None, description="Its high end.")
+    estimate_unit: str | None = Field(default=None, description="pm25 [µg/m³], aqi or level.")
+    calibration_id: str | None = Field(
+        default=None, description="The calibration that graded it (re-grading changes it)."
+    )
 
 
 class AirAggregate(Out):

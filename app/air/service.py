@@ -140,34 +140,63 @@ def as_core(row: AirCalibration) -> airquality.Calibration:
     return airquality.Calibration(clusters, tuple(row.warnings))
 
 
-def fit_regression(features: NDArray[np.float64], levels: Sequence[int]) -> dict[str, Any]:
-    """Standardised ridge regression of the level on the sky features (scikit-learn)."""
-    from sklearn.linear_model import RidgeCV
-    from sklearn.preprocessing import StandardScaler
-
-    if len(levels) < 10 or len(set(levels)) < 3:
+def fit_regression(
+    features: NDArray[np.float64],
+    targets: Sequence[float],
+    *,
+    unit: str = "level",
+    groups: Sequence[str] | None = None,
+) -> dict[str, Any]:
+    """The ridge regression of ``targets`` (levels, or the reference in ``unit``) on the sky
+    features (``airquality.fit_regression``), as the calibration keeps it."""
+    if len(targets) < 10 or len({airquality.level_of(t, unit) for t in targets}) < 3:
         raise Unprocessable("the regression needs at least 10 images of at least 3 levels")
+    if features.ndim != 2 or features.shape[1] != len(airquality.SKY_FEATURES):
+        raise Unprocessable(
+            "some images' sky features were measured by an earlier version: re-grade their "
+            "cameras first (POST /air/cameras/{id}/regrade) or upload the images",
+            code="stale_features",
+        )
     if not np.isfinite(features).all():
         raise Unprocessable("some images gave non-finite features")
-    scaler = StandardScaler().fit(features)
-    model = RidgeCV(alphas=np.logspace(-2, 3, 30)).fit(scaler.transform(features), levels)
-    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    model, alpha = airquality.fit_regression(features, targets, unit=unit, groups=groups)
+    assert model.gram_inv is not None
     return {
         "features": list(airquality.SKY_FEATURES),
-        "mean": scaler.mean_.tolist(),
-        "scale": scale.tolist(),
-        "coef": np.asarray(model.coef_).tolist(),
-        "intercept": float(model.intercept_),
-        "alpha": float(model.alpha_),
+        "unit": unit,
+        "mean": model.mean.tolist(),
+        "scale": model.scale.tolist(),
+        "coef": model.coef.tolist(),
+        "intercept": model.intercept,
+        "alpha": alpha,
+        "gram_inv": model.gram_inv.tolist(),
+        "n": model.n,
+        "sigma": model.sigma,
+        "dof": model.dof,
+        "max_leverage": model.max_leverage,
+        "interval": airquality.INTERVAL,
+        "sigma_from": "days left out" if groups and len(set(groups)) >= 3 else "images left out",
     }
 
 
 def as_regression(row: AirCalibration) -> airquality.Regression | None:
+    """The calibration's regression; None without one, or one made on another feature set
+    (its frames must be graded by a new calibration)."""
     r = row.regression
-    if not r:
+    if not r or r.get("features", []) != list(airquality.SKY_FEATURES):
         return None
+    gram = r.get("gram_inv")
     return airquality.Regression(
-        np.asarray(r["mean"]), np.asarray(r["scale"]), np.asarray(r["coef"]), float(r["intercept"])
+        np.asarray(r["mean"]),
+        np.asarray(r["scale"]),
+        np.asarray(r["coef"]),
+        float(r["intercept"]),
+        unit=str(r.get("unit", "level")),
+        gram_inv=None if gram is None else np.asarray(gram, dtype=np.float64),
+        n=int(r.get("n", 0)),
+        sigma=r.get("sigma"),
+        dof=float(r.get("dof", 1.0)),
+        max_leverage=r.get("max_leverage"),
     )
 
 
@@ -185,8 +214,13 @@ def calibrate(
     camera_ids: Sequence[str] = (),
     warnings: Sequence[str] = (),
     regions: Sequence[tuple[str, str, Region]] = (),
+    reference: tuple[str, Sequence[float]] | None = None,
+    groups: Sequence[str] | None = None,
 ) -> AirCalibration:
-    """The level clusters (always) and, for ``method="regression"``, the regression too.
+    """The level clusters (always) and, for ``method="regression"``, the regression too:
+    fitted to ``reference`` (unit "pm25" or "aqi", one value per image) when given, so its
+    verdicts carry an estimate in that unit; else to the levels. ``groups``: each image's
+    capture day, for the regression's out-of-sample residuals.
 
     ``warnings`` are kept in the model beside its own (levels pooled for want of images).
     ``regions``: (frame, camera, region) of stored frames it is made from; a camera it is made
@@ -225,7 +259,8 @@ def calibrate(
     if method == "regression":
         if features is None:
             raise Unprocessable("the regression needs the images' sky features")
-        regression = fit_regression(features, levels)
+        unit, targets = reference if reference is not None else ("level", levels)
+        regression = fit_regression(features, list(targets), unit=unit, groups=groups)
     try:
         cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
     except soiling.BaselineError as exc:
@@ -276,6 +311,8 @@ class StoredSkies:
     """None unless every frame kept them."""
     regions: list[tuple[str, str, Region]]
     """(frame, camera, the region it was measured in) of each frame."""
+    days: list[str]
+    """The UTC date each frame was captured."""
 
 
 def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
@@ -291,7 +328,10 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
             SkyVerdict.roi,
             SkyVerdict.usable,
             SkyVerdict.reason,
-        ).where(SkyVerdict.frame_id.in_(frame_ids))
+            Frame.captured_at,
+        )
+        .join(Frame, Frame.id == SkyVerdict.frame_id)
+        .where(SkyVerdict.frame_id.in_(frame_ids))
     ).all()
     found = {r[0]: r for r in rows}
     missing = [f for f in frame_ids if f not in found]
@@ -301,9 +341,10 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
     modes = np.array([found[f][1:4] for f in frame_ids], dtype=np.float64)
     feats = [(found[f][4] or {}).get("features") for f in frame_ids]
     regions = [(f, found[f][5], found[f][6]) for f in frame_ids]
-    if any(x is None for x in feats):
-        return StoredSkies(modes, None, regions)
-    return StoredSkies(modes, np.array(feats, dtype=np.float64), regions)
+    days = [found[f][9].date().isoformat() for f in frame_ids]
+    if any(x is None for x in feats) or len({len(x or ()) for x in feats}) != 1:
+        return StoredSkies(modes, None, regions, days)
+    return StoredSkies(modes, np.array(feats, dtype=np.float64), regions, days)
 
 
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
@@ -331,10 +372,14 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
             f"its own calibration was made when it measured {describe_region(how.region)}, "
             f"not {describe_region(camera.region)}: calibrate it again (POST /air/calibration)"
         )[:200]
+    elif cal_row.method == "regression" and cal_row.regression and regression is None:
+        verdict.reason = (
+            "its calibration's regression was made on an earlier set of sky features: "
+            "calibrate again (POST /air/calibration)"
+        )
     elif cal_row.method == "regression" and regression and decoded.features is not None:
         verdict.calibration_id = cal_row.id
-        verdict.level = regression.level(decoded.features)
-        verdict.category = airquality.category(verdict.level)
+        estimated(verdict, regression, decoded.features)
     else:
         g = airquality.grade(as_core(cal_row), decoded.stats.modes)
         verdict.calibration_id = cal_row.id
@@ -413,6 +458,23 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     ):
         session.add(_alert(camera.id, frame.id, frame.received_at, kind, smoothed, alert))
     return verdict
+
+
+def estimated(
+    verdict: SkyVerdict, regression: airquality.Regression, features: NDArray[np.float64]
+) -> None:
+    """Grade the verdict by the regression: its estimate and interval always; its level and
+    category only when the regression is sure (else ``uncertain``, with the reason)."""
+    e = regression.estimate(features)
+    verdict.estimate, verdict.estimate_unit = e.value, regression.unit
+    verdict.estimate_low, verdict.estimate_high = e.low, e.high
+    verdict.uncertain = e.uncertain is not None
+    if e.uncertain is not None:
+        verdict.level = verdict.category = None
+        verdict.reason = f"uncertain: {e.uncertain}"[:200]
+    else:
+        verdict.level, verdict.category = e.level, airquality.category(e.level)
+        verdict.reason = None
 
 
 def _lock_camera(session: Session, camera_id: str) -> None:
@@ -643,6 +705,12 @@ def readings(
         SkyVerdict.category,
         SkyVerdict.smoothed_level,
         SkyVerdict.reason,
+        SkyVerdict.uncertain,
+        SkyVerdict.estimate,
+        SkyVerdict.estimate_low,
+        SkyVerdict.estimate_high,
+        SkyVerdict.estimate_unit,
+        SkyVerdict.calibration_id,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
     q = q.where(*taken_in(camera_ids, since, until), *after(cursor))
     return session.execute(q.order_by(*NEWEST_FIRST).limit(limit).offset(offset)).all()

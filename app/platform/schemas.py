@@ -193,6 +193,17 @@ class PanelVerdictOut(VerdictBase):
     )
 
 
+class SkyEstimate(Out):
+    """A regression's estimate of one frame's air, in the unit it was calibrated in."""
+
+    unit: Literal["pm25", "aqi", "level"] = Field(
+        description="pm25: PM2.5 [µg/m³]; aqi: US AQI; level: the 1–10 scale itself."
+    )
+    value: float
+    low: float | None = Field(description="Lower end of the 80 % prediction interval.")
+    high: float | None = Field(description="Upper end of the 80 % prediction interval.")
+
+
 class SkyVerdictOut(VerdictBase):
     kind: Literal["sky"] = "sky"
     level: int | None
@@ -202,6 +213,15 @@ class SkyVerdictOut(VerdictBase):
         default=None,
         description="The calibration that graded the frame (the camera's own or "
         "the city-wide one).",
+    )
+    uncertain: bool = Field(
+        default=False,
+        description="The regression doubts this frame (reason says why: outside what it was "
+        "calibrated on, or an interval across categories): no level, and the camera's public "
+        "level does not move.",
+    )
+    estimate: SkyEstimate | None = Field(
+        default=None, description="The regression's estimate (null for the T² clusters)."
     )
 
 

@@ -15,6 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 from shapely.geometry import shape
 
+from app.air.core import airquality
 from app.air.isopleth_cache import MapCache
 from tests.factories import calibrate, make_jpeg, post, post_bytes, sky_jpeg
 
@@ -1117,7 +1118,9 @@ def test_a_test_alert_checks_the_receiver_and_its_secret(
 def test_regression_calibration(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """``method=regression``: a level for every frame, close to the truth on synthetic skies."""
+    """``method=regression``: an estimate for every frame close to the truth on synthetic
+    skies, its 80 % interval around it; a level only where the interval's ends share a
+    category (else ``uncertain``, with no level)."""
     files, levels = [], []
     for level in range(1, 11):
         for k in range(3):
@@ -1136,7 +1139,18 @@ def test_regression_calibration(
     assert r.json()["method"] == "regression"
     for level in (2, 5, 9):
         v = post(client, city, "sky4", level, seed=500 + level)
-        assert abs(v["level"] - level) <= 1
+        e = v["estimate"]
+        assert e["unit"] == "level"
+        assert abs(e["value"] - level) <= 0.5
+        assert e["low"] < e["value"] < e["high"]
+        low, high = airquality.category(e["low"]), airquality.category(e["high"])
+        assert v["uncertain"] is (low != high)
+        if low == high:
+            assert v["level"] == round(e["value"])
+            assert v["reason"] is None
+        else:
+            assert v["level"] is None
+            assert v["reason"].startswith("uncertain: the 80% interval")
     # too few images for a regression
     r = client.post(
         "/air/calibration",

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, shape
 
-from app.air.core import airquality
+from app.air.core import airquality, breakpoints
 from app.air.core.isopleths import (
     EARTH_RADIUS,
     IsoplethError,
@@ -586,5 +586,87 @@ class TestSkyFeatures:
             result = len(airquality.sky_features(sky))
             """,
         )
-        assert n == 11
+        assert n == len(airquality.SKY_FEATURES)
         assert peak < 8 * 2**20, peak / 2**20
+
+    def test_log_contrasts_of_flat_bands(self) -> None:
+        """Bands of one grey each: every percentile is that grey, so each band's contrast is
+        (S − L)/(S + 1) for sky median S; a band as bright as the sky clips at MIN_CONTRAST."""
+        h = 100
+        strip = np.empty((h, 10, 3), dtype=np.uint8)
+        greys = (40, 90, 150, 200)
+        for (lo, hi), g in zip(airquality.SKYLINE_BANDS, greys, strict=True):
+            strip[int(lo * h) : int(hi * h)] = g
+        strip[int(0.34 * h) : int(0.42 * h)] = 255  # between bands: never read
+        sky = np.array([200.0, 210.0, 220.0])
+        got = airquality.log_contrasts(sky, strip).reshape(4, 2, 3)
+        for b, g in enumerate(greys):
+            want = np.log(np.maximum((sky - g) / (sky + 1), airquality.MIN_CONTRAST))
+            np.testing.assert_allclose(got[b, 0], want, rtol=1e-12)
+            np.testing.assert_allclose(got[b, 1], want, rtol=1e-12)
+
+    def test_no_strip_is_no_contrast(self) -> None:
+        f = airquality.sky_features(self.image(40, 60))
+        n = len(airquality.SKYLINE_BANDS) * len(airquality.SKYLINE_QUANTILES) * 3
+        np.testing.assert_array_equal(f[11 : 11 + n], np.log(airquality.MIN_CONTRAST))
+
+
+class TestRegression:
+    """The ridge regression's intervals and doubt on data of known noise (seeded)."""
+
+    def data(self, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(seed)
+        x = rng.normal(0, 1, (n, 5))
+        y = 3.0 + x @ np.array([0.3, -0.2, 0.1, 0.0, 0.05]) + rng.normal(0, 0.25, n)
+        return x, y
+
+    def test_the_interval_covers_as_promised(self) -> None:
+        """σ = 0.25 in ln(1 + PM2.5): σ is found within 10 %, and the 80 % interval holds
+        fresh values 80 ± 3 % of the time (2,000 draws: binomial s.e. 0.9 %)."""
+        x, y = self.data(400, 0)
+        model, _ = airquality.fit_regression(x, np.expm1(y), unit="pm25")
+        assert model.sigma is not None
+        assert abs(model.sigma - 0.25) < 0.025
+        xt, yt = self.data(2000, 1)
+        inside = []
+        for f, v in zip(xt, np.expm1(yt), strict=True):
+            e = model.estimate(f)
+            assert e.low is not None
+            assert e.high is not None
+            inside.append(e.low <= v <= e.high)
+            assert e.level == breakpoints.level_of_pm25(e.value)
+        assert abs(np.mean(inside) - airquality.INTERVAL) < 0.03
+
+    def test_days_left_out_carry_the_days_error(self) -> None:
+        """With days as groups, σ comes from days left out: a day-wide offset (σ 0.5) the
+        features do not see adds to the within-day noise (0.25): √(0.25² + 0.5²) = 0.56."""
+        rng = np.random.default_rng(2)
+        x, y = self.data(300, 3)
+        days = np.repeat(np.arange(30), 10).astype(str)
+        y = y + np.repeat(rng.normal(0, 0.5, 30), 10)
+        by_day, _ = airquality.fit_regression(x, y, groups=list(days))
+        assert by_day.sigma is not None
+        assert 0.45 < by_day.sigma < 0.7
+
+    def test_a_frame_far_outside_is_uncertain(self) -> None:
+        x, y = self.data(200, 4)
+        model, _ = airquality.fit_regression(x, y)
+        far = np.array([0.0, 0.0, 0.0, 25.0, 0.0])
+        e = model.estimate(far)
+        assert e.uncertain is not None
+        assert e.uncertain.startswith("outside the calibration")
+        assert model.estimate(np.zeros(5)).leverage == pytest.approx(0.0, abs=1e-3)
+
+    def test_an_interval_across_a_category_edge_is_uncertain(self) -> None:
+        """Levels 1–10 and a level estimate of ≈ 4.5 (the Poor/Fair edge): uncertain;
+        ≈ 9.5 ± 0.3 inside Very Good: sure."""
+        rng = np.random.default_rng(5)
+        x = rng.uniform(1, 10, (300, 1))
+        y = x[:, 0] + rng.normal(0, 0.3, 300)
+        model, _ = airquality.fit_regression(x, y)
+        edge = model.estimate([4.5])
+        assert edge.uncertain is not None
+        assert "interval spans Poor to Fair" in edge.uncertain
+        sure = model.estimate([9.6])
+        assert sure.uncertain is None
+        assert sure.level == 10

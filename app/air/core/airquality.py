@@ -17,7 +17,9 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import t as t_dist
 
+from app.air.core import breakpoints
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.stats import channel_histograms
 
@@ -247,6 +249,15 @@ def nowcasts(
     return out
 
 
+SKYLINE_HEIGHT = 0.38
+"""The skyline strip under the sky region, as a fraction of the frame's height: the distant
+skyline first, nearer buildings lower down."""
+SKYLINE_BANDS = ((0.0, 0.17), (0.17, 0.34), (0.42, 0.66), (0.66, 1.0))
+"""Bands of the skyline strip (fractions of its height), farthest first: haze fades far
+objects more than near ones (eq. below), so each band's contrast carries its own distance."""
+SKYLINE_QUANTILES = (5, 20)
+"""Percentiles [%] of a band's pixels taken as its dark objects (buildings against the sky)."""
+
 SKY_FEATURES = (
     "mode_r",
     "mode_g",
@@ -259,7 +270,22 @@ SKY_FEATURES = (
     "spread",
     "skyline_std",
     "skyline_laplacian",
+    *(
+        f"log_contrast_band{b}_p{q}_{c}"
+        for b in range(len(SKYLINE_BANDS))
+        for q in SKYLINE_QUANTILES
+        for c in "rgb"
+    ),
+    "log_sky_median_r",
+    "log_sky_median_g",
+    "log_sky_median_b",
 )
+"""The regression's features, in order: a stored feature vector of another length was made by
+an earlier version and is measured again (``POST /air/cameras/{id}/regrade``)."""
+
+MIN_CONTRAST = 1e-3
+"""Apparent contrasts are clipped to this before their logarithm (an object as bright as the
+sky has none)."""
 
 
 BAND_PIXELS = 1 << 20
@@ -281,14 +307,48 @@ def _darkest_histogram(sky: NDArray[np.uint8]) -> NDArray[np.float64]:
     return hist
 
 
+def _percentile(hist: NDArray[Any], q: float) -> float:
+    """The lowest level at or below which ``q`` % of a histogram's pixels lie."""
+    cdf = np.cumsum(hist)
+    return float(np.searchsorted(cdf, q / 100 * cdf[-1]))
+
+
+def log_contrasts(
+    sky_median: NDArray[np.float64], strip: NDArray[np.uint8] | None
+) -> NDArray[np.float64]:
+    """ln of the apparent contrast of each skyline band's dark objects against the sky, per
+    channel: C = (L_sky − L_q) / (L_sky + 1) for the band's ``SKYLINE_QUANTILES`` percentiles
+    L_q (grey levels), clipped at ``MIN_CONTRAST``. Shape (bands × quantiles × 3,).
+
+    Not in the dissertation: Koschmieder's law (Middleton, *Vision through the Atmosphere*,
+    1952, ch. 5) gives the contrast of a dark object at distance d as C = C₀·e^(−b·d), b the
+    extinction coefficient that fine particles raise, so ln C falls linearly with the haze,
+    faster for farther bands. All from histograms: no float copy of the strip."""
+    n = len(SKYLINE_BANDS) * len(SKYLINE_QUANTILES) * 3
+    if strip is None or strip.shape[0] < len(SKYLINE_BANDS):
+        return np.full(n, np.log(MIN_CONTRAST))
+    h = strip.shape[0]
+    out = []
+    for lo, hi in SKYLINE_BANDS:
+        band = strip[int(lo * h) : max(int(hi * h), int(lo * h) + 1)]
+        hists = [cv2.calcHist([band], [c], None, [256], [0, 256]).ravel() for c in range(3)]
+        for q in SKYLINE_QUANTILES:
+            for c in range(3):
+                dark = _percentile(hists[c], q)
+                contrast = (sky_median[c] - dark) / (sky_median[c] + 1)
+                out.append(np.log(max(contrast, MIN_CONTRAST)))
+    return np.array(out)
+
+
 def sky_features(
     sky: NDArray[np.uint8],
     below: NDArray[np.uint8] | None = None,
     histograms: NDArray[np.int64] | None = None,
 ) -> NDArray[np.float64]:
-    """Features of a sky region (RGB, uint8) and of the strip below it (the skyline) for the
-    regression across levels that improves on the clusters: modes, means, blue-to-red ratio,
-    median of the darkest channel, spread; the skyline's contrast (0 without a strip).
+    """``SKY_FEATURES`` of a sky region (RGB, uint8) and of the skyline strip below it for the
+    regression that improves on the clusters: modes, means, blue-to-red ratio, median of the
+    darkest channel, spread; the strip's contrast (0 without one) and the log contrasts of
+    its bands (``log_contrasts``); ln of the sky's median per channel.
 
     ``histograms``: the region's channel histograms (3, 256) when already computed. Everything
     comes from histograms and uint8 or float32 single-channel arrays: a float64 copy of a 36 MP
@@ -300,6 +360,7 @@ def sky_features(
     modes = hist.argmax(axis=1)
     means = hist @ levels / n
     spread = np.sqrt(np.maximum(hist @ levels**2 / n - means**2, 0.0)).mean()
+    medians = np.array([_median(h) for h in hist])
     contrast = [0.0, 0.0]
     if below is not None and below.size:
         # luma channel by channel, the second difference down the columns in place
@@ -321,6 +382,8 @@ def sky_features(
             _median(_darkest_histogram(sky)),
             spread,
             *contrast,
+            *log_contrasts(medians, below),
+            *np.log(medians + 1),
         ]
     )
 
@@ -337,15 +400,161 @@ def _median(hist: NDArray[Any]) -> float:
     return (lower + upper) / 2
 
 
+UNITS = ("level", "pm25", "aqi")
+"""What a regression is fitted in: the levels themselves, or the reference PM2.5 [µg/m³] or
+US AQI, whose levels come from ``breakpoints`` (fitted as ln(1 + value): haze's extinction,
+and so the log contrasts, grow with the concentration's logarithm far better than with it)."""
+INTERVAL = 0.8
+"""Coverage of a verdict's prediction interval."""
+
+
+def level_of(value: float, unit: str) -> int:
+    """The level 1–10 of an estimate in ``unit``."""
+    if unit == "pm25":
+        return breakpoints.level_of_pm25(max(value, 0.0))
+    if unit == "aqi":
+        return breakpoints.level_of_aqi(max(value, 0.0))
+    return int(np.clip(np.rint(value), 1, 10))
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """A regression's verdict on one frame."""
+
+    level: int
+    value: float
+    """The estimate in the regression's unit (level, PM2.5 µg/m³ or AQI)."""
+    low: float | None
+    high: float | None
+    """The ``INTERVAL`` prediction interval in that unit (None for a model without one)."""
+    leverage: float | None
+    """h = z·(ZᵀZ + αI)⁻¹·z of the frame's standardised features."""
+    uncertain: str | None
+    """Why the level is not to be trusted, or None."""
+
+
 @dataclass(frozen=True, slots=True)
 class Regression:
-    """Standardised ridge regression of the level on ``SKY_FEATURES``."""
+    """Standardised ridge regression of the level (or of ln(1 + reference)) on
+    ``SKY_FEATURES``, with what its prediction intervals need."""
 
     mean: NDArray[np.float64]
     scale: NDArray[np.float64]
     coef: NDArray[np.float64]
     intercept: float
+    unit: str = "level"
+    gram_inv: NDArray[np.float64] | None = None
+    """(ZᵀZ + αI)⁻¹ of the standardised training features, p × p."""
+    n: int = 0
+    sigma: float | None = None
+    """Residual scale on data it was not fitted to (grouped or leave-one-out), fitted unit."""
+    dof: float = 1.0
+    """Residual degrees of freedom, n − tr(H)."""
+    max_leverage: float | None = None
+    """The largest leverage a training image has against the others, hᵢ/(1 − hᵢ) (its
+    leverage in the fit that leaves it out): a frame farther out than any image was from the
+    rest is extrapolation."""
+
+    def _fitted(self, features: ArrayLike) -> tuple[float, NDArray[np.float64]]:
+        z = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        return float(z @ self.coef) + self.intercept, z
+
+    def _out(self, y: float) -> float:
+        return float(np.expm1(y)) if self.unit != "level" else y
 
     def level(self, features: ArrayLike) -> int:
-        z = float(((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) @ self.coef)
-        return int(np.clip(np.rint(z + self.intercept), 1, 10))
+        return self.estimate(features).level
+
+    def estimate(self, features: ArrayLike) -> Estimate:
+        """The level, the estimate in the reference unit with its prediction interval
+        ŷ ± t₍dof₎·σ·√(1 + 1/n + h) (ridge's bias neglected), and whether to doubt it: the
+        frame lies outside the calibration — its leverage h = z·(ZᵀZ + αI)⁻¹·z above every
+        training image's leverage against the others (Montgomery, Peck & Vining,
+        *Introduction to Linear Regression Analysis*, 5th ed., §3.8, hidden extrapolation;
+        hᵢ/(1 − hᵢ) is image i's leverage in the fit without it, so a calibration of few
+        images in many features is not refused everything it did not see) — or the
+        interval's two ends fall in different categories."""
+        y, z = self._fitted(features)
+        value = self._out(y)
+        level = level_of(value, self.unit)
+        if self.gram_inv is None or self.sigma is None or self.max_leverage is None:
+            return Estimate(level, value, None, None, None, None)
+        h = float(z @ self.gram_inv @ z)
+        half = float(t_dist.ppf((1 + INTERVAL) / 2, max(self.dof, 1.0))) * self.sigma
+        half *= float(np.sqrt(1 + 1 / max(self.n, 1) + h))
+        low, high = sorted((self._out(y - half), self._out(y + half)))
+        uncertain = None
+        if not np.isfinite(h) or h > self.max_leverage:
+            uncertain = (
+                f"outside the calibration: leverage {h:.3g} above the largest of its images "
+                f"({self.max_leverage:.3g})"
+            )
+        else:
+            lo_cat = category(level_of(low, self.unit))
+            hi_cat = category(level_of(high, self.unit))
+            if lo_cat != hi_cat:
+                uncertain = (
+                    f"the {INTERVAL:.0%} interval spans {hi_cat} to {lo_cat}"
+                    if self.unit != "level"
+                    else f"the {INTERVAL:.0%} interval spans {lo_cat} to {hi_cat}"
+                )
+        return Estimate(level, value, low, high, h, uncertain)
+
+
+def fit_regression(
+    features: ArrayLike,
+    targets: ArrayLike,
+    *,
+    unit: str = "level",
+    groups: Sequence[str] | None = None,
+    alphas: ArrayLike | None = None,
+) -> tuple[Regression, float]:
+    """Ridge regression of ``targets`` (levels, or reference values in ``unit``) on the
+    features, α by scikit-learn's efficient leave-one-out, and (α). σ for the intervals comes
+    from residuals on data the fit did not see: leave one group (a day of frames) out when
+    ``groups`` has at least 3, else leave one image out (optimistic when images are
+    near-duplicates: frames of one day share their weather)."""
+    from sklearn.linear_model import RidgeCV
+    from sklearn.preprocessing import StandardScaler
+
+    x = np.asarray(features, dtype=np.float64)
+    t = np.asarray(targets, dtype=np.float64)
+    if unit not in UNITS:
+        raise ValueError(f"unit must be one of {UNITS}")
+    y = np.log1p(t) if unit != "level" else t
+    scaler = StandardScaler().fit(x)
+    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    z = (x - scaler.mean_) / scale
+    grid = np.logspace(-2, 3, 30) if alphas is None else np.asarray(alphas)
+    model = RidgeCV(alphas=grid).fit(z, y)
+    alpha = float(model.alpha_)
+    n, p = z.shape
+    zc = z - z.mean(axis=0)  # the features are standardised: already centred
+    gram_inv = np.linalg.inv(zc.T @ zc + alpha * np.eye(p))
+    lev = np.einsum("ij,jk,ik->i", zc, gram_inv, zc)
+    fitted = model.predict(z)
+    if groups is not None and len(set(groups)) >= 3:
+        g = np.asarray(groups)
+        held = np.empty(n)
+        for name in set(g.tolist()):
+            out = g == name
+            m = RidgeCV(alphas=[alpha]).fit(z[~out], y[~out])
+            held[out] = m.predict(z[out])
+        residuals = y - held
+    else:
+        # the closed-form leave-one-out residual (hat value with the intercept's 1/n)
+        residuals = (y - fitted) / np.maximum(1 - lev - 1 / n, 1e-6)
+    dof = max(n - 1 - float(lev.sum()), 1.0)
+    reg = Regression(
+        mean=scaler.mean_.astype(np.float64),
+        scale=scale.astype(np.float64),
+        coef=np.asarray(model.coef_, dtype=np.float64),
+        intercept=float(model.intercept_),
+        unit=unit,
+        gram_inv=gram_inv,
+        n=n,
+        sigma=float(np.sqrt(np.mean(residuals**2))),
+        dof=dof,
+        max_leverage=float(np.max(lev / np.maximum(1 - lev - 1 / n, 1e-6))),
+    )
+    return reg, alpha
