@@ -33,6 +33,7 @@ from app.air.schemas import (
     AirCalibrationOut,
     AirLatest,
     AirReading,
+    AirRegradeOut,
     WebhookTestOut,
 )
 from app.platform import webhooks as platform_webhooks
@@ -304,6 +305,49 @@ async def calibrate(
         )
     raise UnsupportedMediaType(
         "send multipart/form-data (files, levels) or JSON (frame_ids, levels)"
+    )
+
+
+@router.post(
+    "/cameras/{camera_id}/regrade",
+    response_model=AirRegradeOut,
+    responses={**AUTH_ERRORS, **NOT_FOUND, **UNPROCESSABLE},
+)
+async def regrade(
+    request: Request,
+    camera_id: CameraId,
+    since: Annotated[UtcTime, Query(description="Re-grade the frames taken since this time.")],
+    session: SessionDep,
+    settings: SettingsDep,
+    _: Admin,
+    limit: Annotated[
+        int, Query(ge=1, le=air.REGRADE_LIMIT, description="Frames in this call at most.")
+    ] = air.REGRADE_LIMIT,
+) -> AirRegradeOut:
+    """Grade the sky camera's stored frames taken since ``since`` again by the calibration
+    that grades it now (after a new calibration), measured in its region now; smooth its
+    readings again. Its history then speaks one calibration: each reading names it
+    (``calibration_id``). Raises no alerts (history). Oldest first, ``limit`` at a time."""
+    store = request.app.state.frame_store if settings.store_frames else None
+    done = await image_work(
+        request,
+        partial(
+            air.regrade,
+            session,
+            store,
+            camera_id,
+            since,
+            max_pixels=settings.max_pixels,
+            limit=limit,
+        ),
+    )
+    return AirRegradeOut(
+        camera_id=done.camera_id,
+        calibration_id=done.calibration_id,
+        since=done.since,
+        regraded=done.regraded,
+        missing=done.missing,
+        next_since=done.next_since,
     )
 
 

@@ -50,6 +50,23 @@ class AirClusterOut(Out):
     significance: float
 
 
+class AirRegressionOut(Out):
+    unit: str = Field(
+        default="level", description="What it is fitted in: pm25 [µg/m³], aqi or level."
+    )
+    n: int = Field(default=0, description="Images it was fitted to.")
+    alpha: float | None = Field(default=None, description="Ridge penalty (leave-one-out).")
+    sigma: float | None = Field(
+        default=None,
+        description="Residual scale on data it was not fitted to, in ln(1 + unit) (level: "
+        "levels); its prediction intervals' width.",
+    )
+    sigma_from: str | None = Field(
+        default=None, description="days left out (stored frames of ≥ 3 days) or images left out."
+    )
+    interval: float | None = Field(default=None, description="Coverage of its intervals.")
+
+
 class AirCalibrationOut(Out):
     id: str
     created_at: datetime
@@ -62,6 +79,9 @@ class AirCalibrationOut(Out):
         "its own."
     )
     camera_ids: list[str] = Field(description="The sky cameras it was made for and still grades.")
+    regression: AirRegressionOut | None = Field(
+        default=None, description="The regression (method regression), else null."
+    )
 
 
 class AirLatest(Out):
@@ -164,3 +184,20 @@ class AirAlertOut(Out):
         description="Why the last attempt failed (with the admin token only; else null)."
     )
     next_attempt_at: datetime | None = Field(description="When a failed delivery is retried.")
+
+
+class AirRegradeOut(Schema):
+    camera_id: str
+    calibration_id: str | None = Field(
+        description="The calibration that graded them (null: none grades the camera)."
+    )
+    since: datetime
+    regraded: int = Field(description="Frames measured again and graded by it.")
+    missing: int = Field(
+        description="Frames whose bytes are no longer stored (retention): they keep their "
+        "grade and its calibration_id."
+    )
+    next_since: datetime | None = Field(
+        description="More frames remain: call again with this since (the last one re-graded "
+        "is graded again, harmlessly). Null when done."
+    )

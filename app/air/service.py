@@ -39,9 +39,11 @@ from app.platform.frames.camera_info import (
     uploads_in,
 )
 from app.platform.frames.cameras import NEWEST_FIRST, FrameKey, after, taken_in
-from app.platform.frames.kinds import Prepared
+from app.platform.frames.ingest import analyse
+from app.platform.frames.kinds import Decoded, Prepared
+from app.platform.frames.storage import FrameStore
 from app.platform.frames.verdicts import check_usable, stats_columns
-from app.platform.http.errors import NotFound, Unprocessable
+from app.platform.http.errors import NotFound, Unprocessable, VantageError
 from app.platform.policy import Policy
 
 
@@ -360,33 +362,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     )
     if decoded.features is not None:
         verdict.details = {"features": decoded.features.tolist()}
-    how = grading(session, camera.id)
-    cal_row = how.calibration
-    regression = as_regression(cal_row) if cal_row is not None else None
-    if decoded.quality is not None:
-        verdict.reason = decoded.quality
-    elif cal_row is None:
-        verdict.reason = "air-quality model not calibrated (POST /air/calibration)"
-    elif how.own and how.region != camera.region:  # another part of the view
-        verdict.reason = (
-            f"its own calibration was made when it measured {describe_region(how.region)}, "
-            f"not {describe_region(camera.region)}: calibrate it again (POST /air/calibration)"
-        )[:200]
-    elif cal_row.method == "regression" and cal_row.regression and regression is None:
-        verdict.reason = (
-            "its calibration's regression was made on an earlier set of sky features: "
-            "calibrate again (POST /air/calibration)"
-        )
-    elif cal_row.method == "regression" and regression and decoded.features is not None:
-        verdict.calibration_id = cal_row.id
-        estimated(verdict, regression, decoded.features)
-    else:
-        g = airquality.grade(as_core(cal_row), decoded.stats.modes)
-        verdict.calibration_id = cal_row.id
-        verdict.statistic, verdict.p_value, verdict.reason = g.statistic, g.p_value, g.reason
-        if g.level is not None:
-            verdict.level = g.level
-            verdict.category = airquality.category(g.level)
+    grade_verdict(verdict, camera, decoded, grading(session, camera.id))
     _lock_camera(session, camera.id)
     # the camera's readings of the 12 hours before this frame and the 12 after: those up to
     # its capture smooth it (a frame uploaded late, a backlog, is smoothed with the hours
@@ -460,6 +436,42 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     return verdict
 
 
+def grade_verdict(verdict: SkyVerdict, camera: CameraInfo, decoded: Decoded, how: Grading) -> None:
+    """Grade a sky verdict by what grades its camera (``grading``): the regression on the
+    frame's features, else the T² clusters on its modes; a reason instead of a level when
+    the frame is unusable, uncalibrated, measured elsewhere than its calibration, or doubted."""
+    cal_row = how.calibration
+    regression = as_regression(cal_row) if cal_row is not None else None
+    verdict.level = verdict.category = verdict.calibration_id = verdict.reason = None
+    verdict.statistic = verdict.p_value = None
+    verdict.estimate = verdict.estimate_low = verdict.estimate_high = None
+    verdict.estimate_unit, verdict.uncertain = None, False
+    if decoded.quality is not None:
+        verdict.reason = decoded.quality
+    elif cal_row is None:
+        verdict.reason = "air-quality model not calibrated (POST /air/calibration)"
+    elif how.own and how.region != camera.region:  # another part of the view
+        verdict.reason = (
+            f"its own calibration was made when it measured {describe_region(how.region)}, "
+            f"not {describe_region(camera.region)}: calibrate it again (POST /air/calibration)"
+        )[:200]
+    elif cal_row.method == "regression" and cal_row.regression and regression is None:
+        verdict.reason = (
+            "its calibration's regression was made on an earlier set of sky features: "
+            "calibrate again (POST /air/calibration)"
+        )
+    elif cal_row.method == "regression" and regression and decoded.features is not None:
+        verdict.calibration_id = cal_row.id
+        estimated(verdict, regression, decoded.features)
+    else:
+        g = airquality.grade(as_core(cal_row), decoded.stats.modes)
+        verdict.calibration_id = cal_row.id
+        verdict.statistic, verdict.p_value, verdict.reason = g.statistic, g.p_value, g.reason
+        if g.level is not None:
+            verdict.level = g.level
+            verdict.category = airquality.category(g.level)
+
+
 def estimated(
     verdict: SkyVerdict, regression: airquality.Regression, features: NDArray[np.float64]
 ) -> None:
@@ -475,6 +487,103 @@ def estimated(
     else:
         verdict.level, verdict.category = e.level, airquality.category(e.level)
         verdict.reason = None
+
+
+REGRADE_LIMIT = 2000
+"""Frames re-graded by one request at most: each is read back and decoded (~0.1 s at 1080p);
+a longer history is re-graded page by page (``next_since``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Regraded:
+    camera_id: str
+    calibration_id: str | None
+    since: datetime
+    regraded: int
+    """Frames measured again and graded by the calibration now in use."""
+    missing: int
+    """Frames whose bytes are gone (retention, or never stored): they keep their grade."""
+    next_since: datetime | None
+    """Where the next page starts when more frames remain; None when done."""
+
+
+def regrade(
+    session: Session,
+    store: FrameStore | None,
+    camera_id: str,
+    since: datetime,
+    *,
+    max_pixels: int,
+    limit: int = REGRADE_LIMIT,
+) -> Regraded:
+    """Measure the camera's stored frames taken since ``since`` again (its region now, the
+    current sky features) and grade them by the calibration that grades it now, so its
+    history speaks one calibration; then smooth its readings again. Raises no alerts: this is
+    history. Each reading then names its calibration (``calibration_id``)."""
+    camera = sky_camera(session, camera_id)
+    _lock_camera(session, camera_id)
+    info = CameraInfo.of(camera)
+    how = grading(session, camera_id)
+    rows = session.execute(
+        _with_verdicts(and_(Frame.camera_id == camera_id, Frame.captured_at >= since))
+        .order_by(Frame.captured_at, Frame.received_at, Frame.id)
+        .limit(limit + 1)
+    ).all()
+    more = len(rows) > limit
+    regraded = missing = 0
+    for frame, verdict in rows[:limit]:
+        data = store.read(frame.stored_path) if store and frame.stored_path else None
+        if data is None:
+            missing += 1
+            continue
+        try:
+            decoded = analyse(data, camera=info, max_pixels=max_pixels)
+        except VantageError:  # bytes damaged in the store since: keep what it said then
+            missing += 1
+            continue
+        for name, value in stats_columns(decoded.stats).items():
+            setattr(verdict, name, value)
+        verdict.roi, verdict.usable = info.region, decoded.quality is None
+        verdict.details = (
+            {"features": decoded.features.tolist()} if decoded.features is not None else None
+        )
+        grade_verdict(verdict, info, decoded, how)
+        regraded += 1
+    session.flush()
+    last = rows[limit - 1][0].captured_at if more else None
+    _smooth_again(session, camera_id, since, last)
+    calibration = how.calibration.id if how.calibration is not None else None
+    return Regraded(camera_id, calibration, since, regraded, missing, last)
+
+
+def _smooth_again(session: Session, camera_id: str, since: datetime, last: datetime | None) -> None:
+    """The smoothed level of every reading of the camera taken since ``since`` (up to the 12
+    hours after ``last``, the last one re-graded, when given), from its graded readings
+    (``airquality.nowcasts``)."""
+    hours = timedelta(hours=airquality.NOWCAST_HOURS)
+    q = (
+        select(Frame.id, Frame.captured_at, SkyVerdict.level, SkyVerdict.smoothed_level)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.camera_id == camera_id, Frame.captured_at > since - hours)
+        .order_by(Frame.captured_at)
+    )
+    if last is not None:
+        q = q.where(Frame.captured_at <= last + hours)
+    rows = session.execute(q).all()
+    graded = [r for r in rows if r.level is not None]
+    later = [r for r in rows if r.captured_at >= since]
+    smoothed = airquality.nowcasts(
+        [r.captured_at for r in graded],
+        [float(r.level) for r in graded],
+        [r.captured_at for r in later],
+    )
+    changed = [
+        {"frame_id": r.id, "smoothed_level": v}
+        for r, v in zip(later, smoothed, strict=True)
+        if v != r.smoothed_level
+    ]
+    if changed:
+        session.execute(update(SkyVerdict), changed)
 
 
 def _lock_camera(session: Session, camera_id: str) -> None:

@@ -1,0 +1,229 @@
+"""A fixed sky camera calibrated against a reference station's PM2.5, through the API: the
+regression's estimate and interval, its doubt, and re-grading the camera's history."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.air.core import breakpoints
+
+SKY_ROWS = 50
+ROI = [0, 0, 160, SKY_ROWS]
+START = datetime(2026, 5, 1, 8, 0, tzinfo=UTC)
+
+
+def hazy_jpeg(pm25: float, seed: int, *, sky: tuple[float, float, float] | None = None) -> bytes:
+    """A street camera's view under PM2.5 ``pm25`` [µg/m³]: a sky that greys with the haze
+    above a skyline of dark buildings (grey 30) whose apparent brightness follows
+    Koschmieder's law, L = S·(1 − e^(−b·d)) + 30·e^(−b·d), b = PM2.5 / 15 per unit distance,
+    d from 1.2 (the farthest, just under the sky) to 0.2 lower down; light ±8 % per frame."""
+    rng = np.random.default_rng(seed)
+    t = 1 - np.exp(-pm25 / 40)
+    s = np.array(sky if sky is not None else (110.0, 150.0, 210.0))
+    s = (1 - 0.4 * t) * s + 0.4 * t * np.array([200.0, 200.0, 200.0])
+    s = s * rng.uniform(0.92, 1.08)
+    h, w = 120, 160
+    image = np.empty((h, w, 3))
+    image[:SKY_ROWS] = s
+    b = pm25 / 15
+    for row in range(SKY_ROWS, h):
+        d = max(1.2 - (row - SKY_ROWS) / 45, 0.2)
+        image[row] = s
+        fade = np.exp(-b * d)
+        image[row, ::2] = s * (1 - fade) + 30 * fade  # buildings in every other column
+    image += rng.normal(0, 2.0, image.shape)
+    bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return buf.tobytes()
+
+
+def post(client: TestClient, token: str, jpeg: bytes, taken: datetime) -> Any:
+    r = client.post(
+        "/cameras/m/frames",
+        content=jpeg,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        params={"captured_at": taken.isoformat()},
+    )
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+@pytest.fixture
+def station(client: TestClient, admin: dict[str, str], clock: Any) -> dict[str, Any]:
+    """Camera ``m`` and 48 frames over 8 days (6 a day, PM2.5 4–60 µg/m³) with their
+    reference values, stored before any calibration (so ungraded)."""
+    clock.now = START + timedelta(days=10)
+    r = client.post("/cameras", json={"id": "m", "kind": "sky", "roi": ROI}, headers=admin)
+    assert r.status_code == 201, r.text
+    token = r.json()["token"]
+    rng = np.random.default_rng(7)
+    frames, pm = [], []
+    for day in range(8):
+        base = rng.uniform(5, 45)
+        for hour in range(6):
+            value = float(np.clip(base * rng.uniform(0.75, 1.3), 4, 60))
+            taken = START + timedelta(days=day, hours=hour)
+            v = post(client, token, hazy_jpeg(value, seed=100 * day + hour), taken)
+            assert v["verdict"]["level"] is None
+            frames.append(v["frame_id"])
+            pm.append(round(value, 1))
+    return {"token": token, "frames": frames, "pm25": pm}
+
+
+def calibrate(client: TestClient, admin: dict[str, str], station: dict[str, Any]) -> Any:
+    r = client.post(
+        "/air/calibration",
+        json={"frame_ids": station["frames"], "pm25": station["pm25"]},
+        params={"method": "regression", "applies_to": "m"},
+        headers=admin,
+    )
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def test_a_verdict_carries_pm25_with_its_interval(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """Fitted in µg/m³: a new day's frames are estimated within their interval, most of
+    them; the level is the breakpoints' level of the estimate when sure."""
+    cal = calibrate(client, admin, station)
+    assert cal["regression"]["unit"] == "pm25"
+    assert cal["regression"]["sigma_from"] == "days left out"
+    assert cal["regression"]["n"] == 48
+    inside = 0
+    truths = (6.0, 12.0, 25.0, 40.0, 55.0)
+    for k, truth in enumerate(truths):
+        v = post(
+            client, station["token"], hazy_jpeg(truth, seed=9000 + k), START + timedelta(days=9)
+        )["verdict"]
+        e = v["estimate"]
+        assert e["unit"] == "pm25"
+        assert e["low"] < e["value"] < e["high"]
+        assert 0.6 * truth < e["value"] < 1.6 * truth
+        inside += e["low"] <= truth <= e["high"]
+        if not v["uncertain"]:
+            assert v["level"] == breakpoints.level_of_pm25(e["value"])
+        else:
+            assert v["level"] is None
+            assert v["reason"].startswith("uncertain: ")
+    assert inside >= 4
+
+
+def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """A red sky the calibration never saw: uncertain (outside the calibration), no level;
+    the camera's public level is what the frames before it made it, and the message does
+    not guess when nothing sure is left."""
+    calibrate(client, admin, station)
+    clock.now = START + timedelta(days=20)
+    taken = clock.now - timedelta(minutes=5)
+    sure = post(client, station["token"], hazy_jpeg(6.0, seed=1), taken - timedelta(hours=4))
+    before = client.get("/air/cameras/m/latest").json()
+    v = post(client, station["token"], hazy_jpeg(6.0, seed=2, sky=(230, 60, 40)), taken)
+    odd = v["verdict"]
+    assert odd["uncertain"] is True
+    assert odd["level"] is None
+    assert odd["reason"].startswith("uncertain: outside the calibration")
+    latest = client.get("/air/cameras/m/latest").json()
+    assert latest["uncertain"] is True
+    assert latest["frame_level"] is None
+    # the sure frame is 4 h old: not current, so no public level; the message says so
+    assert sure["verdict"]["uncertain"] is False
+    assert before["current"] is False
+    assert latest["level"] is None
+    assert latest["message"] == (
+        "No current reading: the camera cannot judge the air with confidence now"
+    )
+    # an uncertain frame changes no smoothed level: it has the camera's, from before it
+    reading = client.get("/air/readings", params={"camera_id": "m", "limit": 1}).json()[0]
+    assert reading["uncertain"] is True
+    assert reading["smoothed_level"] is None
+    assert reading["estimate_unit"] == "pm25"
+
+
+def test_regrading_makes_the_history_speak_one_calibration(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """Frames stored before the calibration are ungraded; re-graded, each names the
+    calibration and carries an estimate and smoothed level; a page at a time when limited;
+    a second calibration and re-grade replace the first's ids."""
+    since = START.isoformat()
+    params = {"camera_id": "m", "limit": 100, "since": since}
+    assert all(
+        r["calibration_id"] is None for r in client.get("/air/readings", params=params).json()
+    )
+    first = calibrate(client, admin, station)
+    page = client.post(
+        "/air/cameras/m/regrade", params={"since": since, "limit": 30}, headers=admin
+    )
+    assert page.status_code == 200, page.text
+    body = page.json()
+    assert (body["regraded"], body["missing"], body["calibration_id"]) == (30, 0, first["id"])
+    assert body["next_since"] is not None
+    rest = client.post(
+        "/air/cameras/m/regrade", params={"since": body["next_since"]}, headers=admin
+    ).json()
+    assert (rest["regraded"], rest["next_since"]) == (19, None)  # the page's last, again
+    rows = client.get("/air/readings", params=params).json()
+    assert len(rows) == 48
+    assert {r["calibration_id"] for r in rows} == {first["id"]}
+    assert all(r["estimate_unit"] == "pm25" for r in rows)
+    graded = [r for r in rows if r["level"] is not None]
+    assert graded
+    assert all(r["smoothed_level"] is not None for r in graded)
+    clock.advance(minutes=1)
+    second = client.post(
+        "/air/calibration",
+        json={"frame_ids": station["frames"], "pm25": station["pm25"]},
+        params={"applies_to": "m"},
+        headers=admin,
+    ).json()
+    again = client.post("/air/cameras/m/regrade", params={"since": since}, headers=admin)
+    assert again.json()["calibration_id"] == second["id"]
+    rows = client.get("/air/readings", params=params).json()
+    assert {r["calibration_id"] for r in rows} == {second["id"]}
+    assert all(r["estimate"] is None for r in rows)  # the clusters estimate nothing
+
+
+def test_regrade_refuses_bad_requests(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    since = {"since": START.isoformat()}
+    assert client.post("/air/cameras/m/regrade", params=since).status_code == 401
+    as_camera = {"Authorization": f"Bearer {station['token']}"}
+    assert client.post("/air/cameras/m/regrade", params=since, headers=as_camera).status_code == 403
+    missing = client.post("/air/cameras/nope/regrade", params=since, headers=admin)
+    assert missing.status_code == 404
+    assert missing.headers["content-type"] == "application/problem+json"
+    assert client.post("/air/cameras/m/regrade", headers=admin).status_code == 422
+    bad = client.post("/air/cameras/m/regrade", params={**since, "limit": 0}, headers=admin)
+    assert bad.status_code == 422
+
+
+def test_reference_values_are_checked(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """Negative, NaN, both levels and pm25, or a count that differs: 4xx, nothing made."""
+    frames = station["frames"][:12]
+    for body in (
+        {"frame_ids": frames, "pm25": [-1.0] + [10.0] * 11},
+        {"frame_ids": frames, "pm25": [10.0] * 11},
+        {"frame_ids": frames, "pm25": [10.0] * 12, "levels": [5] * 12},
+    ):
+        r = client.post("/air/calibration", json=body, headers=admin)
+        assert r.status_code == 422, body
+    nan = client.post(
+        "/air/calibration",
+        content='{"frame_ids": ["a"], "pm25": [NaN]}',
+        headers={**admin, "Content-Type": "application/json"},
+    )
+    assert nan.status_code in (400, 422)
+    assert client.get("/air/calibrations").json() == []
