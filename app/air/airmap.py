@@ -1,131 +1,194 @@
-"""Drawing the isopleth bands (OpenCV, no plotting library)."""
+"""The isopleth map as a picture (matplotlib's Agg, no pyplot: figures are objects of the
+request, not of a global state machine shared between threads).
+
+One panel per island (``isopleths.Island``), each in its own longitude and latitude at one
+scale in metres (aspect 1/cos φ), with smooth filled bands, the cameras labelled with their
+names and levels, a scale bar and a legend with units; cells with no camera within the mask
+distance are left blank, and the legend says so. Colours: ColorBrewer's RdYlBu, 5 classes,
+marked colour-blind safe by its authors (Brewer, colorbrewer2.org)."""
 
 from __future__ import annotations
 
+import io
+import math
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Literal
 
-import cv2
 import numpy as np
-from numpy.typing import NDArray
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from matplotlib.patheffects import withStroke
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
-from app.air.core import isopleths
+from app.air.core import airquality, isopleths
 from app.air.service import Station
 
-COLOURS = {  # BGR, from Very Poor to Very Good
-    "Very Poor": (60, 20, 150),
-    "Poor": (40, 40, 220),
-    "Fair": (40, 200, 240),
-    "Good": (80, 200, 120),
-    "Very Good": (200, 160, 40),
+COLOURS = {
+    "Very Poor": "#d7191c",
+    "Poor": "#fdae61",
+    "Fair": "#ffffbf",
+    "Good": "#abd9e9",
+    "Very Good": "#2c7bb6",
 }
-SIZE = 640
-LEGEND = 150
-MIN_HEIGHT = 330
-"""The legend's height [px]: a map wider than tall leaves white below it."""
-EMPTY = 240
-"""Grey of the cells left unpainted (no camera near enough)."""
+"""Fill of each category (ColorBrewer RdYlBu, 5 classes)."""
+NO_DATA = "#e6e6e6"
+MAX_PANELS = 4
+"""Islands drawn at most; the rest are named in the title's note."""
+PANEL_INCHES = 5.0
+DPI = 110
+KM_PER_DEGREE = math.radians(1) * isopleths.EARTH_RADIUS / 1000
 
 
-def _legend_levels() -> tuple[list[tuple[str, tuple[int, int, int]]], list[tuple[int, int, int]]]:
-    """Legend entries (best first) and the colour of each band index (worst first)."""
-    entries = [(f"{name} {lo}-{hi}", COLOURS[name]) for name, lo, hi in reversed(isopleths.BANDS)]
-    return entries, [COLOURS[name] for name, _, _ in isopleths.BANDS]
+def _nice(length_km: float) -> float:
+    """A round length near ``length_km``: 1, 2 or 5 × 10ⁿ km."""
+    if length_km <= 0:
+        return 1.0
+    p = 10.0 ** math.floor(math.log10(length_km))
+    return float(next(m * p for m in (5, 2, 1) if m * p <= length_km))
 
 
-def _legend_uncertainty(
-    edges: tuple[float, ...], unit: str
-) -> tuple[list[tuple[str, tuple[int, int, int]]], list[tuple[int, int, int]]]:
-    """Legend entries (least uncertain first) and a colour per band: light to dark."""
-    n = len(edges) - 1
-    ramp = cv2.applyColorMap(
-        np.linspace(40, 230, n).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_VIRIDIS
-    )[::-1]
-    colours = [(int(b), int(g), int(r)) for b, g, r in ramp[:, 0]]
+def _km(km: float) -> str:
+    return f"{km:g} km" if km >= 1 else f"{km * 1000:g} m"
 
-    def label(v: float) -> str:
-        return f"{v / 1000:g} km" if unit == "m" and v >= 1000 else f"{v:g}"
 
-    entries = [
-        (
-            f"{label(edges[i])}-{label(edges[i + 1])}" if i + 2 < len(edges) else
-            f">= {label(edges[i])}",
-            colours[i],
+def figure(
+    islands: Sequence[isopleths.Island],
+    stations: Sequence[Station],
+    at: datetime,
+    *,
+    layer: Literal["levels", "uncertainty"] = "levels",
+    max_distance: float = 5000.0,
+    empty_reason: str | None = None,
+) -> Figure:
+    """The map as a matplotlib Figure: a panel per island (the ``MAX_PANELS`` with the most
+    cameras), a shared legend, the time it is of. Without islands, a figure that says why
+    (``empty_reason``)."""
+    shown = sorted(islands, key=lambda i: -len(i.cameras))[:MAX_PANELS]
+    n = max(len(shown), 1)
+    fig = Figure(figsize=(PANEL_INCHES * n + 2.2, PANEL_INCHES), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    when = at.astimezone(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    title = f"Air quality {when}" if layer == "levels" else f"Uncertainty of the map {when}"
+    if len(islands) > len(shown):
+        title += f" — {len(islands) - len(shown)} more islands not drawn: ask with a bbox"
+    fig.suptitle(title)
+    if not shown:
+        ax = fig.add_subplot()
+        ax.set_axis_off()
+        ax.text(
+            0.5, 0.5, f"No map: {empty_reason or 'no readings'}", ha="center", va="center",
+            wrap=True, fontsize=12, transform=ax.transAxes,
+        )  # fmt: skip
+        return fig
+    kinds = {i.field.uncertainty_kind for i in shown}
+    handles: list[Patch] = []
+    axes = fig.subplots(1, n, squeeze=False)[0]
+    for ax, island in zip(axes, shown, strict=True):
+        handles = _panel(ax, island, stations, layer)
+    if layer == "levels":
+        label = "Category (level 1–10)"
+    elif kinds == {"kriging_sd"}:
+        label = "Kriging sd [level]"
+    else:
+        label = "Distance to nearest camera"
+    handles.append(
+        Patch(
+            facecolor=NO_DATA,
+            edgecolor="grey",
+            label=f"no data: no camera within {_km(max_distance / 1000)}",
         )
-        for i in range(n)
-    ]  # fmt: skip
-    return entries, colours
+    )
+    handles.append(Patch(facecolor="black", edgecolor="white", label="camera: name (level)"))
+    fig.legend(handles=handles, title=label, loc="outside right center", fontsize=8)
+    return fig
+
+
+def _panel(
+    ax: object, island: isopleths.Island, stations: Sequence[Station], layer: str
+) -> list[Patch]:
+    """One island's bands, cameras and scale bar on ``ax``; the legend's entries."""
+    from matplotlib.axes import Axes
+
+    assert isinstance(ax, Axes)
+    f = island.field
+    x0, y0, x1, y1 = island.bbox
+    mid = math.radians((y0 + y1) / 2)
+    ax.set_facecolor(NO_DATA)
+    handles: list[Patch] = []
+    if layer == "levels":
+        colours = [COLOURS[name] for name, _, _ in isopleths.BANDS]
+        z = np.ma.masked_invalid(f.value)
+        if z.count():
+            ax.contourf(f.lon, f.lat, z, levels=list(isopleths.BAND_EDGES), colors=colours)
+        handles = [
+            Patch(facecolor=COLOURS[name], edgecolor="grey", label=f"{name} {lo}–{hi}")
+            for name, lo, hi in reversed(isopleths.BANDS)
+        ]
+    else:
+        edges = isopleths.uncertainty_edges(f)
+        u = np.ma.masked_invalid(isopleths.uncertainty_of(f))
+        metres = f.uncertainty_kind == "nearest_camera_m"
+        scale = 1000.0 if metres else 1.0
+        cmap = "viridis_r"
+        if u.count():
+            ax.contourf(f.lon, f.lat, u / scale, levels=[e / scale for e in edges], cmap=cmap)
+        from matplotlib import colormaps
+
+        ramp = colormaps[cmap](np.linspace(0, 1, len(edges) - 1))
+        unit = " km" if metres else ""
+        handles = [
+            Patch(
+                facecolor=ramp[i],
+                edgecolor="grey",
+                label=(
+                    f"{edges[i] / scale:g}–{edges[i + 1] / scale:g}{unit}"
+                    if i + 2 < len(edges)
+                    else f"≥ {edges[i] / scale:g}{unit}"
+                ),
+            )
+            for i in range(len(edges) - 1)
+        ]
+    halo = [withStroke(linewidth=3, foreground="white")]
+    for k in island.cameras.tolist():
+        s = stations[k]
+        ax.plot(s.lon, s.lat, "o", ms=6, mfc="black", mec="white", mew=1.5)
+        name = s.name or s.camera_id
+        ax.annotate(
+            f"{name} ({airquality.rounded(s.level)})", (s.lon, s.lat), xytext=(5, 5),
+            textcoords="offset points", fontsize=8, path_effects=halo,
+        )  # fmt: skip
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect(1 / math.cos(mid))  # one metre east-west as long as one north-south
+    ax.set_xlabel("longitude [°E]")
+    ax.set_ylabel("latitude [°N]")
+    ax.tick_params(labelsize=7)
+    width_km = (x1 - x0) * KM_PER_DEGREE * math.cos(mid)
+    bar_km = _nice(width_km / 4)
+    ax.add_artist(
+        AnchoredSizeBar(
+            ax.transData, bar_km / (KM_PER_DEGREE * math.cos(mid)), _km(bar_km),
+            "lower left", pad=0.4, frameon=True, size_vertical=0,
+        )
+    )  # fmt: skip
+    return handles
 
 
 def render(
-    field: isopleths.Field | None,
-    stations: list[Station],
-    bbox: tuple[float, float, float, float] | None,
+    islands: Sequence[isopleths.Island],
+    stations: Sequence[Station],
     at: datetime,
+    *,
     layer: Literal["levels", "uncertainty"] = "levels",
+    max_distance: float = 5000.0,
+    empty_reason: str | None = None,
 ) -> bytes:
-    """The bands over the bbox (north up, its longer side ``SIZE`` pixels, east–west and
-    north–south at one scale in metres, so that a circle around a camera is drawn round), the
-    cameras, a legend and the time the map is of. ``layer``: the category bands, or how
-    uncertain they are (kriging's standard deviation, or the distance to the nearest camera)."""
-    width = height = SIZE
-    if field is not None and bbox is not None:
-        dx, dy = isopleths.cell_size_m(field)
-        w_m, h_m = dx * len(field.lon), dy * len(field.lat)
-        width = max(1, round(SIZE * w_m / max(w_m, h_m)))
-        height = max(1, round(SIZE * h_m / max(w_m, h_m)))
-    title = "level"
-    if layer == "levels" or field is None:
-        entries, colours = _legend_levels()
-        edges: tuple[float, ...] = isopleths.BAND_EDGES
-        z: NDArray[np.float64] | None = None if field is None else field.value
-    else:
-        edges = isopleths.uncertainty_edges(field)
-        unit = isopleths.UNCERTAINTY_UNITS[field.uncertainty_kind]
-        entries, colours = _legend_uncertainty(edges, unit)
-        z = isopleths.uncertainty_of(field)
-        title = "kriging sd [level]" if unit == "level" else "nearest camera"
-    # the legend beside the map, not beside a 640-pixel square: a tall map (a city that runs
-    # north-south) was a strip at the left with most of the image white between it and the
-    # legend
-    left = width if field is not None and bbox is not None else SIZE
-    canvas = np.full((max(height, MIN_HEIGHT), left + LEGEND, 3), 255, np.uint8)
-    if field is not None and bbox is not None and z is not None:
-        x0, y0, x1, y1 = bbox
-        band = np.full(z.shape, -1, np.int32)
-        for i, e in enumerate(edges[:-1]):
-            band[(z >= e) & (z < edges[i + 1])] = i
-        image = np.full((*z.shape, 3), EMPTY, np.uint8)
-        for i, colour in enumerate(colours):
-            image[band == i] = colour
-        image = cv2.resize(image[::-1], (width, height), interpolation=cv2.INTER_NEAREST)
-        canvas[:height, :width] = image
-        for s in stations:
-            px = int((s.lon - x0) / (x1 - x0) * (width - 1))
-            py = int((y1 - s.lat) / (y1 - y0) * (height - 1))
-            cv2.circle(canvas, (px, py), 5, (0, 0, 0), -1)
-            cv2.circle(canvas, (px, py), 3, (255, 255, 255), -1)
-    else:
-        cv2.putText(
-            canvas,
-            "no readings",
-            (SIZE // 2 - 80, SIZE // 2),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.9,
-            (0, 0, 0),
-            2,
-        )
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    cv2.putText(canvas, title, (left + 12, 20), font, 0.42, (0, 0, 0), 1)
-    for i, (text, colour) in enumerate(entries):
-        y = 44 + 30 * i
-        cv2.rectangle(canvas, (left + 12, y - 14), (left + 36, y + 4), colour, -1)
-        cv2.putText(canvas, text, (left + 42, y), font, 0.42, (0, 0, 0), 1)
-    cv2.putText(canvas, "o camera", (left + 12, 44 + 30 * len(entries)), font, 0.45, (0, 0, 0), 1)
-    utc = at.astimezone(UTC)
-    for i, text in enumerate((utc.strftime("%Y-%m-%d"), utc.strftime("%H:%M UTC"))):
-        y = canvas.shape[0] - 36 + 18 * i
-        cv2.putText(canvas, text, (left + 12, y), font, 0.45, (0, 0, 0), 1)
-    ok, buf = cv2.imencode(".png", canvas)
-    assert ok
-    return bytes(buf.tobytes())
+    """``figure`` as PNG bytes."""
+    fig = figure(
+        islands, stations, at, layer=layer, max_distance=max_distance, empty_reason=empty_reason
+    )
+    out = io.BytesIO()
+    fig.savefig(out, format="png")
+    return out.getvalue()

@@ -769,14 +769,16 @@ def _window_start(at: datetime, window: int) -> datetime:
 
 @dataclass(frozen=True)
 class MapData:
-    """What a map is drawn from: the cameras' levels in the window [since, at], the field
-    interpolated from them (None without any) over ``box``."""
+    """What a map is drawn from: the cameras' levels in the window [since, at] and the islands
+    interpolated from them (none without any) over ``box`` (the bbox asked for, else the
+    islands' together)."""
 
     stations: list[air.Station]
-    field: isopleths.Field | None
+    islands: list[isopleths.Island]
     box: tuple[float, float, float, float] | None
     since: datetime
     at: datetime
+    max_distance: float
 
 
 def _field(session: Session, policy: Policy, q: MapQuery) -> MapData:
@@ -787,23 +789,31 @@ def _field(session: Session, policy: Policy, q: MapQuery) -> MapData:
     since = _window_start(at, q.window)
     st = air.stations(session, since=since, until=at)
     if not st:
-        return MapData(st, None, q.bbox, since, at)
+        return MapData(st, [], q.bbox, since, at, q.max_distance)
     lon = np.array([s.lon for s in st])
     lat = np.array([s.lat for s in st])
-    box = q.bbox or isopleths.default_bbox(lon, lat)
     try:
-        f = isopleths.interpolate(
+        found = isopleths.interpolate_islands(
             lon,
             lat,
             np.array([s.level for s in st]),
-            bbox=box,
+            bbox=q.bbox,
             method=q.method,
             resolution=q.resolution,
             max_distance=q.max_distance,
         )
     except isopleths.IsoplethError as exc:
         raise Unprocessable(str(exc), code="bad_field") from None
-    return MapData(st, f, box, since, at)
+    box = q.bbox
+    if box is None and found:
+        boxes = np.array([i.bbox for i in found])
+        box = (
+            float(boxes[:, 0].min()),
+            float(boxes[:, 1].min()),
+            float(boxes[:, 2].max()),
+            float(boxes[:, 3].max()),
+        )
+    return MapData(st, found, box, since, at, q.max_distance)
 
 
 async def _cached_map(
@@ -865,20 +875,47 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     )
 
 
+def _empty_reason(m: MapData, off_map: list[str], window: int) -> str | None:
+    """Why a map has no bands, or None when it has some."""
+    if any(np.isfinite(i.field.value).any() for i in m.islands):
+        return None
+    if m.stations:
+        return (
+            f"no cell of the bbox lies within max_distance ({m.max_distance:g} m) of a camera"
+            " with a reading"
+        )
+    if off_map:
+        return "the sky cameras with readings have no place (lat/lon) to draw them at"
+    return (
+        f"no sky camera has a graded reading in the {window} s before {m.at.isoformat()} (window)"
+    )
+
+
 def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[str, Any]:
-    """The collection: the bands (or the uncertainty layer), the cameras, and warnings of
+    """The collection: the bands (or the uncertainty layer) of every island, one feature per
+    band; the cameras; the islands; why nothing is drawn when nothing is; and warnings of
     cameras drawn in another category's band and of graded cameras with no place."""
-    st, f, box, at = m.stations, m.field, m.box, m.at
-    features = []
-    if f is not None:
-        features = isopleths.bands(f) if q.layer == "levels" else isopleths.uncertainty_bands(f)
+    st, box, at = m.stations, m.box, m.at
+    per_island = [
+        isopleths.bands(i.field) if q.layer == "levels" else isopleths.uncertainty_bands(i.field)
+        for i in m.islands
+    ]
+    features = isopleths.merged(per_island)
     own = [airquality.category(s.level) for s in st]
     drawn: list[str | None] = [None] * len(st)
     warnings = []
+    for island in m.islands:
+        idx = island.cameras
+        found = isopleths.band_at(
+            island.field,
+            np.array([st[k].lon for k in idx]),
+            np.array([st[k].lat for k in idx]),
+        )
+        for k, band in zip(idx.tolist(), found, strict=True):
+            drawn[k] = band
     cell = None
-    if f is not None:
-        drawn = isopleths.band_at(f, np.array([s.lon for s in st]), np.array([s.lat for s in st]))
-        cell = [round(v, 1) for v in isopleths.cell_size_m(f)]
+    if m.islands:
+        cell = [round(v, 1) for v in isopleths.cell_size_m(m.islands[0].field)]
         off = sum(1 for o, d in zip(own, drawn, strict=True) if d is not None and d != o)
         if off:
             warnings.append(
@@ -886,6 +923,12 @@ def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict
                 f" own reading, with cells of {cell[0]:.0f} × {cell[1]:.0f} m: ask for a"
                 " smaller bbox or a larger resolution (up to 512); cameras close together"
                 " that disagree stay so at any resolution"
+            )
+    for n, island in enumerate(m.islands):
+        if island.method != q.method:
+            warnings.append(
+                f"island {n + 1} has cameras at fewer than 3 places, which {q.method} needs:"
+                f" drawn by {island.method}"
             )
     if off_map:
         named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
@@ -898,6 +941,7 @@ def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict
             f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
             " with both)"
         )
+    kinds = {i.field.uncertainty_kind for i in m.islands}
     return {
         "type": "FeatureCollection",
         "features": features,
@@ -921,14 +965,27 @@ def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict
             }
             for s, category, band in zip(st, own, drawn, strict=True)
         ],
+        "islands": [
+            {
+                "bbox": list(i.bbox),
+                "cell_m": [round(v, 1) for v in isopleths.cell_size_m(i.field)],
+                "cells": [len(i.field.lon), len(i.field.lat)],
+                "method": i.method,
+                "camera_ids": [st[k].camera_id for k in i.cameras.tolist()],
+            }
+            for i in m.islands
+        ],
         "cell_m": cell,
+        "empty_reason": _empty_reason(m, off_map, q.window),
         "warnings": warnings,
         "uncertainty": None
-        if f is None
+        if not m.islands
         else {
-            "kind": f.uncertainty_kind,
-            "max": float(np.nanmax(f.uncertainty)),
-            "mean": float(np.nanmean(f.uncertainty)),
+            "kind": kinds.pop() if len(kinds) == 1 else "mixed",
+            "max": max(float(np.nanmax(i.field.uncertainty)) for i in m.islands),
+            "mean": float(
+                np.nanmean(np.concatenate([i.field.uncertainty.ravel() for i in m.islands]))
+            ),
         },
     }
 
@@ -939,11 +996,21 @@ def _geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict
     responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
 )
 async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
-    """The bands drawn, with the camera positions and a legend (kept as the GeoJSON is)."""
+    """The map drawn (matplotlib): a panel per island with its bands, the cameras labelled
+    with name and level, coordinates, a scale bar, a legend with units and what blank means;
+    without readings, why not. Kept as the GeoJSON is."""
     from app.air.airmap import render
 
     def compute(session: Session) -> bytes:
         m = _field(session, policy, q)
-        return render(m.field, m.stations, m.box, m.at, q.layer)
+        off_map = air.unplaced(session, since=m.since, until=m.at)
+        return render(
+            m.islands,
+            m.stations,
+            m.at,
+            layer=q.layer,
+            max_distance=q.max_distance,
+            empty_reason=_empty_reason(m, off_map, q.window),
+        )
 
     return await _cached_map(request, ("png", q), compute, "image/png")

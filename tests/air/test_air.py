@@ -13,10 +13,13 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 from shapely.geometry import shape
 
-from app.air.core import airquality
+from app.air import airmap
+from app.air.core import airquality, isopleths
 from app.air.isopleth_cache import MapCache
+from app.air.service import Station
 from tests.factories import calibrate, make_jpeg, post, post_bytes, sky_jpeg
 
 
@@ -655,7 +658,7 @@ def test_the_map_names_graded_cameras_it_cannot_place(
     assert fc["warnings"] == []
     assert [(c["camera_id"], c["name"]) for c in fc["cameras"]] == [("sky1", "Duomo")]
     post(client, city, "roof", 7, seed=2)
-    fc = client.get("/air/isopleths", params={"method": "kriging"}).json()  # not the cached map
+    fc = client.get("/air/isopleths", params={"window": 3601}).json()  # not the cached map
     assert [c["camera_id"] for c in fc["cameras"]] == ["sky1"]
     assert fc["warnings"] == [
         "1 sky camera with readings has no lat/lon and so no place on the map: roof"
@@ -694,50 +697,112 @@ def test_the_uncertainty_layer(
     assert client.get("/air/isopleths", params={"layer": "variance"}).status_code == 422
 
 
-def test_the_png_map_is_drawn_at_one_scale_in_metres(
+def stations_of(fc: dict[str, Any]) -> list[Station]:
+    """The map's cameras as the renderer takes them."""
+    return [
+        Station(
+            c["camera_id"], c["lon"], c["lat"], c["level"],
+            datetime.fromisoformat(c["captured_at"]), c["name"],
+        )
+        for c in fc["cameras"]
+    ]  # fmt: skip
+
+
+def test_the_png_map_is_a_labelled_map_at_one_scale_in_metres(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """A bbox 0.4° wide and 0.2° tall at 45.45° N is 31.2 × 22.2 km: drawn 640 × 456 pixels
-    (it was stretched into a 640-pixel square, so a circle around a camera came out as an
-    ellipse 1.4 times taller than wide), with each camera at its place."""
+    """The PNG is the figure of the GeoJSON's islands: north up at one scale in metres (aspect
+    1/cos φ over the bbox), smooth bands, each camera labelled "name (level)", coordinates
+    on the axes, a scale bar, a legend with the categories' levels and what blank means."""
     calibrate(client, admin)
+    assert client.patch("/cameras/sky1", json={"name": "Duomo"}, headers=admin).status_code == 200
     for cam, level in (("sky1", 3), ("sky2", 7), ("sky3", 10)):
         post(client, city, cam, level, seed=1)
     x0, y0, x1, y1 = 9.0, 45.35, 9.4, 45.55
-    r = client.get("/air/isopleths.png", params={"bbox": f"{x0},{y0},{x1},{y1}"})
+    params = {"bbox": f"{x0},{y0},{x1},{y1}"}
+    r = client.get("/air/isopleths.png", params=params)
     assert r.status_code == 200
     png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
-    # the map's rows: its north-south extent on the scale of its east-west one (456.1)
-    height = round(640 * (y1 - y0) / ((x1 - x0) * np.cos(np.radians((y0 + y1) / 2))))
-    painted = np.flatnonzero((png[:, :640] != 255).any(axis=2).any(axis=1))
-    assert (painted.min(), painted.max() + 1) == (0, height)
-    assert (png[height:, :640] == 255).all()  # below the map: white
-    fc = client.get("/air/isopleths", params={"bbox": f"{x0},{y0},{x1},{y1}"}).json()
-    for cam in fc["cameras"]:
-        px = int((cam["lon"] - x0) / (x1 - x0) * 639)
-        py = int((y1 - cam["lat"]) / (y1 - y0) * (height - 1))
-        assert (png[py, px] == 255).all(), cam  # the marker's white centre
-        assert (png[py + 4, px] == 0).all(), cam  # inside its black ring
+    fc = client.get("/air/isopleths", params=params).json()
+    [island] = fc["islands"]
+    stations = stations_of(fc)
+    islands = isopleths.interpolate_islands(
+        np.array([s.lon for s in stations]),
+        np.array([s.lat for s in stations]),
+        np.array([s.level for s in stations]),
+        bbox=(x0, y0, x1, y1),
+    )
+    fig = airmap.figure(islands, stations, datetime.fromisoformat(fc["at"]))
+    w, h = fig.get_size_inches() * fig.dpi
+    assert png.shape[:2] == (round(h), round(w))
+    [ax] = fig.axes
+    assert (ax.get_xlim(), ax.get_ylim()) == ((x0, x1), (y0, y1))
+    assert ax.get_aspect() == pytest.approx(1 / np.cos(np.radians((y0 + y1) / 2)))
+    assert "longitude" in ax.get_xlabel()
+    assert "latitude" in ax.get_ylabel()
+    labels = {t.get_text() for t in ax.texts}
+    assert {"Duomo (3)", "sky2 (7)", "sky3 (10)"} <= labels
+    assert any(isinstance(a, AnchoredSizeBar) for a in ax.artists)  # the scale bar
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert legend[:5] == ["Very Good 9–10", "Good 7–8", "Fair 5–6", "Poor 3–4", "Very Poor 1–2"]
+    assert "no data: no camera within 5 km" in legend
+    assert island["camera_ids"] == ["sky1", "sky2", "sky3"]
 
 
-def test_the_legend_of_a_tall_map_stands_beside_it(
+def test_two_cities_are_two_islands_of_one_map(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """A bbox 0.1° wide and 0.4° tall at 45.45° N (7.8 × 44.5 km) is drawn 112 × 640 pixels;
-    the legend begins right after it, where it stood 640 pixels from the left edge with 500
-    white columns between (the image is now 112 + 150 wide, not 640 + 150)."""
+    """Milan and Rome, 480 km apart: one grid over both had cells of ~4 km (128 per side) or
+    57 km, every cell farther than 5 km from a camera, and an empty map. Now each city is an
+    island with cells ≤ 2.5 km (half the mask distance), each camera in its own category's
+    band; the PNG draws a panel per island."""
     calibrate(client, admin)
-    for cam, level in (("sky1", 3), ("sky2", 7)):
+    body = {"lat": 41.9, "lon": 12.5, "name": "Colosseo"}
+    assert client.patch("/cameras/sky5", json=body, headers=admin).status_code == 200
+    for cam, level in (("sky1", 3), ("sky2", 7), ("sky5", 10)):
         post(client, city, cam, level, seed=1)
-    x0, y0, x1, y1 = 9.15, 45.25, 9.25, 45.65
-    r = client.get("/air/isopleths.png", params={"bbox": f"{x0},{y0},{x1},{y1}"})
-    assert r.status_code == 200, r.text
-    png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
-    width = round(640 * (x1 - x0) * np.cos(np.radians((y0 + y1) / 2)) / (y1 - y0))
-    assert png.shape[:2] == (640, width + 150)
-    inked = (png < 128).all(axis=2)  # the legend's black text and the markers' rings
-    legend = np.flatnonzero(inked[:, width:].any(axis=0))
-    assert 0 < legend.min() <= 20, legend.min()  # its first column of text
+    fc = client.get("/air/isopleths", params={"resolution": 16}).json()
+    assert [i["camera_ids"] for i in fc["islands"]] == [["sky1", "sky2"], ["sky5"]]
+    for i in fc["islands"]:
+        assert max(i["cell_m"]) <= 2500
+    assert {c["camera_id"]: c["band"] for c in fc["cameras"]} == {
+        "sky1": "Poor",
+        "sky2": "Good",
+        "sky5": "Very Good",
+    }
+    assert {f["properties"]["category"] for f in fc["features"]} >= {"Poor", "Good", "Very Good"}
+    assert len({f["properties"]["category"] for f in fc["features"]}) == len(fc["features"])
+    assert all(shape(f["geometry"]).is_valid for f in fc["features"])
+    stations = stations_of(fc)
+    islands = isopleths.interpolate_islands(
+        np.array([s.lon for s in stations]),
+        np.array([s.lat for s in stations]),
+        np.array([s.level for s in stations]),
+        resolution=16,
+    )
+    fig = airmap.figure(islands, stations, datetime.fromisoformat(fc["at"]))
+    assert len(fig.axes) == 2
+    assert {t.get_text() for t in fig.axes[1].texts} == {"Colosseo (10)"}
+    png = client.get("/air/isopleths.png", params={"resolution": 16})
+    assert png.status_code == 200
+
+
+def test_an_empty_map_says_why(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    fc = client.get("/air/isopleths").json()
+    assert fc["features"] == []
+    assert fc["empty_reason"].startswith("no sky camera has a graded reading in the 3600 s")
+    calibrate(client, admin)
+    post(client, city, "sky1", 7, seed=1)
+    far = client.get("/air/isopleths", params={"bbox": "100,10,101,11"}).json()
+    assert far["features"] == []
+    assert far["empty_reason"] == (
+        "no cell of the bbox lies within max_distance (5000 m) of a camera with a reading"
+    )
+    fig = airmap.figure([], [], datetime(2026, 6, 1, tzinfo=UTC), empty_reason="nothing here")
+    assert [t.get_text() for t in fig.axes[0].texts] == ["No map: nothing here"]
+    assert client.get("/air/isopleths.png", params={"bbox": "100,10,101,11"}).status_code == 200
 
 
 def test_a_map_is_computed_once_per_cache_period_and_revalidated_by_its_etag(
@@ -814,12 +879,15 @@ def test_a_map_from_two_cameras(
     assert r.status_code == 200, r.text
     assert len(r.json()["cameras"]) == 2
     assert r.json()["features"]
-    for method in ("kriging", "rbf"):  # both need three places
-        for path in ("/air/isopleths", "/air/isopleths.png"):
-            r = client.get(path, params={**bbox, "method": method})
-            assert r.status_code == 422, (method, path, r.text)
-            assert r.headers["content-type"] == "application/problem+json"
-            assert "3 places" in r.json()["detail"]
+    for method in ("kriging", "rbf"):  # both need three places: drawn by idw, and said so
+        r = client.get("/air/isopleths", params={**bbox, "method": method})
+        assert r.status_code == 200, (method, r.text)
+        fc = r.json()
+        assert [i["method"] for i in fc["islands"]] == ["idw"]
+        assert f"fewer than 3 places, which {method} needs: drawn by idw" in fc["warnings"][0]
+        assert fc["features"]
+        png = client.get("/air/isopleths.png", params={**bbox, "method": method})
+        assert png.status_code == 200
 
 
 def test_a_significance_out_of_range_is_422(client: TestClient, admin: dict[str, str]) -> None:
