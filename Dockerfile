@@ -1,3 +1,9 @@
+# the pages' browser libraries, pinned by package-lock.json
+FROM node:20-slim AS pages
+WORKDIR /build
+COPY package.json package-lock.json ./
+RUN npm ci --no-audit --no-fund
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 NUMBA_CACHE_DIR=/tmp/numba \
@@ -8,6 +14,7 @@ COPY pyproject.toml README.md ./
 COPY app ./app
 RUN pip install --no-cache-dir '.[s3]'
 
+COPY --from=pages /build/node_modules ./node_modules
 COPY alembic.ini ./
 COPY migrations ./migrations
 

@@ -16,14 +16,21 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $@
 
+# the pages' browser libraries (Leaflet, Chart.js), pinned by package-lock.json
+NODE_MODULES := node_modules/.package-lock.json
+$(NODE_MODULES): package.json package-lock.json
+	@command -v npm >/dev/null 2>&1 || { echo "need node and npm for the pages (apt install npm)"; exit 1; }
+	npm ci --no-audit --no-fund
+	touch $@
+
 migrate: $(VENV)/.installed
 	$(BIN)/alembic upgrade head
 
-run: migrate
+run: migrate $(NODE_MODULES)
 	$(BIN)/python -m app.serve --host $(HOST) --port $(PORT)
 
 # the suite on both cores, the slow end-to-end tests (multi-process, soak, fuzz) left to test-slow
-test: $(VENV)/.installed
+test: $(VENV)/.installed $(NODE_MODULES)
 	$(BIN)/pytest -n 2 -m "not slow"
 
 test-slow: $(VENV)/.installed

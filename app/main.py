@@ -50,6 +50,7 @@ from app.solar import events as solar_events
 from app.solar import kind as solar_kind
 from app.solar import metrics as solar_metrics
 from app.solar import router as solar
+from app.web import router as pages
 
 log = logging.getLogger("vantage")
 
@@ -292,6 +293,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         solar,
         air,
         cells,
+        pages,
     ):
         app.include_router(module.router)
+    pages.mount_static(app)
     return app

@@ -482,6 +482,53 @@ def _message(category: str | None, current: bool, v: SkyVerdict) -> str | None:
     return None
 
 
+SKY_WIDTH = 480
+"""Width of the public sky picture at most [px]."""
+
+
+@router.get(
+    "/cameras/{camera_id}/sky.jpg",
+    response_class=Response,
+    responses={200: {"content": {"image/jpeg": {}}}, **NOT_FOUND},
+)
+async def sky_picture(request: Request, camera_id: CameraId, session: SessionDep) -> Response:
+    """The sky region of the camera's latest reading (at most 480 px wide): what the map's
+    popup shows beside the level. Only the region the camera measures, never its street."""
+    place, found = await run_in_threadpool(air.latest, session, camera_id)
+    if found is None or found[0].stored_path is None:
+        raise NotFound(f"no stored frame of sky camera {place.camera_id!r}")
+    frame, verdict = found
+    data = await request.app.state.bounded_store.read(frame.stored_path)
+    if data is None:
+        raise NotFound(f"the latest frame of {place.camera_id!r} is no longer kept")
+    body = await image_work(request, _sky_crop, data, verdict.roi)
+    return Response(body, media_type="image/jpeg", headers={"Cache-Control": "public, max-age=60"})
+
+
+def _sky_crop(data: bytes, region: Any) -> bytes:
+    """The region's bounding box of a stored JPEG, at most ``SKY_WIDTH`` wide, as JPEG."""
+    import cv2
+
+    from app.platform.frames.camera_info import parse_region
+    from app.platform.frames.jpeg import decode_rgb
+
+    image = decode_rgb(data, max_pixels=1_000_000_000)[1]
+    roi, polygon = parse_region(region)
+    if polygon is not None:
+        xs, ys = [p[0] for p in polygon], [p[1] for p in polygon]
+        roi = (min(xs), min(ys), max(xs) - min(xs), max(ys) - min(ys))
+    if roi is not None:
+        x, y, w, h = roi
+        image = image[y : y + h, x : x + w]
+    bgr: Any = np.ascontiguousarray(image[:, :, ::-1])
+    if bgr.shape[1] > SKY_WIDTH:
+        height = max(1, round(bgr.shape[0] * SKY_WIDTH / bgr.shape[1]))
+        bgr = cv2.resize(bgr, (SKY_WIDTH, height), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", bgr)
+    assert ok
+    return bytes(buf.tobytes())
+
+
 CSV_CONTENT = {
     "text/csv": {
         "schema": {"type": "string"},

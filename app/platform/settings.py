@@ -54,6 +54,16 @@ class Settings(BaseSettings):
         description="Keep frames' rows (verdicts, readings, trends) this long [d], their images"
         " only for frame_retention_days; default: the rows go with their images.",
     )
+    map_tiles: str = Field(
+        default="https://tile.openstreetmap.org/{z}/{x}/{y}.png",
+        description="Base map tiles of the /map page (a Leaflet URL template, {z}/{x}/{y}); "
+        "its bands, cameras and labels draw without them (no network).",
+    )
+    map_attribution: str = Field(
+        default='&copy; <a href="https://www.openstreetmap.org/copyright">OpenStreetMap</a> '
+        "contributors",
+        description="The tiles' attribution, shown on the map (HTML).",
+    )
     cors_origins: list[str] = Field(
         default=["*"],
         description="Origins whose pages may read the public GET /air/... endpoints (a "

@@ -1,0 +1,74 @@
+// The solar farm board: panels as a grid coloured by state, open cleaning tasks with their
+// robots and leases, a panel's soiling trend (its history) and its last frame's region.
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const NAMES = { clean: "clean", needs_cleaning: "needs cleaning", cleaning: "being cleaned", unknown: "unknown", no_baseline: "no baseline" };
+
+  async function json(path) {
+    const r = await Auth.api(path);
+    if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+    return r.json();
+  }
+
+  async function detail(panel) {
+    $("detail").hidden = false;
+    $("detail-title").textContent = `${panel.name || panel.id}: ${NAMES[panel.state] || panel.state}`;
+    const since = new Date(Date.now() - 14 * 86400e3).toISOString();
+    const history = await json(`/panels/${encodeURIComponent(panel.id)}/history?bucket=day&since=${since}`);
+    const old = Chart.getChart($("trend"));
+    if (old) old.destroy();
+    new Chart($("trend"), {
+      type: "line",
+      data: {
+        labels: history.map((h) => new Date(h.start).toLocaleDateString()),
+        datasets: [
+          { label: "share judged dirty", data: history.map((h) => (h.clean + h.dirty ? h.dirty / (h.clean + h.dirty) : null)), borderColor: "#d7191c", yAxisID: "y" },
+          { label: "mean T²", data: history.map((h) => h.t2_mean), borderColor: "#2c7bb6", yAxisID: "t2" },
+        ],
+      },
+      options: { animation: false, scales: { y: { min: 0, max: 1, position: "left" }, t2: { position: "right" } } },
+    });
+    const status = await json(`/panels/${encodeURIComponent(panel.id)}/status`);
+    const frame = status.last_verdict && status.last_verdict.frame_id;
+    $("thumb").hidden = !frame;
+    if (frame) {
+      const r = await Auth.api(`/frames/${encodeURIComponent(frame)}/region.jpg`);
+      if (r.ok) $("thumb").src = URL.createObjectURL(await r.blob());
+    }
+  }
+
+  async function load() {
+    const [panels, counts, tasks] = await Promise.all([
+      json("/panels?limit=1000"),
+      json("/panel-states"),
+      json("/cleaning/tasks?limit=500"),
+    ]);
+    $("counts").textContent = Object.entries(counts.states).map(([k, v]) => `${NAMES[k] || k}: ${v}`).join(" · ") + ` (of ${counts.total})`;
+    const grid = $("panels");
+    grid.innerHTML = "";
+    for (const p of panels) {
+      const tile = document.createElement("button");
+      tile.type = "button";
+      tile.className = `tile ${p.state}`;
+      tile.dataset.panel = p.id;
+      tile.textContent = `${p.name || p.id} — ${NAMES[p.state] || p.state}`;
+      tile.onclick = () => detail(p);
+      grid.append(tile);
+    }
+    const body = $("tasks").querySelector("tbody");
+    body.innerHTML = "";
+    const open = tasks.filter((t) => ["pending", "claimed"].includes(t.status));
+    for (const t of open) {
+      const tr = document.createElement("tr");
+      for (const v of [t.panel_id, t.status, t.robot_id || "—", t.lease_expires_at ? new Date(t.lease_expires_at).toLocaleString() : "—", new Date(t.created_at).toLocaleString()]) {
+        const td = document.createElement("td");
+        td.textContent = v;
+        tr.append(td);
+      }
+      body.append(tr);
+    }
+  }
+
+  Auth.start(load);
+  setInterval(() => { if (Auth.token() && !$("board").hidden) load().catch(() => {}); }, 60000);
+})();

@@ -1,0 +1,175 @@
+// The city map: the isopleth bands of /air/isopleths over a base map, each sky camera a
+// marker labelled with its name and level (labels that would overlap hidden, worst air kept),
+// a popup with its category, time, sky and last 24 h / 7 d; uncertainty and method toggles; a
+// time slider over the last 24 h. Refreshes itself every minute.
+(() => {
+  const cfg = JSON.parse(document.getElementById("config").textContent);
+  const colour = Object.fromEntries(cfg.categories.map((c) => [c.name, c.colour]));
+  const $ = (id) => document.getElementById(id);
+  const state = { method: "idw", layer: "levels", hours: 0, fitted: false };
+
+  const map = L.map("map", { zoomControl: true }).setView([45.46, 9.19], 11);
+  L.tileLayer(cfg.tiles, { attribution: cfg.attribution, maxZoom: 19 }).addTo(map);
+  const ramp = ["#fde725", "#7ad151", "#22a884", "#2a788e", "#414487", "#440154", "#2d0a3e", "#1a0529"];
+  const bands = L.geoJSON(null, {
+    style: (f) => {
+      const p = f.properties;
+      const fill = p.category ? colour[p.category] : ramp[Math.min(bandIndex(p), ramp.length - 1)];
+      return { fillColor: fill, fillOpacity: 0.55, color: "#555", weight: 0.6 };
+    },
+  }).addTo(map);
+  const cameras = L.layerGroup().addTo(map);
+  const markers = new Map();
+  let uncertaintyEdges = [];
+
+  function bandIndex(p) {
+    const i = uncertaintyEdges.indexOf(p.uncertainty_min);
+    return i < 0 ? 0 : i;
+  }
+
+  function legend(fc) {
+    const ul = $("legend");
+    ul.innerHTML = "";
+    const rows = state.layer === "levels"
+      ? cfg.categories.map((c) => [c.colour, `${c.name} ${c.lo}–${c.hi}`])
+      : fc.features.map((f, i) => {
+          const p = f.properties;
+          const unit = p.unit === "m" ? " m" : " level";
+          const label = p.uncertainty_max === null ? `≥ ${p.uncertainty_min}${unit}` : `${p.uncertainty_min}–${p.uncertainty_max}${unit}`;
+          return [ramp[Math.min(i, ramp.length - 1)], label];
+        });
+    rows.push(["#e6e6e6", `no data: no camera within ${fc.max_distance_m / 1000} km`]);
+    for (const [fill, text] of rows) {
+      const li = document.createElement("li");
+      li.innerHTML = `<span class="swatch" style="background:${fill}"></span>`;
+      li.append(text);
+      ul.append(li);
+    }
+  }
+
+  function label(c) {
+    return `${c.name || c.camera_id} ${Math.floor(c.level + 0.5)}`;
+  }
+
+  // Labels that would overlap one already shown are hidden; the worst air is placed first.
+  function declutter() {
+    const placed = [];
+    const shown = [...markers.values()].sort((a, b) => a.options.level - b.options.level);
+    for (const m of shown) {
+      const el = m.getTooltip() && m.getTooltip().getElement();
+      if (!el) continue;
+      el.classList.remove("hidden");
+      const r = el.getBoundingClientRect();
+      const hit = placed.some((p) => r.left < p.right && r.right > p.left && r.top < p.bottom && r.bottom > p.top);
+      if (hit) el.classList.add("hidden");
+      else placed.push(r);
+    }
+  }
+
+  async function chart(canvas, cameraId, days) {
+    const since = new Date(Date.now() - days * 86400e3).toISOString();
+    const q = new URLSearchParams({ camera_id: cameraId, aggregate: "hourly", since, limit: "200" });
+    const rows = await (await fetch(`/air/readings?${q}`)).json();
+    rows.sort((a, b) => a.start.localeCompare(b.start));
+    const old = Chart.getChart(canvas);
+    if (old) old.destroy();
+    new Chart(canvas, {
+      type: "line",
+      data: {
+        labels: rows.map((r) => new Date(r.start).toLocaleString([], days > 1 ? { month: "short", day: "numeric", hour: "2-digit" } : { hour: "2-digit", minute: "2-digit" })),
+        datasets: [{ label: "mean level", data: rows.map((r) => r.mean_level), borderColor: "#12355b", pointRadius: 2 }],
+      },
+      options: { animation: false, scales: { y: { min: 1, max: 10 } }, plugins: { legend: { display: false } } },
+    });
+  }
+
+  function popup(c) {
+    const div = document.createElement("div");
+    div.className = "popup";
+    div.innerHTML = `<strong></strong><br><span class="cat"></span><br><small class="time"></small>
+      <img alt="the camera's sky region"><div><button data-days="1">24 h</button> <button data-days="7">7 d</button></div><canvas></canvas>`;
+    div.querySelector("strong").textContent = c.name || c.camera_id;
+    div.querySelector(".cat").textContent = `${c.category}, level ${Math.floor(c.level + 0.5)}`;
+    div.querySelector(".time").textContent = new Date(c.captured_at).toLocaleString();
+    div.querySelector("img").src = `/air/cameras/${encodeURIComponent(c.camera_id)}/sky.jpg`;
+    const canvas = div.querySelector("canvas");
+    for (const b of div.querySelectorAll("button")) b.onclick = () => chart(canvas, c.camera_id, Number(b.dataset.days));
+    setTimeout(() => chart(canvas, c.camera_id, 1), 0);
+    return div;
+  }
+
+  async function refresh() {
+    const q = new URLSearchParams({ method: state.method, layer: state.layer });
+    if (state.fitted) {
+      // the bands over what is in view (clipped to the globe), once the cameras are in view
+      const b = map.getBounds();
+      const box = [Math.max(b.getWest(), -180), Math.max(b.getSouth(), -90), Math.min(b.getEast(), 180), Math.min(b.getNorth(), 90)];
+      q.set("bbox", box.map((v) => v.toFixed(5)).join(","));
+    }
+    if (state.hours < 0) q.set("at", new Date(Date.now() + state.hours * 3600e3).toISOString());
+    let fc;
+    try {
+      const r = await fetch(`/air/isopleths?${q}`, { cache: "no-store" });
+      fc = await r.json();
+      if (!r.ok) throw new Error(fc.detail || `HTTP ${r.status}`);
+    } catch (e) {
+      $("status").textContent = `The map could not be loaded: ${e.message}`;
+      return;
+    }
+    uncertaintyEdges = fc.features.map((f) => f.properties.uncertainty_min);
+    bands.clearLayers();
+    bands.addData(fc.features);
+    // markers kept between refreshes (made once per camera, then restyled): re-made ones
+    // left their permanent labels behind during Leaflet's zoom animation
+    const seen = new Set();
+    for (const c of fc.cameras) {
+      seen.add(c.camera_id);
+      let m = markers.get(c.camera_id);
+      if (!m) {
+        m = L.circleMarker([c.lat, c.lon], { radius: 6, color: "#000", weight: 2, fillOpacity: 1 });
+        m.bindTooltip("", { permanent: true, direction: "right", offset: [8, 0], className: "cam-label" });
+        markers.set(c.camera_id, m);
+        cameras.addLayer(m);
+      }
+      m.setLatLng([c.lat, c.lon]);
+      m.setStyle({ fillColor: colour[c.category] });
+      m.options.level = c.level;
+      m.setTooltipContent(label(c));
+      m.unbindPopup();
+      m.bindPopup(() => popup(c), { maxWidth: 300 });
+    }
+    for (const [id, m] of markers) {
+      if (!seen.has(id)) {
+        cameras.removeLayer(m);
+        markers.delete(id);
+      }
+    }
+    if (!state.fitted && fc.bbox) {
+      state.fitted = true;
+      map.fitBounds([[fc.bbox[1], fc.bbox[0]], [fc.bbox[3], fc.bbox[2]]], { padding: [30, 30] });
+    }
+    legend(fc);
+    const notes = [`${fc.cameras.length} cameras, ${fc.method}, map of ${new Date(fc.at).toLocaleString()}`];
+    if (fc.empty_reason) notes.push(`Nothing drawn: ${fc.empty_reason}.`);
+    notes.push(...fc.warnings);
+    $("status").textContent = notes.join(" ");
+    declutter();
+    document.body.dataset.maps = String(Number(document.body.dataset.maps || 0) + 1);
+  }
+
+  let moved = null;
+  map.on("zoomend moveend", () => {
+    declutter();
+    clearTimeout(moved);
+    if (state.fitted) moved = setTimeout(refresh, 400); // the bands of the new view
+  });
+  $("method").onchange = (e) => { state.method = e.target.value; refresh(); };
+  $("uncertainty").onchange = (e) => { state.layer = e.target.checked ? "uncertainty" : "levels"; refresh(); };
+  $("hours").oninput = (e) => {
+    state.hours = Number(e.target.value);
+    $("when").textContent = state.hours === 0 ? "now" : new Date(Date.now() + state.hours * 3600e3).toLocaleString([], { hour: "2-digit", minute: "2-digit" });
+  };
+  $("hours").onchange = refresh;
+  refresh();
+  setInterval(refresh, 60000);
+})();

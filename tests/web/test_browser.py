@@ -1,0 +1,238 @@
+"""The pages in a real browser: Debian's Chromium, headless, driven by Playwright against the
+service served by uvicorn on 127.0.0.1. Screenshots go to ``build/screenshots`` for a person
+to look at."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import cv2
+import httpx2 as httpx
+import numpy as np
+import pytest
+import uvicorn
+
+from tests.factories import calibrate, sky_jpeg
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt install chromium)")
+SHOTS = Path(__file__).resolve().parents[2] / "build" / "screenshots"
+TILE = cv2.imencode(".png", np.full((256, 256, 3), 235, np.uint8))[1].tobytes()
+"""What the base map's tile server answers in these tests (they have no network)."""
+
+
+@pytest.fixture
+def live(app: Any) -> Iterator[str]:
+    """The app served by uvicorn on a free port of 127.0.0.1 (its lifespan run); its URL."""
+    server = uvicorn.Server(
+        uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on")
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.05)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(timeout=10)
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        yield b
+        b.close()
+
+
+class Page:
+    """A page of the browser that records console errors and answers the tile server."""
+
+    def __init__(self, browser: Any, width: int = 1280, height: int = 800) -> None:
+        self.page = browser.new_page(viewport={"width": width, "height": height})
+        self.errors: list[str] = []
+        self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.route(
+            "https://tile.openstreetmap.org/**",
+            lambda route: route.fulfill(status=200, body=TILE, content_type="image/png"),
+        )
+
+    def shot(self, name: str) -> None:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        self.page.screenshot(path=SHOTS / f"{name}.png")
+
+
+def sky_camera(
+    http: httpx.Client, admin: dict[str, str], camera_id: str, name: str, lat: float, lon: float
+) -> str:
+    body = {"id": camera_id, "kind": "sky", "name": name, "lat": lat, "lon": lon}
+    r = http.post("/cameras", json={**body, "roi": [0, 0, 160, 55]}, headers=admin)
+    assert r.status_code == 201, r.text
+    return str(r.json()["token"])
+
+
+def reading(
+    http: httpx.Client, token: str, camera_id: str, level: int, taken: datetime | None = None
+) -> None:
+    params = {"captured_at": taken.isoformat()} if taken else {}
+    r = http.post(
+        f"/cameras/{camera_id}/frames",
+        content=sky_jpeg(level, seed=level),
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+        params=params,
+    )
+    assert r.status_code == 201, r.text
+
+
+@pytest.fixture
+def city(live: str, admin: dict[str, str]) -> dict[str, str]:
+    """Three sky cameras in Milan with a reading each (levels 3, 7, 10), a calibration."""
+    with httpx.Client(base_url=live, timeout=30) as http:
+        assert calibrate(http, admin, None).status_code == 201  # type: ignore[arg-type]
+        tokens = {}
+        for cid, name, lat, lon, level in (
+            ("duomo", "Duomo", 45.464, 9.190, 3),
+            ("brera", "Brera", 45.472, 9.188, 7),
+            ("navigli", "Navigli", 45.450, 9.175, 10),
+        ):
+            tokens[cid] = sky_camera(http, admin, cid, name, lat, lon)
+            reading(http, tokens[cid], cid, level)
+    return tokens
+
+
+def test_the_map_labels_every_camera_and_draws_the_bands(
+    browser: Any, live: str, city: dict[str, str]
+) -> None:
+    p = Page(browser)
+    p.page.goto(f"{live}/map")
+    labels = p.page.locator(".cam-label")
+    labels.first.wait_for()
+    texts = sorted(labels.all_inner_texts())
+    assert texts == ["Brera 7", "Duomo 3", "Navigli 10"]
+    bands = p.page.locator("path.leaflet-interactive")
+    assert bands.count() >= 3  # the bands and the three markers
+    fills = {bands.nth(i).get_attribute("fill") for i in range(bands.count())}
+    assert {"#fdae61", "#abd9e9", "#2c7bb6"} <= fills  # Poor, Good, Very Good
+    legend = p.page.locator("#legend").inner_text()
+    assert "Very Good 9–10" in legend
+    assert "no data" in legend
+    assert "3 cameras" in p.page.locator("#status").inner_text()
+    # once the cameras are in view, the bands are drawn over the whole view
+    p.page.wait_for_function("Number(document.body.dataset.maps) >= 2")
+    assert sorted(labels.all_inner_texts()) == texts
+    p.shot("map")
+    p.page.locator("#uncertainty").check()
+    p.page.wait_for_function("document.querySelector('#legend').innerText.includes(' m')")
+    p.shot("map-uncertainty")
+    p.page.locator("#uncertainty").uncheck()
+    p.page.locator(".leaflet-marker-pane, .leaflet-overlay-pane").first.wait_for(state="attached")
+    assert p.errors == []
+
+
+def test_the_map_draws_without_a_network(browser: Any, live: str, city: dict[str, str]) -> None:
+    """No tile server: the bands, markers and labels draw all the same."""
+    page = browser.new_page()
+    page.route("https://tile.openstreetmap.org/**", lambda route: route.abort())
+    page.goto(f"{live}/map")
+    page.locator(".cam-label").first.wait_for()
+    assert page.locator(".cam-label").count() == 3
+    assert page.locator("path.leaflet-interactive").count() >= 3
+
+
+def test_the_display_reads_from_across_the_street(
+    browser: Any, live: str, city: dict[str, str], admin: dict[str, str]
+) -> None:
+    """Today's message and the level in the category's colour, no scroll bars at 1920×1080 or
+    1280×720; "No current reading" for a camera whose reading is 5 hours old; an unknown
+    camera is a page saying so (404)."""
+    for width, height in ((1920, 1080), (1280, 720)):
+        p = Page(browser, width, height)
+        p.page.goto(f"{live}/display/brera")
+        p.page.wait_for_function("document.body.dataset.state === 'current'")
+        assert p.page.locator("#headline").inner_text() == "Today's Air Quality is Good"
+        assert p.page.locator("#level").inner_text() == "7"
+        assert p.page.locator("#name").inner_text() == "Brera"
+        overflow = p.page.evaluate(
+            "[document.documentElement.scrollWidth > innerWidth,"
+            " document.documentElement.scrollHeight > innerHeight]"
+        )
+        assert overflow == [False, False]
+        p.shot(f"display-{width}x{height}")
+        assert p.errors == []
+    with httpx.Client(base_url=live, timeout=30) as http:
+        token = sky_camera(http, admin, "old", "Old Town", 45.46, 9.2)
+        reading(http, token, "old", 8, datetime.now(UTC) - timedelta(hours=5))
+    p = Page(browser)
+    p.page.goto(f"{live}/display/old")
+    p.page.wait_for_function("document.body.dataset.state === 'none'")
+    assert p.page.locator("#headline").inner_text() == "No current reading"
+    p.shot("display-stale")
+    response = p.page.goto(f"{live}/display/nowhere")
+    assert response is not None
+    assert response.status == 404
+    assert "There is no sky camera 'nowhere'" in p.page.locator("#missing").inner_text()
+
+
+def test_the_farm_board_shows_nothing_until_signed_in(
+    browser: Any, live: str, admin: dict[str, str]
+) -> None:
+    with httpx.Client(base_url=live, timeout=30) as http:
+        for k in range(3):
+            r = http.post("/panels", json={"id": f"p{k}", "name": f"Row A {k}"}, headers=admin)
+            assert r.status_code == 201, r.text
+    p = Page(browser)
+    p.page.goto(f"{live}/farm")
+    p.page.locator("#signin").wait_for()
+    assert p.page.locator("#board").is_hidden()
+    assert p.page.locator(".tile").count() == 0
+    p.page.fill("#token", "not-the-token")
+    p.page.click("#signin button")
+    p.page.wait_for_function("document.querySelector('#signin-error').innerText.length > 0")
+    assert "not accepted" in p.page.locator("#signin-error").inner_text()
+    assert p.page.locator("#board").is_hidden()
+    assert p.page.locator(".tile").count() == 0
+    p.page.fill("#token", admin["Authorization"].removeprefix("Bearer "))
+    p.page.click("#signin button")
+    p.page.locator(".tile").first.wait_for()
+    assert sorted(p.page.locator(".tile").all_inner_texts()) == [
+        f"Row A {k} — no baseline" for k in range(3)
+    ]
+    p.shot("farm")
+    # a kiosk's link signs in by its fragment, which then leaves the address bar
+    kiosk = Page(browser)
+    kiosk.page.goto(f"{live}/farm#token={admin['Authorization'].removeprefix('Bearer ')}")
+    kiosk.page.locator(".tile").first.wait_for()
+    assert "#token" not in kiosk.page.url
+    assert [e for e in p.errors if "401" not in e] == []  # the wrong token's answer is logged
+
+
+def test_the_cells_page_outlines_a_part(browser: Any, live: str, admin: dict[str, str]) -> None:
+    image = np.full((240, 320, 3), 225, np.uint8)
+    box = np.array([[80, 60], [250, 80], [230, 190], [70, 170]], np.int32)
+    cv2.fillPoly(image, [box], (40, 40, 40))
+    ok, png = cv2.imencode(".png", cv2.GaussianBlur(image, (0, 0), 1.0))
+    assert ok
+    p = Page(browser)
+    p.page.goto(f"{live}/cells#token={admin['Authorization'].removeprefix('Bearer ')}")
+    p.page.locator("#board").wait_for()
+    assert "No calibrations yet" in p.page.locator("#calibrations").inner_text()
+    p.page.set_input_files(
+        "#photo", files=[{"name": "part.png", "mimeType": "image/png", "buffer": png.tobytes()}]
+    )
+    p.page.click("#outline-form button")
+    p.page.locator("#corners tbody tr").nth(3).wait_for()
+    assert p.page.locator("#corners tbody tr").count() == 4
+    p.page.wait_for_function("document.querySelector('#outlined').naturalWidth > 0")
+    p.shot("cells-outline")
+    assert p.errors == []
