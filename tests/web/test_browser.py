@@ -132,6 +132,15 @@ def test_the_map_labels_every_camera_and_draws_the_bands(
     p.page.wait_for_function("Number(document.body.dataset.maps) >= 2")
     assert sorted(labels.all_inner_texts()) == texts
     p.shot("map")
+    # a camera's popup: its category, time, its sky and the chart of its last 24 hours
+    p.page.locator(".cam", has_text="Brera 7").locator(".dot").click()
+    popup = p.page.locator(".popup")
+    popup.wait_for()
+    assert "Good, level 7" in popup.inner_text()
+    p.page.wait_for_function("document.querySelector('.popup img').naturalWidth === 160")
+    p.page.wait_for_function("Chart.getChart(document.querySelector('.popup canvas')) !== undefined")
+    p.shot("map-popup")
+    p.page.keyboard.press("Escape")
     p.page.locator("#uncertainty").check()
     p.page.wait_for_function("document.querySelector('#legend').innerText.includes(' m')")
     p.shot("map-uncertainty")

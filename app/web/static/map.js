@@ -53,17 +53,19 @@
 
   // Labels that would overlap one already shown are hidden; the worst air is placed first.
   function declutter() {
-    const placed = [];
+    // all writes, then all reads, then all writes: one layout, not one per label
     const shown = [...markers.values()].sort((a, b) => a.options.level - b.options.level);
-    for (const m of shown) {
-      const el = m.getTooltip() && m.getTooltip().getElement();
-      if (!el) continue;
-      el.classList.remove("hidden");
-      const r = el.getBoundingClientRect();
+    const els = shown.map((m) => m.getElement() && m.getElement().querySelector(".cam-label")).filter(Boolean);
+    for (const el of els) el.classList.remove("hidden");
+    const rects = els.map((el) => el.getBoundingClientRect());
+    const placed = [];
+    const hide = [];
+    rects.forEach((r, i) => {
       const hit = placed.some((p) => r.left < p.right && r.right > p.left && r.top < p.bottom && r.bottom > p.top);
-      if (hit) el.classList.add("hidden");
+      if (hit) hide.push(els[i]);
       else placed.push(r);
-    }
+    });
+    for (const el of hide) el.classList.add("hidden");
   }
 
   async function chart(canvas, cameraId, days) {
@@ -119,24 +121,25 @@
     uncertaintyEdges = fc.features.map((f) => f.properties.uncertainty_min);
     bands.clearLayers();
     bands.addData(fc.features);
-    // markers kept between refreshes (made once per camera, then restyled): re-made ones
-    // left their permanent labels behind during Leaflet's zoom animation
+    // each camera a marker whose icon is its dot and label (Leaflet's tooltips measure
+    // themselves as they open, a layout each: 2.2 s for a thousand cameras); kept between
+    // refreshes and changed only where its reading changed
     const seen = new Set();
     for (const c of fc.cameras) {
       seen.add(c.camera_id);
+      const key = `${c.lat},${c.lon},${c.category},${label(c)}`;
       let m = markers.get(c.camera_id);
-      if (!m) {
-        m = L.circleMarker([c.lat, c.lon], { radius: 6, color: "#000", weight: 2, fillOpacity: 1 });
-        m.bindTooltip("", { permanent: true, direction: "right", offset: [8, 0], className: "cam-label" });
-        markers.set(c.camera_id, m);
-        cameras.addLayer(m);
+      if (m && m.options.key === key) {
+        m.options.camera = c;
+        continue;
       }
-      m.setLatLng([c.lat, c.lon]);
-      m.setStyle({ fillColor: colour[c.category] });
-      m.options.level = c.level;
-      m.setTooltipContent(label(c));
-      m.unbindPopup();
-      m.bindPopup(() => popup(c), { maxWidth: 300 });
+      if (m) cameras.removeLayer(m);
+      const html = `<span class="dot" style="background:${colour[c.category]}"></span><span class="cam-label"></span>`;
+      m = L.marker([c.lat, c.lon], { icon: L.divIcon({ className: "cam", html, iconSize: null }), key, level: c.level, camera: c });
+      m.bindPopup(() => popup(m.options.camera), { maxWidth: 300 });
+      markers.set(c.camera_id, m);
+      cameras.addLayer(m);
+      m.getElement().querySelector(".cam-label").textContent = label(c);
     }
     for (const [id, m] of markers) {
       if (!seen.has(id)) {
