@@ -138,7 +138,9 @@ def test_the_map_labels_every_camera_and_draws_the_bands(
     popup.wait_for()
     assert "Good, level 7" in popup.inner_text()
     p.page.wait_for_function("document.querySelector('.popup img').naturalWidth === 160")
-    p.page.wait_for_function("Chart.getChart(document.querySelector('.popup canvas')) !== undefined")
+    p.page.wait_for_function(
+        "Chart.getChart(document.querySelector('.popup canvas')) !== undefined"
+    )
     p.shot("map-popup")
     p.page.keyboard.press("Escape")
     p.page.locator("#uncertainty").check()
