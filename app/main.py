@@ -30,7 +30,7 @@ from app.platform.db import schema
 from app.platform.db.models import CameraKind
 from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.platform.frames import cameras as registry
-from app.platform.frames import kinds, rate_limit, retention
+from app.platform.frames import kinds, rate_limit, retention, sources
 from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
 from app.platform.frames.camera_info import TokenCache
@@ -185,6 +185,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     "alerts are POSTed unsigned: set VANTAGE_ALERT_WEBHOOK_SECRET so that the"
                     " receiver can tell them from forged ones"
                 )
+        puller = None
+        if settings.pull_sources:
+            pulling = sources.Puller(
+                app.state.sessionmaker,
+                app.state.writer,
+                lambda: app.state.frame_store if settings.store_frames else None,
+                lambda: app.state.policy,
+                threads=settings.pull_threads,
+                timeout=settings.pull_timeout_seconds,
+                max_pixels=settings.max_pixels,
+            )
+            puller = asyncio.create_task(pulling.run())
         # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)
         farm_events = asyncio.create_task(
             outbox.run(
@@ -211,7 +223,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         gc.freeze()
         yield
         gc.unfreeze()
-        for task in (sweeper, farm_events):
+        for task in (sweeper, farm_events, *([puller] if puller else [])):
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task

@@ -6,7 +6,7 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 import shapely
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from app.platform.db.models import CameraKind
 
@@ -66,6 +66,68 @@ RoiField = Annotated[
 ]
 
 
+SOURCE_SCHEMES = ("rtsp", "http", "https")
+
+
+class SourceIn(Schema):
+    """Where the service pulls the camera's frames from, every ``every_seconds``."""
+
+    url: Annotated[str, Field(max_length=2048)] = Field(
+        description="rtsp://… (H.264, MPEG-4), or http(s)://… serving an MJPEG stream or one "
+        "JPEG snapshot per request. Credentials in it (user:password@) are taken out and kept "
+        "as username and password.",
+        examples=["rtsp://10.0.0.7:554/stream1", "http://10.0.0.8/snapshot.jpg"],
+    )
+    every_seconds: int = Field(ge=1, le=86_400, description="A frame every so many seconds.")
+    username: Annotated[str, Field(max_length=200)] | None = None
+    password: Annotated[str, Field(max_length=200)] | None = Field(
+        default=None, description="Write-only: never returned, never logged."
+    )
+
+    @model_validator(mode="after")
+    def _checked(self) -> SourceIn:
+        from urllib.parse import unquote, urlsplit, urlunsplit
+
+        if any(c.isspace() or ord(c) < 32 or ord(c) == 127 for c in self.url):
+            raise ValueError("the source url must have no spaces or control characters")
+        parts = urlsplit(self.url)
+        if parts.scheme.lower() not in SOURCE_SCHEMES:
+            raise ValueError(
+                f"the source url's scheme must be rtsp, http or https; got {parts.scheme!r}"
+            )
+        try:
+            host, port = parts.hostname, parts.port
+        except ValueError:
+            raise ValueError("the source url has a bad port") from None
+        if not host:
+            raise ValueError("the source url names no host")
+        if parts.username is not None:  # kept apart from the url, write-only
+            self.username = self.username or unquote(parts.username)
+            self.password = self.password or unquote(parts.password or "") or None
+            netloc = host if ":" not in host else f"[{host}]"
+            netloc += f":{port}" if port is not None else ""
+            self.url = urlunsplit(parts._replace(netloc=netloc))
+        return self
+
+
+class SourceOut(Out):
+    url: str
+    every_seconds: int
+    username: str | None
+    has_password: bool = Field(description="A password is set (it is never returned).")
+    state: Literal["connecting", "ok", "unreachable", "bad_stream"] = Field(
+        description="connecting: no frame taken yet; ok: the last pull gave a frame; "
+        "unreachable: no answer, refused, timed out or an HTTP error; bad_stream: an answer "
+        "that is not a JPEG, MJPEG or decodable video. A failing source is retried after "
+        "a back-off (doubling, at most 5 minutes)."
+    )
+    last_error: str | None
+    last_error_at: datetime | None
+    last_frame_at: datetime | None = Field(description="When the last frame was taken.")
+    last_frame_id: str | None
+    next_due_at: datetime = Field(description="When the next frame is due.")
+
+
 class CameraFields(Schema):
     """What an operator may say about a camera, at registration and later."""
 
@@ -74,6 +136,11 @@ class CameraFields(Schema):
     lon: Lon | None = None
     panel_id: Id | None = Field(default=None, description="The panel this camera watches.")
     roi: RoiField = None
+    source: SourceIn | None = Field(
+        default=None,
+        description="Pull frames from this stream or snapshot URL instead of waiting for the "
+        "camera to post them (null: no source; it may post them still).",
+    )
 
     @field_validator("roi")
     @classmethod
@@ -144,6 +211,9 @@ class CameraOut(Out):
     )
     last_captured_at: datetime | None = Field(
         None, description="When its newest frame kept was taken; null when none is kept."
+    )
+    source: SourceOut | None = Field(
+        None, description="Where its frames are pulled from, and how that goes."
     )
 
 

@@ -212,6 +212,24 @@ class Settings(BaseSettings):
         description="Sign each alert's POST with this Standard Webhooks secret ('whsec_' and the"
         " base64 of 24–64 random bytes): the receiver checks the webhook-signature header.",
     )
+    pull_sources: bool = Field(
+        default=True,
+        description="Pull the frames of cameras registered with a source (RTSP, MJPEG or "
+        "snapshot URL); false: this process pulls none (others may).",
+    )
+    pull_threads: int = Field(
+        default=8,
+        ge=1,
+        le=256,
+        description="Sources this process pulls at once (each waits on its camera's network).",
+    )
+    pull_timeout_seconds: float = Field(
+        default=10.0,
+        gt=0,
+        le=300,
+        description="Longest wait for a source to open or to give a frame (FFmpeg's own open "
+        "and read timeouts, and the snapshot's HTTP timeout) [s].",
+    )
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
     alert_retry_hours: float = Field(
         default=24.0, gt=0, description="Retry an undelivered alert this long after it was raised."

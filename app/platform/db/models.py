@@ -58,6 +58,33 @@ class Camera(TimestampMixin, Base):
     and keeps its history (its frames go with the retention like any others)."""
 
 
+class CameraSource(Base):
+    """Where the service pulls a camera's frames from (a stream or a snapshot URL), and how
+    pulling it goes. Its lease names the one process pulling it."""
+
+    __tablename__ = "camera_sources"
+    __table_args__ = (Index("ix_camera_sources_next_due_at", "next_due_at"),)
+
+    camera_id: Mapped[str] = mapped_column(ForeignKey("cameras.id"), primary_key=True)
+    url: Mapped[str] = mapped_column(String(2048))
+    """rtsp://, http:// or https://, without credentials."""
+    every_seconds: Mapped[int] = mapped_column(Integer)
+    username: Mapped[str | None] = mapped_column(String(200))
+    password: Mapped[str | None] = mapped_column(String(200))
+    """Write-only: never returned by the API, never logged."""
+    state: Mapped[str] = mapped_column(String(16), default="connecting")
+    """connecting (none taken yet), ok, unreachable or bad_stream."""
+    failures: Mapped[int] = mapped_column(Integer, default=0)
+    """Failed pulls in a row (the back-off's exponent)."""
+    last_error: Mapped[str | None] = mapped_column(String(500))
+    last_error_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    last_frame_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    last_frame_id: Mapped[str | None] = mapped_column(String(36))
+    next_due_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    lease_owner: Mapped[str | None] = mapped_column(String(64))
+    lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+
+
 class Frame(Base):
     __tablename__ = "frames"
     __table_args__ = (

@@ -12,9 +12,10 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
 from app.platform.auth import hash_token, new_token
-from app.platform.db.base import Base
+from app.platform.db.base import Base, utcnow
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.db.rows import select_rows
+from app.platform.frames import sources
 from app.platform.frames.camera_info import TokenCache, view_of
 from app.platform.frames.ingest import check_fits
 from app.platform.frames.kinds import KINDS
@@ -85,9 +86,12 @@ def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
     """Register a camera; returns it with its token (the only time the token is seen)."""
     _check_panel(session, data.kind, data.panel_id)
     token = new_token("vc")
-    camera = Camera(**data.model_dump(), token_hash=hash_token(token))
+    camera = Camera(**data.model_dump(exclude={"source"}), token_hash=hash_token(token))
     check_located(camera)
     insert_new(session, camera, "camera")
+    if data.source is not None:
+        sources.set_source(session, camera.id, data.source, utcnow())
+        session.flush()
     return camera, token
 
 
@@ -205,7 +209,9 @@ def update_camera(
     """Change the fields ``data`` carries (``null`` clears one); frames uploaded after the
     commit are judged with the new region."""
     camera = _in_service(session, camera_id)
-    changes = data.model_dump(include=data.model_fields_set)
+    changes = data.model_dump(include=data.model_fields_set - {"source"})
+    if "source" in data.model_fields_set:
+        sources.set_source(session, camera_id, data.source, utcnow())
     kind = changes.get("kind", camera.kind)
     if kind is None:
         raise Unprocessable("kind cannot be cleared: give panel, sky or rig")

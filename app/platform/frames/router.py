@@ -19,10 +19,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 from sqlalchemy.orm.interfaces import ORMOption
 
-from app.platform.db.models import Camera, CameraKind, Frame
+from app.platform.db.models import Camera, CameraKind, CameraSource, Frame
 from app.platform.db.session import release
 from app.platform.frames import cameras as registry
-from app.platform.frames import ingest, jpeg, regions, retention
+from app.platform.frames import ingest, jpeg, regions, retention, sources
 from app.platform.frames.camera_info import CameraInfo, TokenCache
 from app.platform.frames.deps import FrameCursor, UploadTargetDep, fresh_upload_target, link_next
 from app.platform.frames.kinds import frame_out
@@ -225,15 +225,19 @@ async def post_frame(
     return Response(body, status_code=201, media_type="application/json", headers=headers)
 
 
-def _out(camera: Camera, last_captured_at: datetime | None) -> CameraOut:
+def _out(
+    camera: Camera, last_captured_at: datetime | None, source: CameraSource | None = None
+) -> CameraOut:
     out = CameraOut.model_validate(camera)
     out.last_captured_at = last_captured_at
+    out.source = sources.source_out(source)
     return out
 
 
 def _shown(session: Session, camera: Camera) -> CameraOut:
     """The camera as the API shows it, with its newest frame's capture time."""
-    return _out(camera, registry.last_captured_at(session, camera.id))
+    source = session.get(CameraSource, camera.id)
+    return _out(camera, registry.last_captured_at(session, camera.id), source)
 
 
 def _with_token(session: Session, camera: Camera, token: str) -> CameraCreated:
@@ -287,7 +291,8 @@ def list_cameras(
         kind=kind,
         panel_id=panel_id,
     )
-    return [_out(camera, last) for camera, last in rows]
+    pulled = sources.sources_of(session, [camera.id for camera, _ in rows])
+    return [_out(camera, last, pulled.get(camera.id)) for camera, last in rows]
 
 
 @router.get(

@@ -1,0 +1,285 @@
+"""Cameras whose frames the service pulls: snapshot URLs, MJPEG over HTTP and RTSP/H.264 from a
+real RTSP server (GStreamer's), through the API with the service's own puller running."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.main import create_app
+from app.platform.settings import Settings
+from tests.factories import sky_jpeg
+
+JPEG = sky_jpeg(8, seed=1)
+
+
+class Camera(BaseHTTPRequestHandler):
+    """A camera's web server: ``/snapshot.jpg`` one JPEG; ``/mjpeg`` an MJPEG stream (a JPEG
+    every 0.1 s); ``/page`` an HTML page; ``/hang`` accepts and never answers."""
+
+    def do_GET(self) -> None:  # noqa: N802
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]
+        if self.path == "/hang":
+            time.sleep(30)
+            return
+        if self.path == "/page":
+            body = b"<html><body>Camera login</body></html>"
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+            return
+        if self.path.startswith("/snapshot.jpg"):
+            self.send_response(200)
+            self.send_header("Content-Type", "image/jpeg")
+            self.send_header("Content-Length", str(len(JPEG)))
+            self.end_headers()
+            self.wfile.write(JPEG)
+            return
+        if self.path == "/mjpeg":
+            self.send_response(200)
+            self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+            self.end_headers()
+            try:
+                for _ in range(100):
+                    self.wfile.write(
+                        b"--frame\r\nContent-Type: image/jpeg\r\n"
+                        + f"Content-Length: {len(JPEG)}\r\n\r\n".encode()
+                        + JPEG
+                        + b"\r\n"
+                    )
+                    time.sleep(0.1)
+            except OSError:
+                pass
+            return
+        self.send_error(404)
+
+    def log_message(self, *args: Any) -> None:
+        pass
+
+
+class CameraServer:
+    """``Camera`` on a port of 127.0.0.1 that can be stopped and started again."""
+
+    def __init__(self) -> None:
+        self.port = 0
+        self.requests: list[str] = []
+        self.start()
+
+    def start(self) -> None:
+        self.server = ThreadingHTTPServer(("127.0.0.1", self.port), Camera)
+        self.server.daemon_threads = True
+        self.server.requests = self.requests  # type: ignore[attr-defined]
+        self.port = self.server.server_port
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def stop(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+    def url(self, path: str) -> str:
+        return f"http://127.0.0.1:{self.port}{path}"
+
+
+@pytest.fixture
+def camera_server() -> Iterator[CameraServer]:
+    s = CameraServer()
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def puller(settings: Settings, engine: Any, app: Any) -> Iterator[TestClient]:
+    """The service with a short pull timeout (1.5 s), its puller running."""
+    fast = create_app(settings.model_copy(update={"pull_timeout_seconds": 1.5}))
+    with TestClient(fast, raise_server_exceptions=False) as c:
+        yield c
+
+
+def until(check: Callable[[], Any], seconds: float = 15) -> Any:
+    """Poll ``check`` until it returns something truthy; that value."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        got = check()
+        if got:
+            return got
+        time.sleep(0.2)
+    raise AssertionError(f"not within {seconds} s")
+
+
+def register(client: TestClient, admin: dict[str, str], source: dict[str, Any]) -> Any:
+    body = {"id": "cam", "kind": "sky", "roi": [0, 0, 160, 55], "source": source}
+    r = client.post("/cameras", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def source_of(client: TestClient, admin: dict[str, str]) -> dict[str, Any]:
+    return dict(client.get("/cameras/cam", headers=admin).json()["source"])
+
+
+def frames(client: TestClient, admin: dict[str, str]) -> list[dict[str, Any]]:
+    r = client.get("/cameras/cam/frames", headers=admin, params={"limit": 100})
+    assert r.status_code == 200, r.text
+    return list(r.json())
+
+
+def test_a_snapshot_camera_is_pulled_every_interval(
+    puller: TestClient, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    """Every second a frame, stored and judged as a posted one (a sky verdict), the source
+    ``ok`` with its last frame; the credentials given in the URL go to the camera as Basic
+    and never come back."""
+    created = register(
+        puller,
+        admin,
+        {
+            "url": camera_server.url("/snapshot.jpg").replace("//", "//op:s3cret@"),
+            "every_seconds": 1,
+        },
+    )
+    assert created["source"]["state"] == "connecting"
+    assert created["source"]["url"] == camera_server.url("/snapshot.jpg")
+    assert (created["source"]["username"], created["source"]["has_password"]) == ("op", True)
+    got = until(lambda: len(frames(puller, admin)) >= 3 and frames(puller, admin))
+    assert all(f["verdict"]["kind"] == "sky" for f in got)
+    times = sorted(f["captured_at"] for f in got)
+    source = source_of(puller, admin)
+    assert source["state"] == "ok"
+    assert source["last_frame_id"] in {f["frame_id"] for f in got}
+    assert "s3cret" not in str(puller.get("/cameras", headers=admin).json())
+    assert len(times) == len(set(times))
+
+
+def test_a_page_instead_of_video_is_a_bad_stream(
+    puller: TestClient, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    register(puller, admin, {"url": camera_server.url("/page"), "every_seconds": 1})
+    source = until(lambda: (s := source_of(puller, admin))["state"] != "connecting" and s)
+    assert source["state"] == "bad_stream"
+    assert "text/html" in source["last_error"]
+    assert source["last_error_at"] is not None
+    assert frames(puller, admin) == []
+
+
+def test_a_stopped_camera_is_unreachable_then_recovers(
+    puller: TestClient, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    register(puller, admin, {"url": camera_server.url("/snapshot.jpg"), "every_seconds": 1})
+    until(lambda: source_of(puller, admin)["state"] == "ok")
+    camera_server.stop()
+    down = until(lambda: (s := source_of(puller, admin))["state"] == "unreachable" and s)
+    assert "no answer" in down["last_error"]
+    n = len(frames(puller, admin))
+    camera_server.start()  # the same port
+    until(lambda: source_of(puller, admin)["state"] == "ok", seconds=20)
+    assert len(frames(puller, admin)) > n
+
+
+def test_a_hung_camera_is_cut_by_the_timeout(
+    puller: TestClient, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    """A server that accepts and never answers: cut after the pull timeout (1.5 s), the
+    service answering meanwhile."""
+    register(puller, admin, {"url": camera_server.url("/hang"), "every_seconds": 1})
+    t = time.monotonic()
+    while time.monotonic() - t < 1.0:
+        assert puller.get("/health").status_code == 200
+    source = until(lambda: (s := source_of(puller, admin))["state"] == "unreachable" and s)
+    assert "timed out" in source["last_error"]
+    assert frames(puller, admin) == []
+
+
+def test_an_mjpeg_stream_is_decoded_by_ffmpeg(
+    puller: TestClient, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    register(puller, admin, {"url": camera_server.url("/mjpeg"), "every_seconds": 2})
+    got = until(lambda: frames(puller, admin))
+    assert (got[0]["width"], got[0]["height"]) == (160, 100)
+    assert source_of(puller, admin)["state"] == "ok"
+
+
+RTSP_SERVER = Path(__file__).with_name("rtsp_server.py")
+
+
+def gstreamer_rtsp() -> bool:
+    python = shutil.which("python3", path="/usr/bin")
+    if python is None:
+        return False
+    check = (
+        "import gi; gi.require_version('GstRtspServer', '1.0');"
+        " from gi.repository import GstRtspServer"
+    )
+    return subprocess.run([python, "-c", check], capture_output=True).returncode == 0
+
+
+@pytest.fixture
+def rtsp() -> Iterator[str]:
+    """GStreamer's RTSP server with a live H.264 test pattern; its URL."""
+    if not gstreamer_rtsp():
+        pytest.skip(
+            "needs GStreamer's RTSP server (apt install gir1.2-gst-rtsp-server-1.0 python3-gi)"
+        )
+    proc = subprocess.Popen(
+        ["/usr/bin/python3", str(RTSP_SERVER)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        port = int(proc.stdout.readline())
+        yield f"rtsp://127.0.0.1:{port}/test"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
+def test_an_rtsp_h264_stream_from_a_real_server(
+    puller: TestClient, admin: dict[str, str], rtsp: str
+) -> None:
+    register(puller, admin, {"url": rtsp, "every_seconds": 2})
+    got = until(lambda: len(frames(puller, admin)) >= 2 and frames(puller, admin), seconds=30)
+    assert (got[0]["width"], got[0]["height"]) == (320, 240)
+    assert source_of(puller, admin)["state"] == "ok"
+
+
+def test_bad_sources_are_refused(client: TestClient, admin: dict[str, str]) -> None:
+    """A scheme other than rtsp/http/https, every_seconds < 1, a URL with spaces or control
+    characters, or no host: 422, and no camera made."""
+    for source in (
+        {"url": "ftp://10.0.0.1/cam", "every_seconds": 5},
+        {"url": "rtsp://10.0.0.1/cam", "every_seconds": 0},
+        {"url": "http://10.0.0.1/snap shot.jpg", "every_seconds": 5},
+        {"url": "http://10.0.0.1/snap\x07.jpg", "every_seconds": 5},
+        {"url": "http:///snap.jpg", "every_seconds": 5},
+        {"url": "rtsp://10.0.0.1:99999/cam", "every_seconds": 5},
+    ):
+        r = client.post(
+            "/cameras", json={"id": "bad", "kind": "sky", "source": source}, headers=admin
+        )
+        assert r.status_code == 422, source
+        assert r.headers["content-type"] == "application/problem+json"
+    assert client.get("/cameras/bad", headers=admin).status_code == 404
+
+
+def test_a_source_is_patched_and_removed(client: TestClient, admin: dict[str, str]) -> None:
+    r = client.post("/cameras", json={"id": "cam", "kind": "sky"}, headers=admin)
+    assert r.json()["source"] is None
+    patch = {"source": {"url": "rtsp://10.9.9.9/a", "every_seconds": 60, "password": "p"}}
+    changed = client.patch("/cameras/cam", json=patch, headers=admin).json()
+    assert changed["source"]["url"] == "rtsp://10.9.9.9/a"
+    assert changed["source"]["has_password"] is True
+    assert "password" not in changed["source"]
+    assert client.patch("/cameras/cam", json={"name": "x"}, headers=admin).json()["source"]
+    gone = client.patch("/cameras/cam", json={"source": None}, headers=admin).json()
+    assert gone["source"] is None
