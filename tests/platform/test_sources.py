@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import threading
 import time
 from collections.abc import Callable, Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from datetime import datetime
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -17,78 +17,7 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.platform.settings import Settings
-from tests.factories import sky_jpeg
-
-JPEG = sky_jpeg(8, seed=1)
-
-
-class Camera(BaseHTTPRequestHandler):
-    """A camera's web server: ``/snapshot.jpg`` one JPEG; ``/mjpeg`` an MJPEG stream (a JPEG
-    every 0.1 s); ``/page`` an HTML page; ``/hang`` accepts and never answers."""
-
-    def do_GET(self) -> None:  # noqa: N802
-        self.server.requests.append(self.path)  # type: ignore[attr-defined]
-        if self.path == "/hang":
-            time.sleep(30)
-            return
-        if self.path == "/page":
-            body = b"<html><body>Camera login</body></html>"
-            self.send_response(200)
-            self.send_header("Content-Type", "text/html")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-            return
-        if self.path.startswith("/snapshot.jpg"):
-            self.send_response(200)
-            self.send_header("Content-Type", "image/jpeg")
-            self.send_header("Content-Length", str(len(JPEG)))
-            self.end_headers()
-            self.wfile.write(JPEG)
-            return
-        if self.path == "/mjpeg":
-            self.send_response(200)
-            self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
-            self.end_headers()
-            try:
-                for _ in range(100):
-                    self.wfile.write(
-                        b"--frame\r\nContent-Type: image/jpeg\r\n"
-                        + f"Content-Length: {len(JPEG)}\r\n\r\n".encode()
-                        + JPEG
-                        + b"\r\n"
-                    )
-                    time.sleep(0.1)
-            except OSError:
-                pass
-            return
-        self.send_error(404)
-
-    def log_message(self, *args: Any) -> None:
-        pass
-
-
-class CameraServer:
-    """``Camera`` on a port of 127.0.0.1 that can be stopped and started again."""
-
-    def __init__(self) -> None:
-        self.port = 0
-        self.requests: list[str] = []
-        self.start()
-
-    def start(self) -> None:
-        self.server = ThreadingHTTPServer(("127.0.0.1", self.port), Camera)
-        self.server.daemon_threads = True
-        self.server.requests = self.requests  # type: ignore[attr-defined]
-        self.port = self.server.server_port
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def stop(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-    def url(self, path: str) -> str:
-        return f"http://127.0.0.1:{self.port}{path}"
+from tests.servers import CameraServer
 
 
 @pytest.fixture
@@ -283,3 +212,52 @@ def test_a_source_is_patched_and_removed(client: TestClient, admin: dict[str, st
     assert client.patch("/cameras/cam", json={"name": "x"}, headers=admin).json()["source"]
     gone = client.patch("/cameras/cam", json={"source": None}, headers=admin).json()
     assert gone["source"] is None
+
+
+@pytest.mark.slow
+def test_two_processes_share_the_sources_and_pull_each_once_an_interval(
+    database_url: str, engine: Any, tmp_path: Path, camera_server: CameraServer
+) -> None:
+    """Two service processes on one PostgreSQL, 20 snapshot sources every 2 s: every source is
+    pulled, by one process at a time (the lease), never twice in one interval."""
+    if not database_url.startswith("postgresql"):
+        pytest.skip("several processes share sources on PostgreSQL (SQLite serves one)")
+    import httpx2 as httpx
+
+    from tests.factories import ADMIN_TOKEN, empty_tables
+    from tests.servers import free_port, server_env, start_server
+
+    empty_tables(engine)
+    admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    env = server_env(database_url, tmp_path / "data")
+    ports = [free_port(), free_port()]
+    procs = [start_server(env, port) for port in ports]
+    try:
+        base = f"http://127.0.0.1:{ports[0]}"
+        for k in range(20):
+            body = {
+                "id": f"c{k:02d}",
+                "kind": "sky",
+                "roi": [0, 0, 160, 55],
+                "source": {"url": camera_server.url(f"/snapshot.jpg?c={k}"), "every_seconds": 2},
+            }
+            r = httpx.post(f"{base}/cameras", json=body, headers=admin)
+            assert r.status_code == 201, r.text
+        time.sleep(9)
+        for k in range(20):
+            r = httpx.get(
+                f"http://127.0.0.1:{ports[k % 2]}/cameras/c{k:02d}/frames",
+                headers=admin,
+                params={"limit": 100},
+            )
+            taken = sorted(datetime.fromisoformat(f["captured_at"]) for f in r.json())
+            assert len(taken) >= 3, (k, taken)
+            gaps = [(b - a).total_seconds() for a, b in pairwise(taken)]
+            assert min(gaps) > 1.0, (k, gaps)  # one pull an interval, whichever process
+        pulls = [p for p in camera_server.requests if p.startswith("/snapshot.jpg")]
+        per_camera = {k: pulls.count(f"/snapshot.jpg?c={k}") for k in range(20)}
+        assert all(n >= 3 for n in per_camera.values()), per_camera
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait(20)
