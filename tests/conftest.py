@@ -8,6 +8,8 @@ empty tables.
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -15,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import uvicorn
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, make_url, text
 
@@ -110,3 +113,21 @@ def city(client: TestClient, admin: dict[str, str], clock: Clock) -> dict[str, A
         assert r.status_code == 201, r.text
         tokens[body["id"]] = (r.json()["token"], body["lon"])
     return {"tokens": tokens, "clock": clock}
+
+
+@pytest.fixture
+def live(app: Any) -> Iterator[str]:
+    """The app served by uvicorn on a free port of 127.0.0.1 (its lifespan run); its URL."""
+    server = uvicorn.Server(
+        uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on")
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.05)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(timeout=10)

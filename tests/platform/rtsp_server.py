@@ -3,8 +3,10 @@ with its GObject bindings (Debian: gir1.2-gst-rtsp-server-1.0, python3-gi,
 gstreamer1.0-plugins-ugly for x264). Serves a live test pattern as H.264 at
 rtsp://127.0.0.1:<port>/test and prints the port once it listens.
 
-    /usr/bin/python3 tests/platform/rtsp_server.py
+    /usr/bin/python3 tests/platform/rtsp_server.py [WIDTH HEIGHT]
 """
+
+import sys
 
 import gi
 
@@ -17,8 +19,10 @@ server = GstRtspServer.RTSPServer()
 server.set_address("127.0.0.1")
 server.set_service("0")  # a free port
 factory = GstRtspServer.RTSPMediaFactory()
+width, height = (int(v) for v in sys.argv[1:3]) if len(sys.argv) > 2 else (320, 240)
 factory.set_launch(
-    "( videotestsrc is-live=true pattern=smpte ! video/x-raw,width=320,height=240,framerate=10/1"
+    f"( videotestsrc is-live=true pattern=smpte ! video/x-raw,width={width},height={height},"
+    "framerate=10/1"
     " ! x264enc tune=zerolatency speed-preset=ultrafast key-int-max=10"
     " ! rtph264pay name=pay0 pt=96 )"
 )

@@ -5,8 +5,6 @@ to look at."""
 from __future__ import annotations
 
 import shutil
-import threading
-import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -16,7 +14,6 @@ import cv2
 import httpx2 as httpx
 import numpy as np
 import pytest
-import uvicorn
 
 from tests.factories import calibrate, sky_jpeg
 
@@ -25,24 +22,6 @@ pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt in
 SHOTS = Path(__file__).resolve().parents[2] / "build" / "screenshots"
 TILE = cv2.imencode(".png", np.full((256, 256, 3), 235, np.uint8))[1].tobytes()
 """What the base map's tile server answers in these tests (they have no network)."""
-
-
-@pytest.fixture
-def live(app: Any) -> Iterator[str]:
-    """The app served by uvicorn on a free port of 127.0.0.1 (its lifespan run); its URL."""
-    server = uvicorn.Server(
-        uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on")
-    )
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.05)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    thread.join(timeout=10)
 
 
 @pytest.fixture

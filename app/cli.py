@@ -1,0 +1,411 @@
+"""``vantage``: what operators do in bulk, against a running service over HTTP.
+
+The service's address and a token come from ``VANTAGE_URL`` (default http://127.0.0.1:8000) and
+``VANTAGE_TOKEN`` (the admin token; ``replay`` takes the camera's own with ``--camera-token``).
+Every command has ``--help``. An answer the service refuses is printed with its reason and the
+command exits with status 1; nothing is retried silently.
+
+    vantage cameras import cameras.csv --tokens-out tokens.csv
+    vantage panels import panels.csv
+    vantage baseline PANEL_ID photos/clean/
+    vantage fleet photos/               # sub-folders clean, dust, bird_drop, snow
+    vantage air-calibrate skies/ --labels pm25.csv --method regression --applies-to cam-1
+    vantage export readings readings.csv --camera-id cam-1 --since 2026-05-01T00:00:00Z
+    vantage export panel-history PANEL_ID history.csv --bucket day
+    vantage replay CAMERA_ID frames/ --camera-token vc_… --every 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import json
+import os
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import httpx2 as httpx
+from rich.console import Console
+from rich.progress import Progress
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+err = Console(stderr=True)
+
+
+class Failed(Exception):
+    """What the service or the input refused, as the user is told it."""
+
+
+class Service:
+    """The running service: its URL and a token."""
+
+    def __init__(self, url: str, token: str | None, timeout: float = 300.0) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = httpx.Client(base_url=url.rstrip("/"), headers=headers, timeout=timeout)
+        self.url = url
+
+    def close(self) -> None:
+        self.http.close()
+
+    def call(self, method: str, path: str, **kw: Any) -> httpx.Response:
+        try:
+            r = self.http.request(method, path, **kw)
+        except httpx.TransportError as exc:
+            raise Failed(f"cannot reach the service at {self.url}: {exc}") from None
+        if r.status_code >= 400:
+            raise Failed(f"{method} {path}: {r.status_code} {_reason(r)}")
+        return r
+
+
+def _reason(r: httpx.Response) -> str:
+    """The problem's detail (RFC 9457), else the body's start."""
+    try:
+        body = r.json()
+    except ValueError:
+        return r.text[:300]
+    if isinstance(body, dict):
+        return str(body.get("detail") or body.get("title") or body)[:1000]
+    return str(body)[:300]
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            return [
+                {k.strip(): (v or "").strip() for k, v in row.items() if k}
+                for row in csv.DictReader(f)
+            ]
+    except OSError as exc:
+        raise Failed(f"cannot read {path}: {exc.strerror}") from None
+
+
+def _images(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise Failed(f"{folder} is not a folder")
+    found = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not found:
+        raise Failed(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    return found
+
+
+def _number(value: str, name: str, row: int) -> float | None:
+    if value == "":
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        raise Failed(f"row {row}: {name} {value!r} is not a number") from None
+
+
+def import_cameras(service: Service, args: argparse.Namespace) -> None:
+    """Register cameras from a CSV: id, kind, then optional name, lat, lon, panel_id, roi (JSON),
+    source_url, every_seconds, username, password. The new tokens (shown once) go to
+    ``--tokens-out``."""
+    rows = _rows(args.csv)
+    tokens = []
+    with Progress(console=err) as progress:
+        task = progress.add_task("cameras", total=len(rows))
+        for i, row in enumerate(rows, start=2):
+            if not row.get("id") or not row.get("kind"):
+                raise Failed(f"row {i}: id and kind are needed")
+            body: dict[str, Any] = {"id": row["id"], "kind": row["kind"]}
+            for name in ("name", "panel_id"):
+                if row.get(name):
+                    body[name] = row[name]
+            for name in ("lat", "lon"):
+                if (v := _number(row.get(name, ""), name, i)) is not None:
+                    body[name] = v
+            if row.get("roi"):
+                try:
+                    body["roi"] = json.loads(row["roi"])
+                except ValueError:
+                    raise Failed(f"row {i}: roi must be JSON, as [0, 0, 640, 300]") from None
+            if row.get("source_url"):
+                every = _number(row.get("every_seconds", ""), "every_seconds", i)
+                body["source"] = {"url": row["source_url"], "every_seconds": int(every or 60)}
+                for name in ("username", "password"):
+                    if row.get(name):
+                        body["source"][name] = row[name]
+            created = service.call("POST", "/cameras", json=body).json()
+            tokens.append({"id": created["id"], "token": created["token"]})
+            progress.advance(task)
+    if args.tokens_out:
+        with args.tokens_out.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["id", "token"])
+            w.writeheader()
+            w.writerows(tokens)
+        err.print(f"{len(tokens)} cameras registered; their tokens are in {args.tokens_out}")
+    else:
+        err.print(f"{len(tokens)} cameras registered; their tokens (shown once):")
+        for t in tokens:
+            print(f"{t['id']},{t['token']}")
+
+
+def import_panels(service: Service, args: argparse.Namespace) -> None:
+    """Register panels from a CSV: id, then optional name, lat, lon."""
+    rows = _rows(args.csv)
+    with Progress(console=err) as progress:
+        task = progress.add_task("panels", total=len(rows))
+        for i, row in enumerate(rows, start=2):
+            if not row.get("id"):
+                raise Failed(f"row {i}: id is needed")
+            body: dict[str, Any] = {"id": row["id"]}
+            if row.get("name"):
+                body["name"] = row["name"]
+            for name in ("lat", "lon"):
+                if (v := _number(row.get(name, ""), name, i)) is not None:
+                    body[name] = v
+            service.call("POST", "/panels", json=body)
+            progress.advance(task)
+    err.print(f"{len(rows)} panels registered")
+
+
+def _files(paths: Sequence[Path], what: str) -> list[tuple[str, tuple[str, bytes, str]]]:
+    """The images read (with a progress bar), as multipart ``files``."""
+    out = []
+    with Progress(console=err) as progress:
+        task = progress.add_task(f"reading {what}", total=len(paths))
+        for p in paths:
+            kind = (
+                "image/jpeg"
+                if p.suffix.lower() in (".jpg", ".jpeg")
+                else "image/" + p.suffix.lower().lstrip(".")
+            )
+            out.append(("files", (p.name, p.read_bytes(), kind)))
+            progress.advance(task)
+    return out
+
+
+def _labels(folder: Path, paths: list[Path], labels: Path | None, column: str | None) -> list[str]:
+    """Each image's label: from ``labels`` (a CSV of file and ``column``, file relative to
+    the folder or a bare name), else the name of its sub-folder."""
+    if labels is None:
+        out = []
+        for p in paths:
+            if p.parent == folder:
+                raise Failed(
+                    f"{p.name} is not in a sub-folder named by its label (or give --labels)"
+                )
+            out.append(p.parent.name)
+        return out
+    rows = _rows(labels)
+    if not rows:
+        raise Failed(f"{labels} has no rows")
+    key = column or next(k for k in rows[0] if k != "file")
+    if "file" not in rows[0] or key not in rows[0]:
+        raise Failed(f"{labels} needs the columns file and {key}")
+    table = {r["file"]: r[key] for r in rows}
+    out = []
+    for p in paths:
+        rel = p.relative_to(folder).as_posix()
+        value = table.get(rel, table.get(p.name))
+        if value is None:
+            raise Failed(f"{rel} has no row in {labels}")
+        out.append(value)
+    return out
+
+
+def baseline(service: Service, args: argparse.Namespace) -> None:
+    """A panel's clean baseline from a folder of clean photos."""
+    paths = _images(args.folder)
+    params = {"camera_id": args.camera_id} if args.camera_id else {}
+    r = service.call(
+        "POST", f"/panels/{args.panel_id}/baseline", files=_files(paths, "photos"), params=params
+    )
+    body = r.json()
+    err.print(f"baseline {body.get('id')} of panel {args.panel_id} from {len(paths)} photos")
+    for w in body.get("warnings") or []:
+        err.print(f"[yellow]warning:[/] {w}")
+    print(json.dumps(body, indent=2))
+
+
+def fleet(service: Service, args: argparse.Namespace) -> None:
+    """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
+    paths = _images(args.folder)
+    labels = _labels(args.folder, paths, args.labels, "label")
+    data = {"labels": labels}
+    r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
+    print(json.dumps(r.json(), indent=2))
+
+
+def air_calibrate(service: Service, args: argparse.Namespace) -> None:
+    """An air calibration from labelled sky photos: levels 1–10, or the reference pm25 or aqi
+    (``--reference``), from sub-folder names or a CSV."""
+    paths = _images(args.folder)
+    labels = _labels(args.folder, paths, args.labels, args.reference)
+    params: dict[str, Any] = {"method": args.method}
+    if args.applies_to:
+        params["applies_to"] = args.applies_to
+    if args.camera_id:
+        params["camera_id"] = args.camera_id
+    r = service.call(
+        "POST",
+        "/air/calibration",
+        files=_files(paths, "skies"),
+        data={args.reference: labels},
+        params=params,
+    )
+    body = r.json()
+    err.print(f"calibration {body['id']} ({body['method']}) from {body['n_images']} images")
+    for w in body.get("warnings") or []:
+        err.print(f"[yellow]warning:[/] {w}")
+    print(json.dumps(body, indent=2))
+
+
+def _pages(service: Service, path: str, params: dict[str, Any]) -> Iterator[str]:
+    """The CSV pages of a listing, following its Link: rel="next"."""
+    r = service.call("GET", path, params=params)
+    while True:
+        yield r.text
+        link = r.headers.get("link", "")
+        if 'rel="next"' not in link:
+            return
+        r = service.call("GET", link.split(";")[0].strip("<> "))
+
+
+def export_readings(service: Service, args: argparse.Namespace) -> None:
+    """Air readings to CSV, every page of them."""
+    params: dict[str, Any] = {"format": "csv", "limit": 10_000}
+    if args.camera_id:
+        params["camera_id"] = args.camera_id
+    for name in ("since", "until"):
+        if getattr(args, name):
+            params[name] = getattr(args, name)
+    n = 0
+    with args.out.open("w", newline="") as f, Progress(console=err) as progress:
+        task = progress.add_task("readings", total=None)
+        for k, page in enumerate(_pages(service, "/air/readings", params)):
+            lines = page.splitlines(keepends=True)
+            f.writelines(lines if k == 0 else lines[1:])
+            n += max(len(lines) - 1, 0)
+            progress.update(task, completed=n)
+    err.print(f"{n} readings written to {args.out}")
+
+
+def export_history(service: Service, args: argparse.Namespace) -> None:
+    """A panel's soiling history (``GET /panels/{id}/history``) to CSV."""
+    params = {k: v for k in ("since", "until", "bucket") if (v := getattr(args, k))}
+    rows = service.call("GET", f"/panels/{args.panel_id}/history", params=params).json()
+    fields = list(rows[0]) if rows else ["start", "end", "frames", "clean", "dirty"]
+    with args.out.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+    err.print(f"{len(rows)} buckets of panel {args.panel_id} written to {args.out}")
+
+
+def replay(service: Service, args: argparse.Namespace) -> None:
+    """Post a folder of JPEGs as the camera (a trial), in name order, ``--every`` seconds
+    apart; each frame's verdict in a line of JSON."""
+    paths = [p for p in _images(args.folder) if p.suffix.lower() in (".jpg", ".jpeg")]
+    camera = Service(service.url, args.camera_token)
+    with Progress(console=err) as progress, contextlib.closing(camera):
+        task = progress.add_task(f"replaying as {args.camera_id}", total=len(paths))
+        for i, p in enumerate(paths):
+            if i and args.every:
+                time.sleep(args.every)
+            r = camera.call(
+                "POST",
+                f"/cameras/{args.camera_id}/frames",
+                content=p.read_bytes(),
+                headers={"Content-Type": "image/jpeg"},
+            )
+            print(json.dumps({"file": p.name, **r.json()}))
+            progress.advance(task)
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(
+        prog="vantage",
+        description="Bulk work against a running Vantage service (VANTAGE_URL, VANTAGE_TOKEN).",
+    )
+    top.add_argument("--url", default=os.environ.get("VANTAGE_URL", "http://127.0.0.1:8000"))
+    top.add_argument(
+        "--token", default=os.environ.get("VANTAGE_TOKEN"), help="default: VANTAGE_TOKEN"
+    )
+    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    cams = sub.add_parser("cameras", help="register cameras").add_subparsers(
+        dest="action", required=True
+    )
+    c = cams.add_parser("import", help="register cameras (and their sources) from a CSV")
+    c.add_argument(
+        "csv",
+        type=Path,
+        help="id,kind,name,lat,lon,panel_id,roi,source_url,every_seconds,username,password",
+    )
+    c.add_argument("--tokens-out", type=Path, help="write the new tokens to this CSV")
+    c.set_defaults(run=import_cameras)
+
+    panels = sub.add_parser("panels", help="register panels").add_subparsers(
+        dest="action", required=True
+    )
+    p = panels.add_parser("import", help="register panels from a CSV (id,name,lat,lon)")
+    p.add_argument("csv", type=Path)
+    p.set_defaults(run=import_panels)
+
+    b = sub.add_parser("baseline", help="a panel's clean baseline from a folder of photos")
+    b.add_argument("panel_id")
+    b.add_argument("folder", type=Path)
+    b.add_argument("--camera-id", help="the camera whose region the photos are measured in")
+    b.set_defaults(run=baseline)
+
+    f = sub.add_parser("fleet", help="the fleet model from labelled photos")
+    f.add_argument("folder", type=Path, help="sub-folders clean, dust, bird_drop, snow")
+    f.add_argument("--labels", type=Path, help="a CSV of file,label instead of sub-folders")
+    f.set_defaults(run=fleet)
+
+    a = sub.add_parser("air-calibrate", help="an air calibration from labelled sky photos")
+    a.add_argument("folder", type=Path, help="sub-folders named by level, or with --labels")
+    a.add_argument("--labels", type=Path, help="a CSV of file and the reference column")
+    a.add_argument("--reference", choices=["levels", "pm25", "aqi"], default="levels")
+    a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
+    a.add_argument("--applies-to", action="append", help="a sky camera it grades (repeat)")
+    a.add_argument("--camera-id", help="the camera whose region the photos are measured in")
+    a.set_defaults(run=air_calibrate)
+
+    ex = sub.add_parser("export", help="readings or panel history to CSV").add_subparsers(
+        dest="what", required=True
+    )
+    r = ex.add_parser("readings", help="air readings (every page)")
+    r.add_argument("out", type=Path)
+    r.add_argument("--camera-id", action="append")
+    r.add_argument("--since")
+    r.add_argument("--until")
+    r.set_defaults(run=export_readings)
+    h = ex.add_parser("panel-history", help="a panel's soiling history")
+    h.add_argument("panel_id")
+    h.add_argument("out", type=Path)
+    h.add_argument("--bucket", choices=["hour", "day"])
+    h.add_argument("--since")
+    h.add_argument("--until")
+    h.set_defaults(run=export_history)
+
+    rp = sub.add_parser("replay", help="post a folder of JPEGs as a camera (a trial)")
+    rp.add_argument("camera_id")
+    rp.add_argument("folder", type=Path)
+    rp.add_argument("--camera-token", required=True, help="the camera's own token")
+    rp.add_argument("--every", type=float, default=0.0, help="seconds between frames")
+    rp.set_defaults(run=replay)
+    return top
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    service = Service(args.url, args.token)
+    try:
+        args.run(service, args)
+    except Failed as exc:
+        err.print(f"[red]error:[/] {exc}", highlight=False)
+        return 1
+    finally:
+        service.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""The ``vantage`` command against a running service (uvicorn on 127.0.0.1), each command."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import httpx2 as httpx
+import numpy as np
+import pytest
+
+from app import cli
+from tests.factories import ADMIN_TOKEN, CLEAN_RGB, clean_set, panel_jpeg, sky_jpeg
+
+ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+COMMANDS = (
+    ["cameras", "import"],
+    ["panels", "import"],
+    ["baseline"],
+    ["fleet"],
+    ["air-calibrate"],
+    ["export", "readings"],
+    ["export", "panel-history"],
+    ["replay"],
+)
+
+
+def vantage(live: str, *args: str, token: str | None = ADMIN_TOKEN) -> int:
+    base = ["--url", live] + (["--token", token] if token else [])
+    return cli.main([*base, *args])
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def test_every_command_has_help(capsys: pytest.CaptureFixture[str]) -> None:
+    for command in COMMANDS:
+        with pytest.raises(SystemExit) as done:
+            cli.main([*command, "--help"])
+        assert done.value.code == 0
+        assert f"usage: vantage {' '.join(command)}" in capsys.readouterr().out
+    installed = subprocess.run(
+        [sys.executable, "-m", "app.cli", "--help"], capture_output=True, text=True, check=True
+    )
+    assert "air-calibrate" in installed.stdout
+
+
+def test_cameras_and_panels_from_csv(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    panels = write_csv(
+        tmp_path / "panels.csv", [{"id": "p1", "name": "Row A", "lat": "45.1", "lon": "9.2"}]
+    )
+    assert vantage(live, "panels", "import", str(panels)) == 0
+    cameras = write_csv(
+        tmp_path / "cameras.csv",
+        [
+            {"id": "s1", "kind": "sky", "name": "Roof", "lat": "45.46", "lon": "9.19",
+             "panel_id": "", "roi": "[0, 0, 160, 55]", "source_url": "", "every_seconds": ""},
+            {"id": "pc", "kind": "panel", "name": "", "lat": "", "lon": "", "panel_id": "p1",
+             "roi": "", "source_url": "rtsp://op:pw@10.1.2.3/live", "every_seconds": "60"},
+        ],
+    )  # fmt: skip
+    tokens = tmp_path / "tokens.csv"
+    assert vantage(live, "cameras", "import", str(cameras), "--tokens-out", str(tokens)) == 0
+    with tokens.open() as f:
+        got = list(csv.DictReader(f))
+    assert [r["id"] for r in got] == ["s1", "pc"]
+    assert all(r["token"].startswith("vc") for r in got)
+    listed = {c["id"]: c for c in httpx.get(f"{live}/cameras", headers=ADMIN).json()}
+    assert listed["s1"]["roi"] == [0, 0, 160, 55]
+    assert listed["pc"]["panel_id"] == "p1"
+    assert listed["pc"]["source"]["url"] == "rtsp://10.1.2.3/live"
+    assert listed["pc"]["source"]["username"] == "op"
+    # the same again: the service's refusal, with its reason, and status 1
+    capsys.readouterr()
+    assert vantage(live, "cameras", "import", str(cameras)) == 1
+    assert "409" in capsys.readouterr().err
+    broken = write_csv(tmp_path / "broken.csv", [{"id": "x", "kind": ""}])
+    assert vantage(live, "cameras", "import", str(broken)) == 1
+    assert "row 2: id and kind are needed" in capsys.readouterr().err
+
+
+def test_air_calibration_replay_and_readings_export(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    skies = tmp_path / "skies"
+    for level in (1, 3, 5, 7, 10):
+        (skies / str(level)).mkdir(parents=True)
+        for k in range(8):
+            (skies / str(level) / f"{k}.jpg").write_bytes(sky_jpeg(level, seed=10 * level + k))
+    r = httpx.post(
+        f"{live}/cameras", json={"id": "s1", "kind": "sky", "roi": [0, 0, 160, 55]}, headers=ADMIN
+    )
+    token = r.json()["token"]
+    assert (
+        vantage(live, "air-calibrate", str(skies), "--applies-to", "s1", "--camera-id", "s1") == 0
+    )
+    made = json.loads(capsys.readouterr().out)
+    assert (made["n_images"], made["camera_ids"]) == (40, ["s1"])
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k, level in enumerate((10, 7, 3)):
+        (frames / f"{k:02d}.jpg").write_bytes(sky_jpeg(level, seed=500 + k))
+    assert vantage(live, "replay", "s1", str(frames), "--camera-token", token) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [x["verdict"]["level"] for x in lines] == [10, 7, 3]
+    out = tmp_path / "readings.csv"
+    assert vantage(live, "export", "readings", str(out), "--camera-id", "s1") == 0
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["level"] for r in rows) == ["10", "3", "7"]
+    assert "calibration_id" in rows[0]
+
+
+def test_baseline_fleet_and_history(live: str, tmp_path: Path) -> None:
+    assert httpx.post(f"{live}/panels", json={"id": "p1"}, headers=ADMIN).status_code == 201
+    clean = tmp_path / "clean"
+    clean.mkdir()
+    for i, data in enumerate(clean_set(12)):
+        (clean / f"{i}.jpg").write_bytes(data)
+    assert vantage(live, "baseline", "p1", str(clean)) == 0
+    assert httpx.get(f"{live}/panels/p1/baseline", headers=ADMIN).status_code == 200
+    photos = tmp_path / "fleet"
+    rng = np.random.default_rng(5)
+    sand = np.array([190.0, 180.0, 160.0])
+    for label in ("clean", "dirty"):
+        (photos / label).mkdir(parents=True)
+    for i in range(8):
+        c = CLEAN_RGB + rng.normal(0, 6, 3)
+        (photos / "clean" / f"c{i}.jpg").write_bytes(panel_jpeg(c, seed=i))
+        (photos / "dirty" / f"d{i}.jpg").write_bytes(panel_jpeg(0.5 * c + 0.5 * sand, seed=100 + i))
+    assert vantage(live, "fleet", str(photos)) == 0
+    assert httpx.get(f"{live}/fleet/model", headers=ADMIN).status_code == 200
+    out = tmp_path / "history.csv"
+    assert vantage(live, "export", "panel-history", "p1", str(out), "--bucket", "day") == 0
+    assert out.read_text().splitlines()[0].startswith("start,end,frames")
+
+
+def test_clear_errors(live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert vantage("http://127.0.0.1:9", "panels", "import", str(tmp_path / "none.csv")) == 1
+    assert "cannot read" in capsys.readouterr().err
+    panels = write_csv(tmp_path / "p.csv", [{"id": "p9"}])
+    assert vantage("http://127.0.0.1:9", "panels", "import", str(panels)) == 1
+    assert "cannot reach the service" in capsys.readouterr().err
+    assert vantage(live, "panels", "import", str(panels), token="wrong") == 1
+    assert "401" in capsys.readouterr().err
+    assert vantage(live, "baseline", "p1", str(tmp_path)) == 1
+    assert "no images" in capsys.readouterr().err
