@@ -30,6 +30,7 @@ from app.platform.db import schema
 from app.platform.db.models import CameraKind
 from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.platform.frames import cameras as registry
+from app.platform.frames import deps as frame_deps
 from app.platform.frames import kinds, rate_limit, retention, sources
 from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
@@ -195,6 +196,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 threads=settings.pull_threads,
                 timeout=settings.pull_timeout_seconds,
                 max_pixels=settings.max_pixels,
+                rate_limit=lambda camera_id: frame_deps.within_rate(
+                    app.state.sessionmaker,
+                    app.state.rate_budgets,
+                    app.state.policy,
+                    settings.rate_limit_per_minute,
+                    camera_id,
+                ),
             )
             puller = asyncio.create_task(pulling.run())
         # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)

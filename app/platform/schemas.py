@@ -215,6 +215,9 @@ class CameraOut(Out):
     source: SourceOut | None = Field(
         None, description="Where its frames are pulled from, and how that goes."
     )
+    source_state: Literal["connecting", "ok", "unreachable", "bad_stream"] | None = Field(
+        None, description="source.state, or null for a camera that only posts its frames."
+    )
 
 
 class CameraCreated(CameraOut):

@@ -85,9 +85,27 @@ def test_a_snapshot_camera_is_pulled_every_interval(
     times = sorted(f["captured_at"] for f in got)
     source = source_of(puller, admin)
     assert source["state"] == "ok"
+    assert puller.get("/cameras/cam", headers=admin).json()["source_state"] == "ok"
     assert source["last_frame_id"] in {f["frame_id"] for f in got}
     assert "s3cret" not in str(puller.get("/cameras", headers=admin).json())
     assert len(times) == len(set(times))
+
+
+def test_pulled_frames_spend_the_cameras_rate_limit(
+    settings: Settings, engine: Any, app: Any, admin: dict[str, str], camera_server: CameraServer
+) -> None:
+    """A limit of 2 frames a minute: a source due every second stores 2 in the minute, its
+    other pulls skipped (not counted as failures)."""
+    limited = create_app(settings.model_copy(update={"rate_limit_per_minute": 2}))
+    while time.gmtime().tm_sec > 40:  # all of it within one clock minute, one budget
+        time.sleep(0.5)
+    with TestClient(limited, raise_server_exceptions=False) as client:
+        register(client, admin, {"url": camera_server.url("/snapshot.jpg"), "every_seconds": 1})
+        until(lambda: len(frames(client, admin)) >= 2)
+        time.sleep(3)
+        assert len(frames(client, admin)) == 2
+        assert source_of(client, admin)["state"] == "ok"
+        assert len(camera_server.requests) == 2  # the skipped pulls asked the camera nothing
 
 
 def test_a_page_instead_of_video_is_a_bad_stream(

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
 from app.platform.db.models import Camera
@@ -187,6 +187,28 @@ async def _check_rate(request: Request, camera_id: str) -> None:
             code="rate_limited",
         )
     budgets.keep(camera_id, minute, granted - 1)
+
+
+def within_rate(
+    sessions: sessionmaker[Session],
+    budgets: rate_limit.LocalBudgets,
+    policy: Policy,
+    limit: int,
+    camera_id: str,
+) -> bool:
+    """Whether the camera may store one more frame this minute (``_check_rate``'s budget),
+    spending it: for the frames the service pulls, in a worker thread."""
+    if limit <= 0:
+        return True
+    minute = rate_limit.minute_of(policy.now())
+    if budgets.take(camera_id, minute):
+        return True
+    with sessions.begin() as session:
+        granted = rate_limit.reserve(session, camera_id, minute, limit)
+    if granted <= 0:
+        return False
+    budgets.keep(camera_id, minute, granted - 1)
+    return True
 
 
 UploadTargetDep = Annotated[CameraInfo, Depends(get_upload_target)]

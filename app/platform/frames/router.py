@@ -231,6 +231,7 @@ def _out(
     out = CameraOut.model_validate(camera)
     out.last_captured_at = last_captured_at
     out.source = sources.source_out(source)
+    out.source_state = out.source.state if out.source is not None else None
     return out
 
 

@@ -138,14 +138,18 @@ def finish(
     frame: tuple[str, datetime] | None,
     error: tuple[str, str] | None,
 ) -> None:
-    """Record a pull (its frame's id and capture time, or its error state and detail) and
-    release the lease, unless another process has taken the source since (the lease ran out).
-    The next frame is due an interval after this one was; a failure backs off. Commits."""
+    """Record a pull (its frame's id and capture time, or its error state and detail, or
+    neither: skipped, the camera's rate limit spent) and release the lease, unless another
+    process has taken the source since (the lease ran out). The next frame is due an interval
+    after this one was; a failure backs off. Commits."""
     row = session.get(CameraSource, lease.camera.id, with_for_update=True)
     if row is None or row.lease_owner != owner:
         session.rollback()
         return
-    if frame is not None:
+    if frame is None and error is None:
+        due = lease.due + lease.every
+        row.next_due_at = due if due > now else now + lease.every
+    elif frame is not None:
         row.state, row.failures = "ok", 0
         row.last_frame_id, row.last_frame_at = frame
         due = lease.due + lease.every
@@ -173,9 +177,13 @@ class Puller:
         threads: int,
         timeout: float,
         max_pixels: int,
+        rate_limit: Callable[[str], bool] | None = None,
         tick: float = 0.5,
     ) -> None:
+        """``rate_limit(camera_id)``: whether the camera may store one more frame this minute
+        (the budget its posted frames spend too); None: no limit."""
         self.sessions, self.writer, self.store, self.policy = sessions, writer, store, policy
+        self.rate_limit = rate_limit
         self.owner = uuid.uuid4().hex
         self.threads, self.timeout, self.max_pixels, self.tick = threads, timeout, max_pixels, tick
         self.lease = timedelta(seconds=max(30.0, 4 * timeout))
@@ -214,6 +222,12 @@ class Puller:
         frame: tuple[str, datetime] | None = None
         error: tuple[str, str] | None = None
         try:
+            if self.rate_limit is not None and not await loop.run_in_executor(
+                None, self.rate_limit, lease.camera.id
+            ):
+                log.info("source of camera %s skipped: its rate limit is spent", lease.camera.id)
+                await loop.run_in_executor(None, self._finish, lease, None, None)
+                return
             data = await loop.run_in_executor(
                 self.pool,
                 partial(
