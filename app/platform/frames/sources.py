@@ -189,15 +189,23 @@ class Puller:
         self.lease = timedelta(seconds=max(30.0, 4 * timeout))
         self.pool = ThreadPoolExecutor(threads, "pull")
         self.running: set[asyncio.Task[None]] = set()
+        self.in_threads: set[asyncio.Future[Any]] = set()
+        """Database work running in threads: waited for when the puller stops, so that none
+        holds a connection of an engine being disposed."""
+
+    def _db(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
+        future = asyncio.get_running_loop().run_in_executor(None, fn, *args)
+        self.in_threads.add(future)
+        future.add_done_callback(self.in_threads.discard)
+        return future
 
     async def run(self) -> None:
-        loop = asyncio.get_running_loop()
         try:
             while True:
                 free = self.threads - len(self.running)
                 if free > 0:
                     try:
-                        leases = await loop.run_in_executor(None, self._claim, free)
+                        leases = await self._db(self._claim, free)
                     except Exception as exc:  # the database away: try again next tick
                         log.warning("sources not claimed: %s", str(exc).splitlines()[0])
                         leases = []
@@ -211,6 +219,8 @@ class Puller:
                 task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
+            if self.in_threads:
+                await asyncio.wait(list(self.in_threads), timeout=30)
             self.pool.shutdown(wait=False, cancel_futures=True)
 
     def _claim(self, limit: int) -> list[Lease]:
@@ -222,11 +232,9 @@ class Puller:
         frame: tuple[str, datetime] | None = None
         error: tuple[str, str] | None = None
         try:
-            if self.rate_limit is not None and not await loop.run_in_executor(
-                None, self.rate_limit, lease.camera.id
-            ):
+            if self.rate_limit is not None and not await self._db(self.rate_limit, lease.camera.id):
                 log.info("source of camera %s skipped: its rate limit is spent", lease.camera.id)
-                await loop.run_in_executor(None, self._finish, lease, None, None)
+                await self._db(self._finish, lease, None, None)
                 return
             data = await loop.run_in_executor(
                 self.pool,
@@ -247,10 +255,8 @@ class Puller:
             error = ("unreachable", f"not stored: {type(exc).__name__}: {exc}")
         if error is not None:
             log.info("source of camera %s: %s", lease.camera.id, error[1])
-        with contextlib.suppress(Exception):
-            await loop.run_in_executor(
-                None, self._finish, lease, frame, error
-            )  # a failure here leaves the lease to run out
+        with contextlib.suppress(Exception):  # a failure here leaves the lease to run out
+            await self._db(self._finish, lease, frame, error)
 
     async def _store(self, lease: Lease, data: bytes) -> tuple[str, datetime]:
         """The frame through the ingest path of a posted one; its id and capture time."""
