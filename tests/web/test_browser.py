@@ -15,7 +15,7 @@ import httpx2 as httpx
 import numpy as np
 import pytest
 
-from tests.factories import calibrate, sky_jpeg
+from tests.factories import CLEAN_RGB, DUST, calibrate, clean_set, panel_jpeg, sky_jpeg
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt install chromium)")
@@ -175,12 +175,31 @@ def test_the_display_reads_from_across_the_street(
 
 
 def test_the_farm_board_shows_nothing_until_signed_in(
-    browser: Any, live: str, admin: dict[str, str]
+    browser: Any, live: str, admin: dict[str, str], clock: Any
 ) -> None:
+    """Three panels; p0 dusty with a cleaning task its robot has claimed. Signed out: no data;
+    a wrong token: the form with its error; signed in: the panels with their states and the
+    task with its robot and lease; a kiosk's #token= link signs in and leaves the address."""
     with httpx.Client(base_url=live, timeout=30) as http:
         for k in range(3):
             r = http.post("/panels", json={"id": f"p{k}", "name": f"Row A {k}"}, headers=admin)
             assert r.status_code == 201, r.text
+        camera = http.post(
+            "/cameras", json={"id": "c0", "kind": "panel", "panel_id": "p0"}, headers=admin
+        ).json()["token"]
+        robot = http.post("/robots", json={"id": "r1"}, headers=admin).json()["token"]
+        files = [("files", (f"{i}.jpg", f, "image/jpeg")) for i, f in enumerate(clean_set(10))]
+        assert http.post("/panels/p0/baseline", files=files, headers=admin).status_code == 201
+        for k in range(3):  # dust, frame after frame, until the debounce opens a task
+            clock.advance(minutes=10)
+            r = http.post(
+                "/cameras/c0/frames",
+                content=panel_jpeg(CLEAN_RGB + DUST, seed=k),
+                headers={"Authorization": f"Bearer {camera}", "Content-Type": "image/jpeg"},
+            )
+            assert r.status_code == 201, r.text
+        claimed = http.post("/cleaning/claim", headers={"Authorization": f"Bearer {robot}"})
+        assert claimed.status_code == 200, claimed.text
     p = Page(browser)
     p.page.goto(f"{live}/farm")
     p.page.locator("#signin").wait_for()
@@ -196,8 +215,14 @@ def test_the_farm_board_shows_nothing_until_signed_in(
     p.page.click("#signin button")
     p.page.locator(".tile").first.wait_for()
     assert sorted(p.page.locator(".tile").all_inner_texts()) == [
-        f"Row A {k} — no baseline" for k in range(3)
+        "Row A 0 — being cleaned",
+        "Row A 1 — no baseline",
+        "Row A 2 — no baseline",
     ]
+    [task] = p.page.locator("#tasks tbody tr").all_inner_texts()
+    assert task.split("\t")[:3] == ["p0", "claimed", "r1"]
+    p.page.locator(".tile.cleaning").click()
+    p.page.wait_for_function("document.querySelector('#thumb').naturalWidth > 0")
     p.shot("farm")
     # a kiosk's link signs in by its fragment, which then leaves the address bar
     kiosk = Page(browser)

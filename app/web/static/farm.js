@@ -13,8 +13,14 @@
   async function detail(panel) {
     $("detail").hidden = false;
     $("detail-title").textContent = `${panel.name || panel.id}: ${NAMES[panel.state] || panel.state}`;
-    const since = new Date(Date.now() - 14 * 86400e3).toISOString();
-    const history = await json(`/panels/${encodeURIComponent(panel.id)}/history?bucket=day&since=${since}`);
+    const status = await json(`/panels/${encodeURIComponent(panel.id)}/status`);
+    const last = status.last_verdict;
+    // the 14 days up to the panel's last frame (a panel gone quiet shows its last weeks)
+    const end = last && last.captured_at ? new Date(last.captured_at) : new Date();
+    const since = new Date(end.getTime() - 14 * 86400e3).toISOString();
+    const until = new Date(end.getTime() + 86400e3).toISOString();
+    const q = new URLSearchParams({ bucket: "day", since, until });
+    const history = await json(`/panels/${encodeURIComponent(panel.id)}/history?${q}`);
     const old = Chart.getChart($("trend"));
     if (old) old.destroy();
     new Chart($("trend"), {
@@ -26,10 +32,9 @@
           { label: "mean T²", data: history.map((h) => h.t2_mean), borderColor: "#2c7bb6", yAxisID: "t2" },
         ],
       },
-      options: { animation: false, scales: { y: { min: 0, max: 1, position: "left" }, t2: { position: "right" } } },
+      options: { animation: false, maintainAspectRatio: false, scales: { y: { min: 0, max: 1, position: "left" }, t2: { position: "right" } } },
     });
-    const status = await json(`/panels/${encodeURIComponent(panel.id)}/status`);
-    const frame = status.last_verdict && status.last_verdict.frame_id;
+    const frame = last && last.frame_id;
     $("thumb").hidden = !frame;
     if (frame) {
       const r = await Auth.api(`/frames/${encodeURIComponent(frame)}/region.jpg`);
