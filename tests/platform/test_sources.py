@@ -17,6 +17,7 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.platform.settings import Settings
+from tests.factories import empty_tables
 from tests.servers import CameraServer
 
 
@@ -28,8 +29,9 @@ def camera_server() -> Iterator[CameraServer]:
 
 
 @pytest.fixture
-def puller(settings: Settings, engine: Any, app: Any) -> Iterator[TestClient]:
+def puller(settings: Settings, engine: Any) -> Iterator[TestClient]:
     """The service with a short pull timeout (1.5 s), its puller running."""
+    empty_tables(engine)
     fast = create_app(settings.model_copy(update={"pull_timeout_seconds": 1.5}))
     with TestClient(fast, raise_server_exceptions=False) as c:
         yield c
@@ -92,10 +94,11 @@ def test_a_snapshot_camera_is_pulled_every_interval(
 
 
 def test_pulled_frames_spend_the_cameras_rate_limit(
-    settings: Settings, engine: Any, app: Any, admin: dict[str, str], camera_server: CameraServer
+    settings: Settings, engine: Any, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
     """A limit of 2 frames a minute: a source due every second stores 2 in the minute, its
     other pulls skipped (not counted as failures)."""
+    empty_tables(engine)
     limited = create_app(settings.model_copy(update={"rate_limit_per_minute": 2}))
     while time.gmtime().tm_sec > 40:  # all of it within one clock minute, one budget
         time.sleep(0.5)

@@ -188,16 +188,14 @@ class Puller:
         self.threads, self.timeout, self.max_pixels, self.tick = threads, timeout, max_pixels, tick
         self.lease = timedelta(seconds=max(30.0, 4 * timeout))
         self.pool = ThreadPoolExecutor(threads, "pull")
+        self.db_pool = ThreadPoolExecutor(2, "pull-db")
+        """The puller's database work: shut down (waiting for what runs) when it stops, so
+        that no claim or record holds a connection of an engine being disposed. A cancelled
+        await does not stop its thread, so awaiting the asyncio futures would not do."""
         self.running: set[asyncio.Task[None]] = set()
-        self.in_threads: set[asyncio.Future[Any]] = set()
-        """Database work running in threads: waited for when the puller stops, so that none
-        holds a connection of an engine being disposed."""
 
     def _db(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
-        future = asyncio.get_running_loop().run_in_executor(None, fn, *args)
-        self.in_threads.add(future)
-        future.add_done_callback(self.in_threads.discard)
-        return future
+        return asyncio.get_running_loop().run_in_executor(self.db_pool, fn, *args)
 
     async def run(self) -> None:
         try:
@@ -219,9 +217,8 @@ class Puller:
                 task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
-            if self.in_threads:
-                await asyncio.wait(list(self.in_threads), timeout=30)
             self.pool.shutdown(wait=False, cancel_futures=True)
+            await asyncio.to_thread(self.db_pool.shutdown, wait=True, cancel_futures=True)
 
     def _claim(self, limit: int) -> list[Lease]:
         with self.sessions() as session:
