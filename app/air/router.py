@@ -493,11 +493,17 @@ SKY_WIDTH = 480
 )
 async def sky_picture(request: Request, camera_id: CameraId, session: SessionDep) -> Response:
     """The sky region of the camera's latest reading (at most 480 px wide): what the map's
-    popup shows beside the level. Only the region the camera measures, never its street."""
+    popup shows beside the level. Only the region the camera measures (its bounding box),
+    never its street: a camera without a region (``roi``) publishes no picture (404)."""
     place, found = await run_in_threadpool(air.latest, session, camera_id)
     if found is None or found[0].stored_path is None:
         raise NotFound(f"no stored frame of sky camera {place.camera_id!r}")
     frame, verdict = found
+    if verdict.roi is None:
+        raise NotFound(
+            f"sky camera {place.camera_id!r} measures its whole view (no roi): only a sky "
+            "region is published, never a street"
+        )
     data = await request.app.state.bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the latest frame of {place.camera_id!r} is no longer kept")

@@ -70,3 +70,9 @@ def test_the_sky_picture_is_the_region_of_the_latest_reading(
     whole = cv2.imdecode(np.frombuffer(sky_jpeg(7, seed=1), np.uint8), cv2.IMREAD_COLOR)
     assert abs(float(image.mean()) - float(whole[:55].mean())) < 3  # the sky, not the street
     assert client.get("/air/cameras/nowhere/sky.jpg").status_code == 404
+    # a camera measuring its whole view publishes no picture of it (its street)
+    assert client.patch("/cameras/sky2", json={"roi": None}, headers=admin).status_code == 200
+    post(client, city, "sky2", 7, seed=2)
+    whole = client.get("/air/cameras/sky2/sky.jpg")
+    assert whole.status_code == 404
+    assert "no roi" in whole.json()["detail"]

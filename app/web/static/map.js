@@ -93,7 +93,9 @@
     div.querySelector("strong").textContent = c.name || c.camera_id;
     div.querySelector(".cat").textContent = `${c.category}, level ${Math.floor(c.level + 0.5)}`;
     div.querySelector(".time").textContent = new Date(c.captured_at).toLocaleString();
-    div.querySelector("img").src = `/air/cameras/${encodeURIComponent(c.camera_id)}/sky.jpg`;
+    const sky = div.querySelector("img");
+    sky.onerror = () => sky.remove(); // a camera with no sky region publishes no picture
+    sky.src = `/air/cameras/${encodeURIComponent(c.camera_id)}/sky.jpg`;
     const canvas = div.querySelector("canvas");
     for (const b of div.querySelectorAll("button")) b.onclick = () => chart(canvas, c.camera_id, Number(b.dataset.days));
     setTimeout(() => chart(canvas, c.camera_id, 1), 0);
