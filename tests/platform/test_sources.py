@@ -282,3 +282,42 @@ def test_two_processes_share_the_sources_and_pull_each_once_an_interval(
         for proc in procs:
             proc.terminate()
             proc.wait(20)
+
+
+def test_a_dead_process_leases_run_out_and_another_takes_over(
+    settings: Settings, admin: dict[str, str], engine: Any
+) -> None:
+    """Process A takes the source and dies: B gets nothing while A's lease lasts, the source
+    once it has run out; A's late record is ignored, B's kept. (The service's own puller is
+    off: A and B stand for two processes.)"""
+    from datetime import UTC, timedelta
+
+    from sqlalchemy.orm import sessionmaker
+
+    from app.platform.frames import sources
+
+    empty_tables(engine)
+    quiet = create_app(settings.model_copy(update={"pull_sources": False}))
+    with TestClient(quiet, raise_server_exceptions=False) as client:
+        source = {"url": "rtsp://10.9.9.9/a", "every_seconds": 60}
+        body = {"id": "cam", "kind": "sky", "source": source}
+        assert client.post("/cameras", json=body, headers=admin).status_code == 201
+        sessions = sessionmaker(engine)
+        now = datetime.now(UTC) + timedelta(seconds=1)  # due at registration
+        lease = timedelta(seconds=30)
+        with sessions() as s:
+            [a] = sources.claim(s, "A", now, limit=10, lease=lease)
+        assert a.camera.id == "cam"
+        with sessions() as s:
+            assert sources.claim(s, "B", now + timedelta(seconds=29), limit=10, lease=lease) == []
+        later = now + timedelta(seconds=31)
+        with sessions() as s:
+            [b] = sources.claim(s, "B", later, limit=10, lease=lease)
+        with sessions() as s:  # A wakes up and records a frame it no longer owns: ignored
+            sources.finish(s, "A", a, later, frame=("fa", later), error=None)
+        with sessions() as s:
+            sources.finish(s, "B", b, later, frame=("fb", later), error=None)
+        got = source_of(client, admin)
+    assert (got["state"], got["last_frame_id"]) == ("ok", "fb")
+    # the next frame is due an interval after this one was due, not after the pull ended
+    assert datetime.fromisoformat(got["next_due_at"]) == b.due + timedelta(seconds=60)
