@@ -264,7 +264,10 @@ def test_two_processes_share_the_sources_and_pull_each_once_an_interval(
             }
             r = httpx.post(f"{base}/cameras", json=body, headers=admin)
             assert r.status_code == 201, r.text
+        first = time.monotonic()  # the first camera's first pull is due from here
         time.sleep(9)
+        pulls = [p for p in camera_server.requests if p.startswith("/snapshot.jpg")]
+        slots = int((time.monotonic() - first) // 2) + 1  # intervals begun since
         for k in range(20):
             r = httpx.get(
                 f"http://127.0.0.1:{ports[k % 2]}/cameras/c{k:02d}/frames",
@@ -273,11 +276,13 @@ def test_two_processes_share_the_sources_and_pull_each_once_an_interval(
             )
             taken = sorted(datetime.fromisoformat(f["captured_at"]) for f in r.json())
             assert len(taken) >= 3, (k, taken)
+            # two processes pulling one source would take it twice at once; a pull late
+            # under load is followed by the next interval's on time, never a second at once
             gaps = [(b - a).total_seconds() for a, b in pairwise(taken)]
-            assert min(gaps) > 1.0, (k, gaps)  # one pull an interval, whichever process
-        pulls = [p for p in camera_server.requests if p.startswith("/snapshot.jpg")]
+            assert min(gaps) > 0.25, (k, gaps)
         per_camera = {k: pulls.count(f"/snapshot.jpg?c={k}") for k in range(20)}
-        assert all(n >= 3 for n in per_camera.values()), per_camera
+        # at most one pull in each interval begun: the camera asked no more often
+        assert all(3 <= n <= slots for n in per_camera.values()), (slots, per_camera)
     finally:
         for proc in procs:
             proc.terminate()
