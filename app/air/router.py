@@ -517,16 +517,12 @@ def _sky_crop(data: bytes, region: Any) -> bytes:
 
     from app.platform.frames.camera_info import parse_region
     from app.platform.frames.jpeg import decode_rgb
+    from app.platform.frames.stats import bounding_box, crop
 
     image = decode_rgb(data, max_pixels=1_000_000_000)[1]
     roi, polygon = parse_region(region)
-    if polygon is not None:
-        xs, ys = [p[0] for p in polygon], [p[1] for p in polygon]
-        roi = (min(xs), min(ys), max(xs) - min(xs), max(ys) - min(ys))
-    if roi is not None:
-        x, y, w, h = roi
-        image = image[y : y + h, x : x + w]
-    bgr: Any = np.ascontiguousarray(image[:, :, ::-1])
+    box = bounding_box(polygon) if polygon is not None else roi
+    bgr: Any = np.ascontiguousarray(crop(image, box)[:, :, ::-1])
     if bgr.shape[1] > SKY_WIDTH:
         height = max(1, round(bgr.shape[0] * SKY_WIDTH / bgr.shape[1]))
         bgr = cv2.resize(bgr, (SKY_WIDTH, height), interpolation=cv2.INTER_AREA)
