@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -153,6 +154,30 @@ def prepare(
     )
     may_repeat = idempotency_key is not None or captured_at is not None
     return Prepared(camera, frame, decoded, may_repeat)
+
+
+def recording(
+    frames: FrameStore | None,
+    camera: CameraInfo,
+    data: bytes,
+    *,
+    captured_at: datetime | None,
+    max_pixels: int,
+    policy: Policy,
+    idempotency_key: str | None = None,
+) -> Callable[[Session], Recorded]:
+    """``prepare`` the frame (received now) and give back the writer's job that records it:
+    what ``GroupCommitWriter.submit_after`` runs for a posted frame and for a pulled one."""
+    prepared = prepare(
+        frames,
+        camera=camera,
+        data=data,
+        captured_at=captured_at,
+        received_at=policy.now(),
+        max_pixels=max_pixels,
+        idempotency_key=idempotency_key,
+    )
+    return partial(record, prepared=prepared, policy=policy)
 
 
 def decode_all(

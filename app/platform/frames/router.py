@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import Callable
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Annotated, Any, TypeVar
@@ -23,7 +22,7 @@ from app.platform.db.models import Camera, CameraKind, CameraSource, Frame
 from app.platform.db.session import release
 from app.platform.frames import cameras as registry
 from app.platform.frames import ingest, jpeg, regions, retention, sources
-from app.platform.frames.camera_info import CameraInfo, TokenCache
+from app.platform.frames.camera_info import TokenCache
 from app.platform.frames.deps import FrameCursor, UploadTargetDep, fresh_upload_target, link_next
 from app.platform.frames.kinds import frame_out
 from app.platform.frames.writer import CameraChanged, GroupCommitWriter
@@ -179,17 +178,15 @@ async def post_frame(
     store = request.app.state.frame_store if settings.store_frames else None
     writer: GroupCommitWriter = request.app.state.writer
 
-    def prepare(camera: CameraInfo) -> Callable[[Session], ingest.Recorded]:
-        prepared = ingest.prepare(
-            store,
-            camera=camera,
-            data=data,
-            captured_at=when,
-            received_at=policy.now(),
-            max_pixels=settings.max_pixels,
-            idempotency_key=idempotency_key,
-        )
-        return partial(ingest.record, prepared=prepared, policy=policy)
+    prepare = partial(
+        ingest.recording,
+        store,
+        data=data,
+        captured_at=when,
+        max_pixels=settings.max_pixels,
+        policy=policy,
+        idempotency_key=idempotency_key,
+    )
 
     # decoding and the file write take one of the writer's preparing threads, which then queues
     # the database part itself; the wait for the commit takes no thread, so a stalled database

@@ -259,22 +259,16 @@ class Puller:
         """The frame through the ingest path of a posted one; its id and capture time."""
         policy = self.policy()
         taken = policy.now()
-        store = self.store()
-
-        def prepare(camera: CameraInfo) -> Callable[[Session], ingest.Recorded]:
-            prepared = ingest.prepare(
-                store,
-                camera=camera,
-                data=data,
-                captured_at=taken,
-                received_at=taken,
-                max_pixels=self.max_pixels,
-            )
-            return partial(ingest.record, prepared=prepared, policy=policy)
-
-        done: Any = await self.writer.submit_after(
-            partial(prepare, lease.camera), credential=lease.camera.credential
+        prepare = partial(
+            ingest.recording,
+            self.store(),
+            lease.camera,
+            data,
+            captured_at=taken,
+            max_pixels=self.max_pixels,
+            policy=policy,
         )
+        done: Any = await self.writer.submit_after(prepare, credential=lease.camera.credential)
         FRAMES_RECEIVED.labels(lease.camera.id).inc()
         return str(done.frame.id), taken
 
