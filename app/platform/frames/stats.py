@@ -71,7 +71,10 @@ def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
         raise ValueError(f"expected an RGB image of shape (H, W, 3), uint8; got {image.shape}")
     if image.shape[0] == 0 or image.shape[1] == 0:
         raise ValueError("empty image")
-    rows = [cv2.calcHist([image], [c], None, [256], [0, 256]).ravel() for c in range(3)]
+    # one plane at a time: calcHist over a contiguous plane is ~1.6× faster than over a
+    # channel of the interleaved image, which pays for the split (2.8 against 3.5 ms at
+    # 1920×1080, bench/classify.py)
+    rows = [cv2.calcHist([plane], [0], None, [256], [0, 256]).ravel() for plane in cv2.split(image)]
     return np.asarray(rows, dtype=np.float64).round().astype(np.int64)
 
 
