@@ -30,6 +30,7 @@ from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
 from app.platform.frames.jpeg import decode_rgb
+from app.solar.core.fleet import KernelModel
 from app.solar.panels import as_core_model
 from app.solar.training import fit_fleet
 
@@ -104,36 +105,53 @@ def main() -> None:
 
     now = datetime.now(UTC)
     table: list[dict] = []
-    confusion = np.zeros((len(LABELS), len(LABELS) + 1), int)  # + "dirty" (linear models)
+    # + "dirty" (linear models) and "not sure" (KernelModel.doubt)
+    confusion = np.zeros((len(LABELS), len(LABELS) + 2), int)
     for seed in range(args.seeds):
         folds = StratifiedGroupKFold(args.folds, shuffle=True, random_state=seed)
         pred = np.zeros(len(rows), int)
         t2_pred = np.zeros(len(rows), int)
         condition = np.empty(len(rows), object)
+        doubted = np.zeros(len(rows), bool)
         for tr, te in folds.split(feats, label, groups):
             assert not set(groups[tr]) & set(groups[te])
             model = as_core_model(fit_fleet(feats[tr], list(label[tr]), now=now))
             pred[te] = (model.probability(feats[te]) >= model.threshold).astype(int)
             condition[te] = [model.condition(f) for f in feats[te]]
+            doubted[te] = [
+                isinstance(model, KernelModel) and model.doubt(f) is not None for f in feats[te]
+            ]
             clean_train = tr[label[tr] == "clean"]
             baseline = soiling.fit_baseline(modes[clean_train], significance=0.05)
             t2_pred[te] = [0 if soiling.classify(baseline, m).clean else 1 for m in modes[te]]
         fr = rates(y[judged], pred[judged])
         tr2 = rates(y[judged], t2_pred[judged])
-        table.append({"seed": seed, "fleet": fr, "t2_modes": tr2})
+        sure = judged & ~doubted
+        fs = rates(y[sure], pred[sure]) | {"answered": float(sure.sum() / judged.sum())}
+        table.append({"seed": seed, "fleet": fr, "t2_modes": tr2, "fleet_sure": fs})
         print(f"seed {seed}: {fmt('fleet', fr)}   {fmt('T² modes', tr2)}")
-        for truth, seen in zip(label, condition, strict=True):
-            confusion[LABELS.index(truth), [*LABELS, "dirty"].index(seen)] += 1
+        print(f"        {fmt('fleet, sure answers', fs)} on {fs['answered']:.0%} of photos")
+        for truth, seen, unsure in zip(label, condition, doubted, strict=True):
+            column = "not sure" if unsure and seen != "snow" else seen
+            confusion[LABELS.index(truth), [*LABELS, "dirty", "not sure"].index(column)] += 1
     summary = {
         name: {m: float(np.mean([r[name][m] for r in table])) for m in RATE_NAMES}
         for name in ("fleet", "t2_modes")
     }
+    sure_mean = {
+        m: float(np.mean([r["fleet_sure"][m] for r in table])) for m in (*RATE_NAMES, "answered")
+    }
     spread = float(np.std([r["fleet"]["balanced_accuracy"] for r in table]))
+    sure_spread = float(np.std([r["fleet_sure"]["balanced_accuracy"] for r in table]))
     print(f"mean:   {fmt('fleet', summary['fleet'])} (± {spread:.3f} over seeds)")
+    print(
+        f"        {fmt('fleet, sure answers', sure_mean)} (± {sure_spread:.3f}) on "
+        f"{sure_mean['answered']:.0%} of photos"
+    )
     print(f"        {fmt('T² modes', summary['t2_modes'])}")
     print("\nconfusion over all seeds (rows: label; columns: what the fleet model said)")
-    print("| label | " + " | ".join([*LABELS, "dirty"]) + " |")
-    print("|---" * (len(LABELS) + 2) + "|")
+    print("| label | " + " | ".join([*LABELS, "dirty", "not sure"]) + " |")
+    print("|---" * (len(LABELS) + 3) + "|")
     for i, name in enumerate(LABELS):
         print(f"| {name} | " + " | ".join(str(v) for v in confusion[i]) + " |")
     print(json.dumps({"seeds": table, "mean": summary, "confusion": confusion.tolist()}))

@@ -182,6 +182,8 @@ def as_core_model(row: FleetModel) -> LogisticModel | KernelModel:
         snow=head("snow"),
         bird_drop=head("bird_drop"),
         threshold=row.threshold,
+        training=None if "training" not in k else np.asarray(k["training"], np.float64),
+        reach=k.get("reach"),
     )
 
 
@@ -373,12 +375,18 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         verdict.method, verdict.p_dirty = "fleet", p_dirty
         verdict.threshold = model.threshold
         verdict.condition = model.condition(decoded.features)
+        doubt = model.doubt(decoded.features) if isinstance(model, KernelModel) else None
         if verdict.condition == "snow":  # not a case for brushing: no verdict on soiling
             verdict.reason = "snow-covered: no brushing until it melts"
+        elif doubt is not None:  # no verdict: the panel's state and its task stay as they are
+            verdict.reason, verdict.condition = doubt, None
         else:
             verdict.clean = p_dirty < model.threshold
         if unfit is not None:
-            verdict.reason = f"judged by the fleet model: {unfit.detail}"[:200]
+            verdict.reason = "; ".join(
+                filter(None, [f"judged by the fleet model: {unfit.detail}", doubt])
+            )
+        verdict.reason = verdict.reason and verdict.reason[:200]
     elif unfit is not None:
         verdict.reason = unfit.detail[:200]
     elif panel.baseline_id is not None:  # modes of another part of the view: not comparable

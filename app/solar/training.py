@@ -209,6 +209,15 @@ def evaluate(
     return Evaluation(test, rates, clean, dirty)
 
 
+def reach(z: NDArray[np.float64]) -> float:
+    """The largest distance from a row of ``z`` (n, K) to its nearest other row: how far a
+    frame may lie from every training photo and still be among them (``KernelModel.doubt``)."""
+    from sklearn.neighbors import NearestNeighbors
+
+    distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
+    return float(distances[:, 1].max())
+
+
 FLEET_LABELS = ("clean", "dust", "bird_drop", "snow")
 """What a fleet photo may be labelled; ``dirty`` is read as dust."""
 
@@ -289,6 +298,8 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
             "intercept": float(svm.intercept_[0]),
             "gamma": float(svm.gamma),
             "platt": [float(platt.coef_[0, 0]), float(platt.intercept_[0])],
+            "training": z.tolist(),
+            "reach": reach(z),
         },
         heads={name: h for name, h in heads.items() if h is not None},
         threshold=0.5,

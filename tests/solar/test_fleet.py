@@ -98,3 +98,75 @@ def test_the_kernel_model_decides_as_scikit_learn_does() -> None:
     snowy[1] = mean[1] + 20 * scale[1]  # the snow head: σ(z₁ − 10) > 0.5
     assert model.condition(snowy) == "snow"
     assert model.condition(raw[1]) in ("clean", "dirty")
+
+
+def one_feature_model(**kw: object) -> KernelModel:
+    """A kernel model on ALL_FEATURES whose decision is 4·(z₀ − 0) through one support vector
+    pair, unit standardisation: p(dirty) = σ(decision), so p = 0.5 where z₀ = 0."""
+    k = len(ALL_FEATURES)
+    e0 = np.eye(k)[0]
+    return KernelModel(
+        feature_names=ALL_FEATURES,
+        mean=np.zeros(k),
+        scale=np.ones(k),
+        support=np.vstack([e0, -e0]),
+        dual=np.array([1.0, -1.0]),
+        intercept=0.0,
+        gamma=0.5,
+        platt=(4.0, 0.0),
+        **kw,  # type: ignore[arg-type]
+    )
+
+
+class TestDoubt:
+    def test_a_probability_near_the_threshold_is_not_sure(self) -> None:
+        model = one_feature_model()
+        k = len(ALL_FEATURES)
+        undecided, dirty = np.zeros(k), np.eye(k)[0] * 2.0
+        assert float(model.probability(undecided)) == pytest.approx(0.5)
+        reason = model.doubt(undecided)
+        assert reason is not None
+        assert "not sure: p(needs cleaning) 0.50" in reason
+        # exp(−0.5·1) − exp(−0.5·9) = 0.5954, ·4 → 2.38: p = 0.915, far from 0.5
+        assert float(model.probability(dirty)) == pytest.approx(
+            1 / (1 + np.exp(-4 * (np.exp(-0.5) - np.exp(-4.5)))), rel=1e-12
+        )
+        assert model.doubt(dirty) is None
+
+    def test_the_band_is_unsure_on_either_side(self) -> None:
+        """p within UNSURE (0.2) of 0.5 is doubted, beyond it not: the band's edges."""
+        model = one_feature_model()
+        k = len(ALL_FEATURES)
+        e0 = np.eye(k)[0]
+
+        def p_at(t: float) -> float:
+            return float(model.probability(e0 * t))
+
+        from scipy.optimize import brentq
+
+        edge = brentq(lambda t: p_at(t) - 0.7, 0.0, 1.0)  # p rises from 0.5 to 0.97 on [0, 1]
+        assert model.doubt(e0 * (edge - 1e-3)) is not None
+        assert model.doubt(e0 * (edge + 1e-3)) is None
+        assert model.doubt(-e0 * (edge - 1e-3)) is not None  # p just above 0.3
+        assert model.doubt(-e0 * (edge + 1e-3)) is None
+
+    def test_a_frame_unlike_the_training_photos_is_not_judged(self) -> None:
+        k = len(ALL_FEATURES)
+        training = np.random.default_rng(0).normal(0, 1, (30, k))
+        model = one_feature_model(training=training, reach=2.0)
+        far = np.eye(k)[0] * 2.0 + 50.0  # nowhere near what was learnt
+        reason = model.doubt(far)
+        assert reason is not None
+        assert reason.startswith("unlike every photo")
+        sure = np.eye(k)[0] * 2.0  # p = 0.915
+        assert model.doubt(sure) is not None  # 7 units from every random training photo
+        beside = one_feature_model(training=np.vstack([training, sure + 0.1]), reach=2.0)
+        assert beside.doubt(sure) is None  # 0.1·√k = 0.69 from one: within reach
+
+    def test_a_model_without_its_training_photos_checks_only_the_band(self) -> None:
+        k = len(ALL_FEATURES)
+        model = one_feature_model()
+        assert model.doubt(np.eye(k)[0] * 2.0) is None
+        far = model.doubt(np.eye(k)[0] * 2.0 + 50.0)  # far from both support vectors: p = 0.5
+        assert far is not None
+        assert far.startswith("the fleet model is not sure")

@@ -888,7 +888,8 @@ class TestFleetModel:
         with no baseline at all."""
         train_fleet(client, admin)
         assert train(client, admin, clean_set(8)).status_code == 201  # c1's view: the whole frame
-        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
+        # most of the frame: features like those of the fleet's whole-frame photos
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [0, 0, 160, 112]}
         r = client.post("/cameras", json=c2, headers=admin)
         assert r.status_code == 201, r.text
         side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
@@ -901,6 +902,29 @@ class TestFleetModel:
             assert r.status_code == 201, r.text
             v = r.json()["verdict"]
             assert (v["method"], v["clean"], v["baseline_id"]) == ("fleet", clean, None), v
+
+    def test_a_view_unlike_the_fleets_photos_gets_no_verdict(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """A small part of the frame (grid lines 16 px apart in a 100×80 crop) is unlike the
+        whole-frame photos the model learnt from: no verdict and no task, the reason given,
+        however sure its probability looks."""
+        train_fleet(client, admin)
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
+        r = client.post("/cameras", json=c2, headers=admin)
+        assert r.status_code == 201, r.text
+        side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
+        for _ in range(4):  # past the debounce, had the frames been judged dirty
+            farm["clock"].advance(minutes=10)
+            dusty = panel_jpeg(0.5 * CLEAN_RGB + 0.5 * SAND, seed=7)
+            r = client.post("/cameras/c2/frames", content=dusty, headers=side)
+            assert r.status_code == 201, r.text
+            v = r.json()["verdict"]
+            assert (v["method"], v["clean"], v["condition"]) == ("fleet", None, None), v
+            assert v["reason"].startswith("unlike every photo the fleet model learnt from")
+        s = status(client, admin)
+        assert s["state"] == "unknown", s
+        assert client.get("/cleaning/tasks", headers=admin).json() == []
 
     def test_labels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
         files = [("files", ("a.jpg", panel_jpeg(CLEAN_RGB), "image/jpeg"))]

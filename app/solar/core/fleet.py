@@ -212,6 +212,12 @@ class KernelModel:
     snow: Head | None = None
     bird_drop: Head | None = None
     threshold: float = 0.5
+    training: NDArray[np.float64] | None = None
+    """(n, K) standardised features of the photos it learnt from (None: a model from before
+    they were kept, which cannot tell a photo unlike them)."""
+    reach: float | None = None
+    """The largest distance from a training photo to its nearest other one (standard units):
+    a frame further than this from every one of them lies outside what was learnt."""
 
     def standardised(self, f: ArrayLike) -> NDArray[np.float64]:
         return (pick(f, self.feature_names) - self.mean) / self.scale
@@ -237,3 +243,32 @@ class KernelModel:
         if self.bird_drop is None:
             return "dust"
         return "bird_drop" if float(self.bird_drop.probability(z)) >= 0.5 else "dust"
+
+    def doubt(self, f: ArrayLike) -> str | None:
+        """Why the model's clean-or-dirty answer on one frame is not to be trusted, or None.
+
+        Two reasons: the frame lies outside what the model learnt (further from every training
+        photo than ``reach``), or its probability is within ``UNSURE`` of the threshold. On the
+        shared photos (``bench/fleet_eval.py``, folds grouped by panel) the answers outside
+        that band are right more often than all answers are: the band is where the two
+        classes' photos mix."""
+        if self.training is not None and self.reach is not None and len(self.training):
+            z = self.standardised(f)
+            nearest = float(np.sqrt(((self.training - z) ** 2).sum(axis=1)).min())
+            if nearest > self.reach:
+                return (
+                    f"unlike every photo the fleet model learnt from: the nearest lies "
+                    f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"
+                )
+        p = float(self.probability(f))
+        if abs(p - self.threshold) < UNSURE:
+            return (
+                f"the fleet model is not sure: p(needs cleaning) {p:.2f}, within "
+                f"{UNSURE:.2f} of its threshold {self.threshold:.2f}"
+            )
+        return None
+
+
+UNSURE = 0.2
+"""A fleet answer whose calibrated p(needs cleaning) lies within this of the threshold is
+"not sure" (0.3–0.7 at 0.5): no verdict, no task, and the reason given."""
