@@ -306,6 +306,37 @@ def subpixel_edges(image: Grey, edges: NDArray[np.uint8], sigma: float) -> NDArr
     return np.asarray(pts + np.clip(step, -1.0, 1.0)[:, None] * n, dtype=np.float64)
 
 
+PART_SIDE = 2.0
+"""How far across an edge, on its brighter side, the part is looked for [px]."""
+
+
+def _on_outline(
+    image: Grey, points: NDArray[np.float64], level: int, sigma: float
+) -> NDArray[np.bool_]:
+    """Which edge points (n, 2) are on the part's outline: the smoothed image (σ [px])
+    ``PART_SIDE`` px across the edge on its brighter side (along the gradient) lies above the
+    part's ``level``. An edge between two faces of the part has the part on both sides: where
+    it meets the outline at a gentle corner, or runs a pixel inside it along a face seen edge
+    on, it lies within the polish's band of a side, and fitted with it the side tilts (a
+    corner turning 12° moves 1/sin 12° ≈ 5 times as far as the side's end)."""
+    if not len(points):
+        return np.zeros(0, dtype=np.bool_)
+    blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma)
+    gx = cv2.Sobel(blurred, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(blurred, cv2.CV_32F, 0, 1, ksize=3)
+    at = points.astype(np.float32)
+    g = np.column_stack(
+        [
+            cv2.remap(gx, at[:, :1], at[:, 1:], cv2.INTER_LINEAR).ravel(),
+            cv2.remap(gy, at[:, :1], at[:, 1:], cv2.INTER_LINEAR).ravel(),
+        ]
+    )
+    n = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+    out = (points + PART_SIDE * n).astype(np.float32)
+    brighter = cv2.remap(blurred, out[:, :1], out[:, 1:], cv2.INTER_LINEAR).ravel()
+    return np.asarray(brighter > level, dtype=np.bool_)
+
+
 def hough_segments(
     edges: NDArray[np.uint8],
     *,
@@ -677,7 +708,7 @@ def _split_kinks(
     """Each side whose own stretch of contour two lines fit much better than one, split there
     into two, each refitted to the edge ``points`` (the split of split-and-merge). Hough
     fragments of two sides meeting at a gentle corner (10–20°) join across it into one
-    compromise line; the contour shows the corner. The stretch's ends (``POLISH_TRIM``) are
+    compromise line; the contour shows the corner. The stretch's ends (``SPLIT_TRIM``) are
     left out: there the blur rounds it into the neighbouring sides."""
     out: list[Segment] = []
     if len(chain) < 2:
@@ -691,7 +722,7 @@ def _split_kinks(
             continue
         gaps = np.diff(np.append(own, own[0] + len(contour)))
         run = contour[np.roll(own, -(int(np.argmax(gaps)) + 1))]  # in contour order
-        trim = max(2, round(POLISH_TRIM * len(run)))
+        trim = SPLIT_TRIM
         run = run[trim:-trim]
         one, _ = _line_rms(run)
         if one <= SPLIT_RMS:
@@ -717,6 +748,12 @@ SPLIT_REACH = 8.0
 """Contour points up to this far from their nearest side are its own when splitting [px]."""
 
 SPLIT_RMS = 0.4
+"""A side's contour further than this (RMS) from one line may have a corner in it [px]."""
+
+SPLIT_TRIM = 3
+"""Contour points left out at each end of a side's stretch when looking for a kink in it: the
+blur rounds a corner over about as many, and a short side meeting a long one at a gentle corner
+leaves only a few more beyond them."""
 """A side's contour further than this (RMS) from one line may have a corner in it [px]."""
 
 
@@ -816,7 +853,8 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     part → Hough segments on the edges along that contour (inner edges between a part's faces
     are not its outline) → fragments joined (3.2–3.3) → each side refitted to its edge pixels
     and joined again → sides chained along the contour (``_chain_along``) → corners as the
-    intersections of adjacent sides (§V.A). The polygon stands when its sides explain the
+    intersections of adjacent sides (§V.A), each side fitted again to the outline's own edge
+    pixels (``_on_outline``: not those between two of the part's faces). The polygon stands when its sides explain the
     outline's edge pixels, its length is backed by edges and every corner turns; otherwise,
     when straight sides and fitted ellipse arcs explain the contour, the outline is
     ``curved``; otherwise nothing is claimed.
@@ -880,6 +918,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     xi = np.clip(np.rint(edge_points[:, 0]).astype(int), 0, rim.shape[1] - 1)
     yi = np.clip(np.rint(edge_points[:, 1]).astype(int), 0, rim.shape[0] - 1)
     rim_points = edge_points[rim[yi, xi] > 0]
+    rim_points = rim_points[_on_outline(base, rim_points, level, FIT_CANNY.sigma)]
     refitted = [refine(s, edge_points) for s in joined]
     sides = join_fragments(refitted, max_angle=params.max_angle, max_lateral=params.max_lateral)
     sides = [refine(s, edge_points) for s in sides if _length(s) >= min_length]
