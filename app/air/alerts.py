@@ -23,9 +23,7 @@ alerts already tried are kept.
 
 from __future__ import annotations
 
-import asyncio
 import json
-import logging
 import threading
 from datetime import datetime, timedelta
 from functools import partial
@@ -37,14 +35,9 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.air.core import airquality
 from app.air.models import AirAlert
 from app.platform import webhooks
-from app.platform.background import in_thread
 from app.platform.db.models import Camera, Frame
 from app.platform.observability import ALERT_DELIVERIES
 from app.platform.policy import Policy
-from app.platform.webhooks import DeliveryFailed, backoff
-
-log = logging.getLogger("vantage.webhooks")
-
 
 DEFAULT_RETRY_FOR = timedelta(hours=24)
 
@@ -77,49 +70,20 @@ def sweep(
     stopping: threading.Event | None = None,
     key: bytes | None = None,
 ) -> int:
-    """Try every due alert once (at most ``batch``); returns how many were delivered. Each
-    alert is claimed, posted and recorded one at a time: a process that dies during a sweep
-    sends again, once its claim has run out, at most the alert it was posting, not every one
-    delivered before it in the sweep. Once ``stopping`` is set (a shutdown waiting for this
-    sweep), the alerts not yet tried are left for the next one. ``key`` (``signing_key``) signs
-    each POST.
-
-    The POST holds no transaction: the alert is claimed first (taken ``FOR UPDATE SKIP
-    LOCKED``, its attempt counted and its next attempt put ``CLAIM`` ahead, committed), so no
-    other process sends it meanwhile, and its outcome is recorded after. Holding the
-    transaction through the POST held a database connection for as long as the receiver took,
-    up to ``TIMEOUT_S`` an alert: with SQLite, the one every request shares, a receiver that
-    took connections and never answered held every request of the service 5 s per alert
-    (GET /cameras waited 20 s behind 4 alerts)."""
-    delivered = 0
-    for _ in range(batch):
-        if stopping is not None and stopping.is_set():
-            break
-        # the time of each attempt, not the sweep's start: a sweep of many alerts to a slow
-        # receiver takes minutes, and a claim dated from its start would run out before it
-        # was posted (another process would then send it too)
-        now = policy.now()
-        claimed = _claim(sessions, now, retry_for)
-        if claimed is None:
-            break
-        alert_id, attempts, body = claimed
-        try:
-            webhooks.post(url, body, webhooks.signed_headers(alert_id, body, now, key))
-        except DeliveryFailed as exc:
-            error: str | None = str(exc)[:500]
-            log.warning("alert %s not delivered (attempt %d): %s", alert_id, attempts, exc)
-        else:
-            error = None
-            delivered += 1
-        with sessions() as session:
-            alert = session.get(AirAlert, alert_id)
-            if alert is not None:  # not swept away by retention meanwhile
-                alert.delivered = error is None
-                alert.last_error = error
-                alert.next_attempt_at = None if error is None else now + backoff(attempts)
-                session.commit()
-        ALERT_DELIVERIES.labels("failed" if error else "delivered").inc()  # once recorded
-    return delivered
+    """Try every due alert once (at most ``batch``); returns how many were delivered
+    (``webhooks.deliver_due``: claimed, posted with no transaction open, recorded, one at a
+    time). ``key`` (``signing_key``) signs each POST."""
+    return webhooks.deliver_due(
+        sessions,
+        AirAlert,
+        partial(_claim, sessions, retry_for=retry_for),
+        url,
+        policy.now,
+        key=key,
+        batch=batch,
+        stopping=stopping,
+        outcome=lambda ok: ALERT_DELIVERIES.labels("delivered" if ok else "failed").inc(),
+    )
 
 
 CLAIM = timedelta(minutes=2)
@@ -128,7 +92,7 @@ process that died posting it leaves it to be sent again after this."""
 
 
 def _claim(
-    sessions: sessionmaker[Session], now: datetime, retry_for: timedelta
+    sessions: sessionmaker[Session], now: datetime, *, retry_for: timedelta
 ) -> tuple[str, int, bytes] | None:
     """The next due alert, claimed (committed): its id, its attempts with this one, and the
     JSON to POST; None when none is due."""
@@ -180,15 +144,9 @@ async def run(
     key: bytes | None = None,
 ) -> None:
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
-    stopping = threading.Event()  # a shutdown waits for the post under way, not for all
-    while True:
-        try:
-            await in_thread(
-                partial(
-                    sweep, sessions, url, policy, retry_for=retry_for, stopping=stopping, key=key
-                ),
-                on_cancel=stopping.set,
-            )
-        except Exception:
-            log.exception("webhook sweep failed")
-        await asyncio.sleep(every)
+    await webhooks.keep_sweeping(
+        lambda stopping: sweep(
+            sessions, url, policy, retry_for=retry_for, stopping=stopping, key=key
+        ),
+        every,
+    )

@@ -11,9 +11,7 @@ apart) until the event is ``retry_for`` old. The body is Standard Webhooks' shap
 
 from __future__ import annotations
 
-import asyncio
 import json
-import logging
 import threading
 import uuid
 from datetime import datetime, timedelta
@@ -24,12 +22,8 @@ from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform import webhooks
-from app.platform.background import in_thread
 from app.platform.db.models import OutboxMessage, WebhookSubscription
 from app.platform.policy import Policy
-from app.platform.webhooks import DeliveryFailed, backoff
-
-log = logging.getLogger("vantage.webhooks")
 
 RETRY_FOR = timedelta(hours=24)
 """How long an event is tried: a receiver down for a deploy or a night still gets it."""
@@ -102,35 +96,20 @@ def sweep(
             return 0
         url, secret = receiver.url, receiver.secret
     key = webhooks.signing_key(secret) if secret else None
-    delivered = 0
-    for _ in range(batch):
-        if stopping is not None and stopping.is_set():
-            break
-        now = policy.now()
-        claimed = _claim(sessions, topic, now, retry_for)
-        if claimed is None:
-            break
-        message_id, attempts, body = claimed
-        try:
-            webhooks.post(url, body, webhooks.signed_headers(message_id, body, now, key))
-        except DeliveryFailed as exc:
-            error: str | None = str(exc)[:500]
-            log.warning("event %s not delivered (attempt %d): %s", message_id, attempts, exc)
-        else:
-            error = None
-            delivered += 1
-        with sessions() as session:
-            message = session.get(OutboxMessage, message_id)
-            if message is not None:
-                message.delivered = error is None
-                message.last_error = error
-                message.next_attempt_at = None if error is None else now + backoff(attempts)
-                session.commit()
-    return delivered
+    return webhooks.deliver_due(
+        sessions,
+        OutboxMessage,
+        partial(_claim, sessions, topic, retry_for=retry_for),
+        url,
+        policy.now,
+        key=key,
+        batch=batch,
+        stopping=stopping,
+    )
 
 
 def _claim(
-    sessions: sessionmaker[Session], topic: str, now: datetime, retry_for: timedelta
+    sessions: sessionmaker[Session], topic: str, now: datetime, *, retry_for: timedelta
 ) -> tuple[str, int, bytes] | None:
     with sessions() as session:
         message = session.scalars(
@@ -156,12 +135,6 @@ def _claim(
 
 async def run(sessions: sessionmaker[Session], topic: str, policy: Policy, every: float) -> None:
     """Sweep ``topic`` forever (until cancelled), in a worker thread."""
-    stopping = threading.Event()
-    while True:
-        try:
-            await in_thread(
-                partial(sweep, sessions, topic, policy, stopping=stopping), on_cancel=stopping.set
-            )
-        except Exception:
-            log.exception("webhook sweep of %s failed", topic)
-        await asyncio.sleep(every)
+    await webhooks.keep_sweeping(
+        lambda stopping: sweep(sessions, topic, policy, stopping=stopping), every
+    )

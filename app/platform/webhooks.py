@@ -11,6 +11,7 @@ attempt waits ``backoff`` before the next.
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import binascii
 import contextlib
@@ -18,14 +19,23 @@ import hashlib
 import hmac
 import http.client
 import json
+import logging
 import socket
 import threading
 import urllib.error
 import urllib.request
 import uuid
+from collections.abc import Callable
 from datetime import datetime, timedelta
+from functools import partial
 from typing import Any
 from urllib.parse import urlsplit
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.platform.background import in_thread
+
+log = logging.getLogger("vantage.webhooks")
 
 TIMEOUT_S = 5.0
 """How long a POST waits to connect, and for each read of the answer."""
@@ -221,3 +231,74 @@ def send_test(url: str, now: datetime, *, key: bytes | None) -> tuple[str, str |
     except DeliveryFailed as exc:
         return msg_id, str(exc)[:500]
     return msg_id, None
+
+
+Claim = Callable[[datetime], "tuple[str, int, bytes] | None"]
+"""Takes the next due message at a time, committed as claimed: its id, its attempts with this
+one, and the body to POST; None when none is due."""
+
+
+def deliver_due(
+    sessions: sessionmaker[Session],
+    model: type[Any],
+    claim: Claim,
+    url: str,
+    clock: Callable[[], datetime],
+    *,
+    key: bytes | None,
+    batch: int,
+    stopping: threading.Event | None,
+    outcome: Callable[[bool], None] | None = None,
+) -> int:
+    """POST each due message once (at most ``batch``), one at a time; returns how many were
+    delivered. ``model`` is the stored message's class (its ``delivered``, ``last_error`` and
+    ``next_attempt_at`` record each outcome); ``outcome`` hears of each once it is recorded.
+
+    Each message is claimed, posted and recorded in turn: a process that dies during a sweep
+    sends again, once its claim has run out, at most the message it was posting. The POST
+    holds no transaction (a receiver that never answers would hold a database connection, with
+    SQLite every request's). Once ``stopping`` is set (a shutdown waiting for this sweep), the
+    messages not yet tried are left for the next one."""
+    delivered = 0
+    for _ in range(batch):
+        if stopping is not None and stopping.is_set():
+            break
+        # the time of each attempt, not the sweep's start: a sweep of many messages to a slow
+        # receiver takes minutes, and a claim dated from its start would run out before it
+        # was posted (another process would then send it too)
+        now = clock()
+        claimed = claim(now)
+        if claimed is None:
+            break
+        message_id, attempts, body = claimed
+        try:
+            post(url, body, signed_headers(message_id, body, now, key))
+        except DeliveryFailed as exc:
+            error: str | None = str(exc)[:500]
+            log.warning("%s not delivered (attempt %d): %s", message_id, attempts, exc)
+        else:
+            error = None
+            delivered += 1
+        with sessions() as session:
+            message = session.get(model, message_id)
+            if message is not None:  # not swept away by retention meanwhile
+                message.delivered = error is None
+                message.last_error = error
+                message.next_attempt_at = None if error is None else now + backoff(attempts)
+                session.commit()
+        if outcome is not None:
+            outcome(error is None)
+    return delivered
+
+
+async def keep_sweeping(sweep: Callable[[threading.Event], object], every: float) -> None:
+    """Run ``sweep`` every ``every`` seconds forever (until cancelled), in a worker thread so the
+    event loop stays free; a shutdown sets its event and waits for the POST under way, not for
+    the rest."""
+    stopping = threading.Event()
+    while True:
+        try:
+            await in_thread(partial(sweep, stopping), on_cancel=stopping.set)
+        except Exception:
+            log.exception("webhook sweep failed")
+        await asyncio.sleep(every)

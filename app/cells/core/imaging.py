@@ -854,10 +854,10 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     are not its outline) → fragments joined (3.2–3.3) → each side refitted to its edge pixels
     and joined again → sides chained along the contour (``_chain_along``) → corners as the
     intersections of adjacent sides (§V.A), each side fitted again to the outline's own edge
-    pixels (``_on_outline``: not those between two of the part's faces). The polygon stands when its sides explain the
-    outline's edge pixels, its length is backed by edges and every corner turns; otherwise,
-    when straight sides and fitted ellipse arcs explain the contour, the outline is
-    ``curved``; otherwise nothing is claimed.
+    pixels (``_on_outline``: not those between two of the part's faces). The polygon stands
+    when its sides explain the outline's edge pixels, its length is backed by edges and every
+    corner turns; otherwise, when straight sides and fitted ellipse arcs explain the contour,
+    the outline is ``curved``; otherwise nothing is claimed.
     """
     _check_grey(grey)
     if min(grey.shape) < 8:
