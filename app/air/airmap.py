@@ -176,19 +176,8 @@ def _panel(
     return handles
 
 
-def render(
-    islands: Sequence[isopleths.Island],
-    stations: Sequence[Station],
-    at: datetime,
-    *,
-    layer: Literal["levels", "uncertainty"] = "levels",
-    max_distance: float = 5000.0,
-    empty_reason: str | None = None,
-) -> bytes:
-    """``figure`` as PNG bytes."""
-    fig = figure(
-        islands, stations, at, layer=layer, max_distance=max_distance, empty_reason=empty_reason
-    )
+def png(fig: Figure) -> bytes:
+    """A figure (``figure``) as PNG bytes."""
     out = io.BytesIO()
     fig.savefig(out, format="png")
     return out.getvalue()

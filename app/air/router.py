@@ -1048,18 +1048,20 @@ async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> 
     """The map drawn (matplotlib): a panel per island with its bands, the cameras labelled
     with name and level, coordinates, a scale bar, a legend with units and what blank means;
     without readings, why not. Kept as the GeoJSON is."""
-    from app.air.airmap import render
+    from app.air.airmap import figure, png
 
     def compute(session: Session) -> bytes:
         m = _field(session, policy, q)
         off_map = air.unplaced(session, since=m.since, until=m.at)
-        return render(
-            m.islands,
-            m.stations,
-            m.at,
-            layer=q.layer,
-            max_distance=q.max_distance,
-            empty_reason=_empty_reason(m, off_map, q.window),
+        return png(
+            figure(
+                m.islands,
+                m.stations,
+                m.at,
+                layer=q.layer,
+                max_distance=q.max_distance,
+                empty_reason=_empty_reason(m, off_map, q.window),
+            )
         )
 
     return await _cached_map(request, ("png", q), compute, "image/png")
