@@ -646,16 +646,68 @@ def _fit(
     inside = d <= tol
     explained = float(inside.mean()) if len(d) else 0.0
     residual = float(np.sqrt(np.mean(d[inside] ** 2))) if inside.any() else math.inf
-    height, width = near_edge.shape
-    backed = total = 0
-    for x1, y1, x2, y2 in model:
-        n = max(2, math.ceil(math.hypot(x2 - x1, y2 - y1)))
-        xs, ys = np.linspace(x1, x2, n), np.linspace(y1, y2, n)
-        xi, yi = np.rint(xs).astype(int), np.rint(ys).astype(int)
-        ok = (xi >= 0) & (yi >= 0) & (xi < width) & (yi < height)
-        backed += int((near_edge[yi[ok], xi[ok]] <= SUPPORT_DISTANCE).sum())
-        total += n
+    counts = [_backing(side, near_edge) for side in model]
+    backed, total = sum(b for b, _ in counts), sum(n for _, n in counts)
     return _Fit(explained, residual, backed / total if total else 0.0)
+
+
+def _backing(side: Segment, near_edge: NDArray[np.float32]) -> tuple[int, int]:
+    """Of ``n`` points a pixel apart along the segment, how many lie within
+    ``SUPPORT_DISTANCE`` of an edge pixel (``near_edge``: distance to the nearest one); and n."""
+    height, width = near_edge.shape
+    x1, y1, x2, y2 = side
+    n = max(2, math.ceil(math.hypot(x2 - x1, y2 - y1)))
+    xi = np.rint(np.linspace(x1, x2, n)).astype(int)
+    yi = np.rint(np.linspace(y1, y2, n)).astype(int)
+    ok = (xi >= 0) & (yi >= 0) & (xi < width) & (yi < height)
+    return int((near_edge[yi[ok], xi[ok]] <= SUPPORT_DISTANCE).sum()), n
+
+
+def _sides(corners: NDArray[np.float64]) -> list[Segment]:
+    """The sides of a closed polygon: side k runs from corner k − 1 to corner k."""
+    return [
+        (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
+        for a, b in zip(np.roll(corners, 1, axis=0), corners, strict=True)
+    ]
+
+
+def _prune(
+    corners: NDArray[np.float64], near_edge: NDArray[np.float32], points: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The polygon without the corners that are none, the sides polished again (``_polish`` to
+    the edge ``points``) after each goes, while more than 3 remain:
+
+    - a vertex turning less than ``MIN_TURN``: its two sides are one;
+    - a side that edges (``near_edge``) back along less than ``MIN_SIDE_SUPPORT`` of its
+      length, the weakest first: its neighbours meet where their lines cross. A spike out to a
+      shadow's corner, or a chord across a corner's rounding, has no edge along it, though the
+      polygon's length as a whole is well backed.
+    """
+    while len(corners) > 3:
+        turns = _turns(corners)
+        if float(turns.min()) < MIN_TURN:
+            corners = _polish(np.delete(corners, int(np.argmin(turns)), axis=0), points)
+            continue
+        backing = [b / n for b, n in (_backing(side, near_edge) for side in _sides(corners))]
+        k = int(np.argmin(backing))
+        if backing[k] >= MIN_SIDE_SUPPORT:
+            break
+        sides = _sides(corners)
+        del sides[k]
+        try:
+            met = _chain_corners_in_order(sides[1:] + sides[:1])
+        except ValueError:  # the neighbours are parallel: nothing to mend
+            break
+        # a side of no length left between two corners that met: one corner
+        apart = np.linalg.norm(met - np.roll(met, 1, axis=0), axis=1) > 1e-6
+        if apart.sum() < 3:
+            break
+        corners = _polish(met[apart], points)
+    return corners
+
+
+MIN_SIDE_SUPPORT = 0.5
+"""A side is backed by edges along at least this share of its length."""
 
 
 def _chain_along(
@@ -815,7 +867,8 @@ def _polish(
             trim = min(POLISH_TRIM * length, 4.0)
             near = points[(across <= POLISH_BAND) & (along >= trim) & (along <= length - trim)]
             side = (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
-            lines.append(refine(side, near, band=POLISH_BAND) if len(near) >= 5 else side)
+            fitted = len(near) >= 5 and length > 1e-6
+            lines.append(refine(side, near, band=POLISH_BAND) if fitted else side)
         try:
             polished = _chain_corners_in_order(lines[1:] + lines[:1])
         except ValueError:
@@ -948,16 +1001,8 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     verdict = "fewer than 3 straight sides"
     if corners is not None:
         corners = _polish(corners, rim_points)
-        # a vertex turning less than a corner does is no corner: its two sides are one
-        while len(corners) > 3 and float(_turns(corners).min()) < MIN_TURN:
-            corners = _polish(
-                np.delete(corners, int(np.argmin(_turns(corners))), axis=0), rim_points
-            )
-        closed = np.vstack([corners, corners[:1]])
-        polygon_sides = [
-            (float(a[0]), float(a[1]), float(b[0]), float(b[1]))
-            for a, b in zip(closed[:-1], closed[1:], strict=True)
-        ]
+        corners = _prune(corners, near_edge, rim_points)
+        polygon_sides = _sides(corners)
         fit = _fit(outline_points, polygon_sides, near_edge, tol)
         turn = float(_turns(corners).min())
         if _fits(fit, params) and turn >= MIN_TURN:
