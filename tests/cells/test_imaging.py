@@ -238,8 +238,8 @@ class TestFamily:
     @pytest.mark.slow
     def test_most_scenes_of_a_block_come_out_within_2_px(self) -> None:
         # seeds 3000–3099: no threshold was chosen on them; bench/outline.py holds the figures
-        # (94.8 % within 2 px on 2,000 scenes never studied, 93–96 % by block of 200). Here 95
-        # of 100 come out within 2 px; the bounds leave room for a block's spread.
+        # (95.1 % within 2 px on 3,000 scenes never studied, 92–98 % by block of 200); the
+        # bounds leave room for a block's spread.
         verdicts = []
         for seed in range(3000, 3100):
             scene = box_scene(seed)

@@ -907,7 +907,8 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     are not its outline) → fragments joined (3.2–3.3) → each side refitted to its edge pixels
     and joined again → sides chained along the contour (``_chain_along``) → corners as the
     intersections of adjacent sides (§V.A), each side fitted again to the outline's own edge
-    pixels (``_on_outline``: not those between two of the part's faces). The polygon stands
+    pixels (``_on_outline``: not those between two of the part's faces), corners that are none
+    dropped (``_prune``) and its sides searched for kinks again. The polygon stands
     when its sides explain the outline's edge pixels, its length is backed by edges and every
     corner turns; otherwise, when straight sides and fitted ellipse arcs explain the contour,
     the outline is ``curved``; otherwise nothing is claimed.
@@ -1002,6 +1003,16 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     if corners is not None:
         corners = _polish(corners, rim_points)
         corners = _prune(corners, near_edge, rim_points)
+        # two sides merged as one (fragments of a short side fitted along its long neighbour)
+        # show as a kink in the side's stretch of contour: split, and the corners again
+        sides = _sides(corners)
+        split = _split_kinks(sides, contour, rim_points, tol, min_length)
+        if len(split) > len(sides):
+            try:
+                met = _counter_clockwise(_chain_corners_in_order(split))
+            except ValueError:
+                met = corners
+            corners = _prune(_polish(met, rim_points), near_edge, rim_points)
         polygon_sides = _sides(corners)
         fit = _fit(outline_points, polygon_sides, near_edge, tol)
         turn = float(_turns(corners).min())
