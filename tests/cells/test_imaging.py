@@ -9,6 +9,7 @@ import pytest
 from app.cells.core.imaging import (
     PART_SIDE,
     CannyParams,
+    Gradient,
     OutlineNotFound,
     OutlineParams,
     canny,
@@ -315,7 +316,8 @@ class TestOutlineEdges:
         outer = np.array([[19.5, 50.0], [79.5, 40.0], [60.0, 79.5]])  # left, right, bottom
         inner = np.array([[49.5, 30.0], [49.5, 50.0], [49.5, 70.0]])  # the faces' boundary
         np.testing.assert_array_equal(
-            on_outline(image, np.vstack([outer, inner]), 150, 0.8), [True] * 3 + [False] * 3
+            on_outline(Gradient.of(image, 0.8), np.vstack([outer, inner]), 150),
+            [True] * 3 + [False] * 3,
         )
 
     def test_a_part_beside_its_shadow_keeps_its_edge(self) -> None:
@@ -327,33 +329,37 @@ class TestOutlineEdges:
         image[10:50, 10:30] = 40
         image[10:50, 30:33] = 160
         edges = np.array([[29.5, 30.0], [32.5, 30.0]])
-        np.testing.assert_array_equal(on_outline(image, edges, 150, 0.8), [True, True])
+        np.testing.assert_array_equal(on_outline(Gradient.of(image, 0.8), edges, 150), [True, True])
 
     def test_no_points(self) -> None:
-        assert on_outline(np.zeros((10, 10), np.uint8), np.empty((0, 2)), 100, 0.8).shape == (0,)
+        assert on_outline(
+            Gradient.of(np.zeros((10, 10), np.uint8), 0.8), np.empty((0, 2)), 100
+        ).shape == (0,)
+
+
+def square_outline() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A square's outline drawn as edges (100 px sides from (50, 50)): the distance to the
+    nearest edge pixel, the edge pixels (n, 2), and the square's corners."""
+    edges = np.zeros((200, 200), np.uint8)
+    cv2.rectangle(edges, (50, 50), (150, 150), 255, 1)
+    near = cv2.distanceTransform(cv2.bitwise_not(edges), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    ys, xs = np.nonzero(edges)
+    points = np.column_stack([xs, ys]).astype(np.float64)
+    square = np.array([[50.0, 50.0], [50.0, 150.0], [150.0, 150.0], [150.0, 50.0]])
+    return near, points, square
 
 
 class TestUnbackedSides:
     def test_a_spike_with_no_edge_along_it_is_dropped(self) -> None:
-        """A square's outline (edges drawn) and a polygon with a sixth corner spiking 30 px out
-        from the middle of its right side: the spike's two sides have no edge along them, and
-        go; the square's four corners come back, to the edges' sub-pixel line."""
-        edges = np.zeros((200, 200), np.uint8)
-        cv2.rectangle(edges, (50, 50), (150, 150), 255, 1)
-        near = cv2.distanceTransform(cv2.bitwise_not(edges), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        ys, xs = np.nonzero(edges)
-        points = np.column_stack([xs, ys]).astype(np.float64)
-        square = np.array([[50.0, 50.0], [50.0, 150.0], [150.0, 150.0], [150.0, 50.0]])
+        """A polygon with a sixth corner spiking 30 px out from the middle of the square's
+        right side: the spike's two sides have no edge along them, and go; the square's four
+        corners come back, to the edges' sub-pixel line."""
+        near, points, square = square_outline()
         spiked = np.insert(square, 3, [[150.0, 110.0], [180.0, 100.0], [150.0, 90.0]], axis=0)
         found = prune(spiked, near, points)
         assert len(found) == 4
         assert corner_error(found, square) < 0.5
 
     def test_a_polygon_its_edges_back_is_kept(self) -> None:
-        edges = np.zeros((200, 200), np.uint8)
-        cv2.rectangle(edges, (50, 50), (150, 150), 255, 1)
-        near = cv2.distanceTransform(cv2.bitwise_not(edges), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        ys, xs = np.nonzero(edges)
-        points = np.column_stack([xs, ys]).astype(np.float64)
-        square = np.array([[50.0, 50.0], [50.0, 150.0], [150.0, 150.0], [150.0, 50.0]])
+        near, points, square = square_outline()
         np.testing.assert_array_equal(prune(square, near, points), square)

@@ -275,32 +275,55 @@ def auto_high(magnitude: NDArray[np.float32]) -> float:
     return otsu_level(scaled) / 255.0 * top
 
 
-def subpixel_edges(image: Grey, edges: NDArray[np.uint8], sigma: float) -> NDArray[np.float64]:
+@dataclass(frozen=True, slots=True)
+class Gradient:
+    """An image smoothed with σ [px] and its Sobel derivatives, each (H, W) float32: made once
+    for the sub-pixel edges and the outline test, which both look across the edges."""
+
+    smooth: NDArray[np.float32]
+    gx: NDArray[np.float32]
+    gy: NDArray[np.float32]
+
+    @classmethod
+    def of(cls, image: Grey, sigma: float) -> Gradient:
+        smooth = np.asarray(cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma), np.float32)
+        gx = np.asarray(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3), np.float32)
+        gy = np.asarray(cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3), np.float32)
+        return cls(smooth, gx, gy)
+
+
+def _sample(image: NDArray[np.float32], at: NDArray[np.floating]) -> NDArray[np.float32]:
+    """``image`` at the points ``at`` (n, 2) (x, y), bilinear, shape (n,)."""
+    xy = np.asarray(at, dtype=np.float32)
+    out = cv2.remap(image, xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR)
+    return np.asarray(out, dtype=np.float32).ravel()
+
+
+def _unit(g: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Each row of ``g`` (n, 2) scaled to length 1 (a zero row stays zero)."""
+    return np.asarray(g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9), np.float32)
+
+
+def subpixel_edges(grad: Gradient, edges: NDArray[np.uint8]) -> NDArray[np.float64]:
     """The edge pixels moved to the gradient's peak across the edge, shape (n, 2) [px].
 
     Canny marks whole pixels, which puts a nearly horizontal or vertical side up to half a
     pixel off, the same way along its whole length, so no line fit averages it out. Across
-    the edge (along the gradient of the image smoothed with σ [px]) the magnitude is sampled
-    one pixel either side, and a parabola through the three samples puts the peak (within a
-    pixel of the marked one)."""
+    the edge (along the gradient ``grad`` of the smoothed image) the magnitude is sampled one
+    pixel either side, and a parabola through the three samples puts the peak (within a pixel
+    of the marked one)."""
     found = cv2.findNonZero(edges)
     if found is None:
         return np.empty((0, 2))
     pts = found.reshape(-1, 2).astype(np.float32)
-    blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma)
-    gx = cv2.Sobel(blurred, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(blurred, cv2.CV_32F, 0, 1, ksize=3)
-    magnitude = cv2.magnitude(gx, gy)
+    magnitude = np.asarray(cv2.magnitude(grad.gx, grad.gy), np.float32)
     xi, yi = pts[:, 0].astype(int), pts[:, 1].astype(int)
-    g = np.column_stack([gx[yi, xi], gy[yi, xi]])
-    n = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-
-    def sample(offset: float) -> NDArray[np.float32]:
-        at = (pts + offset * n).astype(np.float32)
-        out = cv2.remap(magnitude, at[:, :1], at[:, 1:], cv2.INTER_LINEAR)
-        return np.asarray(out, dtype=np.float32).ravel()
-
-    before, here, after = sample(-1.0), magnitude[yi, xi], sample(1.0)
+    n = _unit(np.column_stack([grad.gx[yi, xi], grad.gy[yi, xi]]))
+    before, here, after = (
+        _sample(magnitude, pts - n),
+        magnitude[yi, xi],
+        _sample(magnitude, pts + n),
+    )
     curvature = before - 2.0 * here + after
     step = np.where(curvature < 0, 0.5 * (before - after) / np.minimum(curvature, -1e-9), 0.0)
     return np.asarray(pts + np.clip(step, -1.0, 1.0)[:, None] * n, dtype=np.float64)
@@ -310,10 +333,8 @@ PART_SIDE = 2.0
 """How far across an edge, on its brighter side, the part is looked for [px]."""
 
 
-def _on_outline(
-    image: Grey, points: NDArray[np.float64], level: int, sigma: float
-) -> NDArray[np.bool_]:
-    """Which edge points (n, 2) are on the part's outline: the smoothed image (σ [px])
+def _on_outline(grad: Gradient, points: NDArray[np.float64], level: int) -> NDArray[np.bool_]:
+    """Which edge points (n, 2) are on the part's outline: the smoothed image (``grad``)
     ``PART_SIDE`` px across the edge on its brighter side (along the gradient) lies above the
     part's ``level``. An edge between two faces of the part has the part on both sides: where
     it meets the outline at a gentle corner, or runs a pixel inside it along a face seen edge
@@ -321,19 +342,8 @@ def _on_outline(
     corner turning 12° moves 1/sin 12° ≈ 5 times as far as the side's end)."""
     if not len(points):
         return np.zeros(0, dtype=np.bool_)
-    blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma)
-    gx = cv2.Sobel(blurred, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(blurred, cv2.CV_32F, 0, 1, ksize=3)
-    at = points.astype(np.float32)
-    g = np.column_stack(
-        [
-            cv2.remap(gx, at[:, :1], at[:, 1:], cv2.INTER_LINEAR).ravel(),
-            cv2.remap(gy, at[:, :1], at[:, 1:], cv2.INTER_LINEAR).ravel(),
-        ]
-    )
-    n = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-    out = (points + PART_SIDE * n).astype(np.float32)
-    brighter = cv2.remap(blurred, out[:, :1], out[:, 1:], cv2.INTER_LINEAR).ravel()
+    n = _unit(np.column_stack([_sample(grad.gx, points), _sample(grad.gy, points)]))
+    brighter = _sample(grad.smooth, points + PART_SIDE * n)
     return np.asarray(brighter > level, dtype=np.bool_)
 
 
@@ -962,9 +972,11 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     # each side refitted to the part's edge pixels, then joined again: refitted fragments of
     # one side now line up; only then are the short ones dropped (a short side is often
     # several fragments)
-    edge_points = subpixel_edges(
-        box, part_edges[y0 : y0 + box.shape[0], x0 : x0 + box.shape[1]], FIT_CANNY.sigma
-    ) + np.array([x0, y0], dtype=np.float64)
+    grad = Gradient.of(box, FIT_CANNY.sigma)
+    offset = np.array([x0, y0], dtype=np.float64)
+    edge_points = (
+        subpixel_edges(grad, part_edges[y0 : y0 + box.shape[0], x0 : x0 + box.shape[1]]) + offset
+    )
     # the polish takes only the edge pixels on the contour: an inner edge a few pixels in (a
     # thin face at the rim) would pull a side off the outline
     rim = np.zeros_like(edges)
@@ -972,7 +984,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     xi = np.clip(np.rint(edge_points[:, 0]).astype(int), 0, rim.shape[1] - 1)
     yi = np.clip(np.rint(edge_points[:, 1]).astype(int), 0, rim.shape[0] - 1)
     rim_points = edge_points[rim[yi, xi] > 0]
-    rim_points = rim_points[_on_outline(base, rim_points, level, FIT_CANNY.sigma)]
+    rim_points = rim_points[_on_outline(grad, rim_points - offset, level)]
     refitted = [refine(s, edge_points) for s in joined]
     sides = join_fragments(refitted, max_angle=params.max_angle, max_lateral=params.max_lateral)
     sides = [refine(s, edge_points) for s in sides if _length(s) >= min_length]
