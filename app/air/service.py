@@ -44,6 +44,7 @@ from app.platform.frames.kinds import Decoded, Prepared
 from app.platform.frames.storage import FrameStore
 from app.platform.frames.verdicts import check_usable, stats_columns
 from app.platform.http.errors import NotFound, Unprocessable, VantageError
+from app.platform.memo import ById
 from app.platform.policy import Policy
 
 
@@ -181,19 +182,14 @@ def fit_regression(
     }
 
 
-_REGRESSIONS: dict[str, airquality.Regression | None] = {}
-"""Regressions as read, by calibration id: a calibration never changes once made, and every
-sky frame graded on the writer read its 38 × 38 matrix from JSON again (~0.1 ms)."""
+_REGRESSIONS: ById[airquality.Regression | None] = ById()
+"""Regressions as read, by calibration id: a calibration never changes once made."""
 
 
 def as_regression(row: AirCalibration) -> airquality.Regression | None:
     """The calibration's regression; None without one, or one made on another feature set
     (its frames must be graded by a new calibration)."""
-    if row.id not in _REGRESSIONS:
-        if len(_REGRESSIONS) > 256:
-            _REGRESSIONS.clear()
-        _REGRESSIONS[row.id] = _read_regression(row.regression)
-    return _REGRESSIONS[row.id]
+    return _REGRESSIONS.get(row.id, lambda: _read_regression(row.regression))
 
 
 def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:

@@ -19,6 +19,7 @@ from app.platform.frames.camera_info import Region, describe_region, region_now
 from app.platform.frames.kinds import Prepared
 from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
+from app.platform.memo import ById
 from app.platform.policy import Policy
 from app.solar import events
 from app.solar.cleaning import shown_as
@@ -153,8 +154,16 @@ def as_core_baseline(row: Baseline) -> soiling.Baseline:
     )
 
 
+_MODELS: ById[LogisticModel | KernelModel] = ById()
+"""Fleet models as read, by id: a fleet model never changes once trained."""
+
+
 def as_core_model(row: FleetModel) -> LogisticModel | KernelModel:
     """The stored fleet model: a kernel model with its heads, or a linear one from before."""
+    return _MODELS.get(row.id, lambda: _read_model(row))
+
+
+def _read_model(row: FleetModel) -> LogisticModel | KernelModel:
     if row.kernel is None:
         return LogisticModel(
             feature_names=tuple(row.feature_names),
