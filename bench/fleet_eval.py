@@ -30,7 +30,6 @@ from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
 from app.platform.frames.jpeg import decode_rgb
-from app.solar.core.fleet import KernelModel
 from app.solar.panels import as_core_model
 from app.solar.training import fit_fleet
 
@@ -118,9 +117,7 @@ def main() -> None:
             model = as_core_model(fit_fleet(feats[tr], list(label[tr]), now=now))
             pred[te] = (model.probability(feats[te]) >= model.threshold).astype(int)
             condition[te] = [model.condition(f) for f in feats[te]]
-            doubted[te] = [
-                isinstance(model, KernelModel) and model.doubt(f) is not None for f in feats[te]
-            ]
+            doubted[te] = [model.doubt(f) is not None for f in feats[te]]
             clean_train = tr[label[tr] == "clean"]
             baseline = soiling.fit_baseline(modes[clean_train], significance=0.05)
             t2_pred[te] = [0 if soiling.classify(baseline, m).clean else 1 for m in modes[te]]

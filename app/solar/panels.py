@@ -384,18 +384,15 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         verdict.method, verdict.p_dirty = "fleet", p_dirty
         verdict.threshold = model.threshold
         verdict.condition = model.condition(decoded.features)
-        doubt = model.doubt(decoded.features) if isinstance(model, KernelModel) else None
+        said = None
         if verdict.condition == "snow":  # not a case for brushing: no verdict on soiling
-            verdict.reason = "snow-covered: no brushing until it melts"
-        elif doubt is not None:  # no verdict: the panel's state and its task stay as they are
-            verdict.reason, verdict.condition = doubt, None
+            said = "snow-covered: no brushing until it melts"
+        elif (doubt := model.doubt(decoded.features)) is not None:
+            said, verdict.condition = doubt, None  # the panel's state and task stay as they are
         else:
             verdict.clean = p_dirty < model.threshold
-        if unfit is not None:
-            verdict.reason = "; ".join(
-                filter(None, [f"judged by the fleet model: {unfit.detail}", doubt])
-            )
-        verdict.reason = verdict.reason and verdict.reason[:200]
+        why = f"judged by the fleet model: {unfit.detail}" if unfit is not None else None
+        verdict.reason = "; ".join(filter(None, [why, said]))[:200] or None
     elif unfit is not None:
         verdict.reason = unfit.detail[:200]
     elif panel.baseline_id is not None:  # modes of another part of the view: not comparable

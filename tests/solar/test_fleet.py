@@ -66,6 +66,11 @@ def test_logistic_probability() -> None:
     )
     # z = (3 − 1)/2 · 1 + (2 − 2)/4 · (−1) + 0.5 = 1.5
     assert float(m.probability([3.0, 2.0])) == pytest.approx(1 / (1 + np.exp(-1.5)), rel=1e-12)
+    # p = σ(1.5) = 0.82: sure; at f = (0, 2), z = −0.5 + 0.5 = 0, p = 0.5: not sure
+    assert m.doubt([3.0, 2.0]) is None
+    reason = m.doubt([0.0, 2.0])
+    assert reason is not None
+    assert "not sure: p(needs cleaning) 0.50" in reason
 
 
 def test_the_kernel_model_decides_as_scikit_learn_does() -> None:

@@ -167,6 +167,11 @@ class LogisticModel:
         """clean or dirty: the linear model tells no more."""
         return "dirty" if float(self.probability(f)) >= self.threshold else "clean"
 
+    def doubt(self, f: ArrayLike) -> str | None:
+        """Why its answer on one frame is not to be trusted (``undecided``), or None: it kept
+        no training photos, so it cannot tell a frame unlike them."""
+        return undecided(float(self.probability(f)), self.threshold)
+
 
 def pick(f: ArrayLike, names: tuple[str, ...]) -> NDArray[np.float64]:
     """The columns ``names`` of ``ALL_FEATURES`` vectors (..., K) [or of vectors of just
@@ -260,15 +265,19 @@ class KernelModel:
                     f"unlike every photo the fleet model learnt from: the nearest lies "
                     f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"
                 )
-        p = float(self.probability(f))
-        if abs(p - self.threshold) < UNSURE:
-            return (
-                f"the fleet model is not sure: p(needs cleaning) {p:.2f}, within "
-                f"{UNSURE:.2f} of its threshold {self.threshold:.2f}"
-            )
-        return None
+        return undecided(float(self.probability(f)), self.threshold)
 
 
 UNSURE = 0.2
 """A fleet answer whose calibrated p(needs cleaning) lies within this of the threshold is
 "not sure" (0.3–0.7 at 0.5): no verdict, no task, and the reason given."""
+
+
+def undecided(p: float, threshold: float) -> str | None:
+    """The reason a fleet answer of p(needs cleaning) ``p`` is "not sure", or None."""
+    if abs(p - threshold) < UNSURE:
+        return (
+            f"the fleet model is not sure: p(needs cleaning) {p:.2f}, within {UNSURE:.2f} "
+            f"of its threshold {threshold:.2f}"
+        )
+    return None
