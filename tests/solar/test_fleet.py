@@ -175,3 +175,17 @@ class TestDoubt:
         far = model.doubt(np.eye(k)[0] * 2.0 + 50.0)  # far from both support vectors: p = 0.5
         assert far is not None
         assert far.startswith("the fleet model is not sure")
+
+
+def test_a_frame_that_may_be_snow_is_not_judged_for_brushing() -> None:
+    """p(snow) 0.4: not snow by the head, but within UNSURE of it, so not a dirty verdict
+    either (brushing snow cleans nothing); p(snow) 0.2 leaves the dirty verdict standing."""
+    k = len(ALL_FEATURES)
+    dirty = np.eye(k)[0] * 2.0  # p(needs cleaning) 0.915
+    maybe = one_feature_model(snow=Head(np.zeros(k), float(np.log(0.4 / 0.6))))
+    reason = maybe.doubt(dirty)
+    assert reason is not None
+    assert "not sure the panel is free of snow: p(snow) 0.40" in reason
+    assert maybe.condition(dirty) != "snow"
+    clear = one_feature_model(snow=Head(np.zeros(k), float(np.log(0.2 / 0.8))))
+    assert clear.doubt(dirty) is None

@@ -252,8 +252,9 @@ class KernelModel:
     def doubt(self, f: ArrayLike) -> str | None:
         """Why the model's clean-or-dirty answer on one frame is not to be trusted, or None.
 
-        Two reasons: the frame lies outside what the model learnt (further from every training
-        photo than ``reach``), or its probability is within ``UNSURE`` of the threshold. On the
+        Three reasons: the frame lies outside what the model learnt (further from every
+        training photo than ``reach``); its p(snow) is within ``UNSURE`` below 0.5 (at 0.5 and
+        above it is snow); or its p(needs cleaning) is within ``UNSURE`` of the threshold. On the
         shared photos (``bench/fleet_eval.py``, folds grouped by panel) the answers outside
         that band are right more often than all answers are: the band is where the two
         classes' photos mix."""
@@ -264,6 +265,12 @@ class KernelModel:
                 return (
                     f"unlike every photo the fleet model learnt from: the nearest lies "
                     f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"
+                )
+        if self.snow is not None:
+            p_snow = float(self.snow.probability(self.standardised(f)))
+            if 0.5 - UNSURE <= p_snow < 0.5:  # brushing a snow-covered panel is no cleaning
+                return (
+                    f"the fleet model is not sure the panel is free of snow: p(snow) {p_snow:.2f}"
                 )
         return undecided(float(self.probability(f)), self.threshold)
 
