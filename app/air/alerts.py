@@ -149,4 +149,5 @@ async def run(
             sessions, url, policy, retry_for=retry_for, stopping=stopping, key=key
         ),
         every,
+        "air alerts",
     )

@@ -136,5 +136,5 @@ def _claim(
 async def run(sessions: sessionmaker[Session], topic: str, policy: Policy, every: float) -> None:
     """Sweep ``topic`` forever (until cancelled), in a worker thread."""
     await webhooks.keep_sweeping(
-        lambda stopping: sweep(sessions, topic, policy, stopping=stopping), every
+        lambda stopping: sweep(sessions, topic, policy, stopping=stopping), every, topic
     )

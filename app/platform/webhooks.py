@@ -291,14 +291,16 @@ def deliver_due(
     return delivered
 
 
-async def keep_sweeping(sweep: Callable[[threading.Event], object], every: float) -> None:
+async def keep_sweeping(
+    sweep: Callable[[threading.Event], object], every: float, what: str
+) -> None:
     """Run ``sweep`` every ``every`` seconds forever (until cancelled), in a worker thread so the
     event loop stays free; a shutdown sets its event and waits for the POST under way, not for
-    the rest."""
+    the rest. ``what`` names the sweep in the log."""
     stopping = threading.Event()
     while True:
         try:
             await in_thread(partial(sweep, stopping), on_cancel=stopping.set)
         except Exception:
-            log.exception("webhook sweep failed")
+            log.exception("webhook sweep of %s failed", what)
         await asyncio.sleep(every)

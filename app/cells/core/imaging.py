@@ -698,11 +698,11 @@ def _prune(
         if float(turns.min()) < MIN_TURN:
             corners = _polish(np.delete(corners, int(np.argmin(turns)), axis=0), points)
             continue
-        backing = [b / n for b, n in (_backing(side, near_edge) for side in _sides(corners))]
+        sides = _sides(corners)
+        backing = [b / n for b, n in (_backing(side, near_edge) for side in sides)]
         k = int(np.argmin(backing))
         if backing[k] >= MIN_SIDE_SUPPORT:
             break
-        sides = _sides(corners)
         del sides[k]
         try:
             met = _chain_corners_in_order(sides[1:] + sides[:1])

@@ -75,9 +75,9 @@ def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
         raise ValueError(f"expected an RGB image of shape (H, W, 3), uint8; got {image.shape}")
     if image.shape[0] == 0 or image.shape[1] == 0:
         raise ValueError("empty image")
-    # contiguous planes, a band of rows at a time: at 1920×1080 calcHist takes 0.7 ms over a
-    # plane against 1.2 over one channel of the interleaved image, 2.6 against 2.9 ms for all
-    # three with the split; a band's planes take 3 MiB where a 36 MP region's would take 100
+    # contiguous planes, a band of rows at a time: calcHist runs faster over a plane than over
+    # one channel of the interleaved image, by more than the split costs (bench/README.md,
+    # classify); a band's planes take 3 MiB where a 36 MP region's would take 100
     height, width = image.shape[:2]
     step = max(1, _BAND_PIXELS // width)
     hist = np.zeros((3, 256), dtype=np.float64)
