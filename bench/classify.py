@@ -6,7 +6,10 @@ For 640×480 and 1920×1080 frames, the median time of
   picture's own pixels, chapter 5 §III), channel statistics in the ROI, quality gate, then the
   T² verdict against the panel's baseline (baseline path) or the fleet features and the fleet
   model (fleet path).
-Rounds alternate between the variants so that machine noise hits them alike.
+Each round runs every variant once, in an order shuffled per round (seeded), so that machine
+noise and the cache each variant leaves behind hit them alike. The histograms run on both cores
+(OpenCV's calcHist): on a machine busy with other work the T² path's ratio rises, so the load
+average is printed first.
 
     python bench/classify.py [--rounds 200]
 """
@@ -14,6 +17,8 @@ Rounds alternate between the variants so that machine noise hits them alike.
 from __future__ import annotations
 
 import argparse
+import os
+import random
 import statistics
 import time
 from collections.abc import Callable
@@ -89,12 +94,17 @@ def main() -> None:
         intercept=0.0,
     )
 
+    order = random.Random(0)
+    print("load average (1, 5, 15 min): {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()))
     for width, height in ((640, 480), (1920, 1080)):
         data = panel_frame(width, height)
         variants = make_variants(data, baseline, model)
         times: dict[str, list[float]] = {k: [] for k in variants}
         for _ in range(args.rounds):
-            for name, fn in variants.items():
+            names = list(variants)
+            order.shuffle(names)
+            for name in names:
+                fn = variants[name]
                 t = time.perf_counter()
                 fn()
                 times[name].append(time.perf_counter() - t)
