@@ -13,6 +13,7 @@ from app.solar.core.fleet import (
     KernelModel,
     LogisticModel,
     features,
+    lbp_histogram,
     reduce,
 )
 from tests.factories import panel
@@ -37,6 +38,29 @@ def test_dust_lifts_the_dark_channel_and_whiteness() -> None:
     assert dirty["dark_mean"] > clean["dark_mean"] + 30
     assert dirty["whiteness"] > clean["whiteness"] + 0.1
     assert dirty["blue_fraction"] < clean["blue_fraction"]
+
+
+@pytest.mark.parametrize(("points", "radius"), [(8, 1), (24, 3)])
+def test_lbp_histogram_known_answers(points: int, radius: int) -> None:
+    # uniform rotation-invariant LBP (Ojala et al. 2002): on a flat image every neighbour
+    # equals the centre, s(0) = 1 for all P, so every pixel takes the code P, but for the rim
+    # of ``radius`` px whose outer neighbours scikit-image reads as 0
+    flat = np.full((40, 40), 90, np.uint8)
+    hist = lbp_histogram(flat, points, radius)
+    assert hist.shape == (points + 2,)
+    assert hist[points] == pytest.approx((40 - 2 * radius) ** 2 / 1600, abs=1e-12)
+    assert hist.sum() == pytest.approx(1.0, abs=1e-12)
+    # a lone bright pixel is brighter than all its neighbours: code 0, one pixel of 1,600
+    dot = flat.copy()
+    dot[20, 20] = 200
+    assert lbp_histogram(dot, points, radius)[0] == pytest.approx(1 / 1600, abs=1e-12)
+
+
+def test_the_coarse_lbp_scale_is_a_histogram_among_the_features() -> None:
+    f = dict(zip(ALL_FEATURES, features(panel()), strict=True))
+    coarse = [f[f"lbp24r3_{k}"] for k in range(26)]
+    assert sum(coarse) == pytest.approx(1.0, abs=1e-9)
+    assert sum(f[f"lbp_{k}"] for k in range(10)) == pytest.approx(1.0, abs=1e-9)
 
 
 def test_reduce_samples_to_at_most_128() -> None:

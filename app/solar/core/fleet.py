@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.special import expit
 from skimage.feature import graycomatrix, graycoprops, local_binary_pattern
 
 MAX_SIDE = 128
@@ -45,11 +46,16 @@ TEXTURE_FEATURES = (
         for c in channels
     )
     + tuple(f"lab_p{q}_{c}" for q in (10, 90) for c in "lab")
+    + tuple(f"lbp24r3_{k}" for k in range(26))
 )
 """Texture: GLCM contrast, homogeneity, energy, correlation and dissimilarity at 1 and 3 px
 (averaged over 4 directions, 32 grey levels); the 10-bin histogram of uniform LBP (8
 neighbours, radius 1); colour: HSV and CIELAB means and standard deviations, CIELAB 10th and
-90th percentiles."""
+90th percentiles; the 26-bin histogram of uniform LBP at the coarser scale of 24 neighbours,
+radius 3 px (Ojala, Pietikäinen & Mäenpää, *Multiresolution gray-scale and rotation invariant
+texture classification with local binary patterns*, IEEE PAMI 24(7), 2002: the operators
+LBP^riu2 of (8, 1) and (24, 3)). The coarse scale sees a cell's grid and busbars against the
+film dust lays over them, which one pixel's neighbours cannot (``bench/fleet_eval.py``)."""
 
 ALL_FEATURES = HAZE_FEATURES + TEXTURE_FEATURES
 """What ``features`` computes, in its order; a model uses those it names."""
@@ -90,11 +96,8 @@ def features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
 
 def texture_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
     """The ``TEXTURE_FEATURES`` of an RGB image of shape (H, W, 3), uint8."""
-    h, w = image.shape[:2]
-    k = min(1.0, TEXTURE_SIDE / max(h, w))  # reduced, never enlarged: enlarging invents texture
-    size = (max(8, round(w * k)), max(8, round(h * k)))
-    small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    small = texture_scale(image)
+    grey = np.asarray(cv2.cvtColor(small, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
     glcm = graycomatrix(
         grey // 8,
         distances=list(_GLCM_DISTANCES),
@@ -104,14 +107,35 @@ def texture_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
         normed=True,
     )
     co = [graycoprops(glcm, prop).mean(axis=1) for prop in _GLCM_PROPS]  # per distance
-    lbp = local_binary_pattern(grey, 8, 1, "uniform").astype(np.int64)
-    lbp_hist = np.bincount(lbp.ravel(), minlength=10)[:10] / lbp.size
+    fine, coarse = (lbp_histogram(grey, p, r) for p, r in ((8, 1), (24, 3)))
     hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.float64)
     lab = cv2.cvtColor(small, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float64)
     colour = [hsv.mean(0), hsv.std(0), lab.mean(0), lab.std(0)]
     colour += list(np.percentile(lab, [10, 90], axis=0))
-    out = np.concatenate([np.concatenate(co), lbp_hist, np.concatenate(colour)])
+    out = np.concatenate([np.concatenate(co), fine, np.concatenate(colour), coarse])
     return np.asarray(np.nan_to_num(out, nan=0.0), dtype=np.float64)  # a flat image: no texture
+
+
+def texture_scale(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """``image`` (H, W, 3) area-averaged to a long side of ``TEXTURE_SIDE`` px; never enlarged,
+    since enlarging invents texture."""
+    h, w = image.shape[:2]
+    k = min(1.0, TEXTURE_SIDE / max(h, w))
+    size = (max(8, round(w * k)), max(8, round(h * k)))
+    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+
+
+def texture_grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The grey image (BT.601 luma) that the texture features of ``image`` are measured on."""
+    return np.asarray(cv2.cvtColor(texture_scale(image), cv2.COLOR_RGB2GRAY), dtype=np.uint8)
+
+
+def lbp_histogram(grey: NDArray[np.uint8], points: int, radius: float) -> NDArray[np.float64]:
+    """Share of the pixels of each of the ``points`` + 2 codes of uniform, rotation-invariant
+    LBP (``points`` neighbours on a circle of ``radius`` px), shape (points + 2,)."""
+    codes = local_binary_pattern(grey, points, radius, "uniform").astype(np.int64)
+    counts = np.bincount(codes.ravel(), minlength=points + 2)[: points + 2]
+    return np.asarray(counts / codes.size, dtype=np.float64)
 
 
 def haze_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
@@ -183,7 +207,8 @@ def pick(f: ArrayLike, names: tuple[str, ...]) -> NDArray[np.float64]:
 
 
 def _sigmoid(z: NDArray[np.float64] | float) -> NDArray[np.float64]:
-    return np.asarray(1.0 / (1.0 + np.exp(-np.asarray(z, dtype=np.float64))), dtype=np.float64)
+    """The logistic function, without overflow for large |z| (SciPy's expit)."""
+    return np.asarray(expit(np.asarray(z, dtype=np.float64)), dtype=np.float64)
 
 
 @dataclass(frozen=True, slots=True)
