@@ -97,6 +97,22 @@ def test_logistic_probability() -> None:
     assert "not sure: p(needs cleaning) 0.50" in reason
 
 
+def test_a_model_of_fewer_features_reads_its_own_from_the_full_vector() -> None:
+    # a model stored before the coarse LBP scale names 47 features; frames now carry 73
+    older = ALL_FEATURES[:47]
+    assert not any(n.startswith("lbp24r3") for n in older)
+    rng = np.random.default_rng(3)
+    m = LogisticModel(
+        feature_names=older,
+        mean=rng.normal(0, 1, 47),
+        scale=rng.uniform(0.5, 2, 47),
+        coef=rng.normal(0, 0.3, 47),
+        intercept=0.1,
+    )
+    full = features(panel())
+    assert float(m.probability(full)) == pytest.approx(float(m.probability(full[:47])), abs=1e-15)
+
+
 def test_the_kernel_model_decides_as_scikit_learn_does() -> None:
     """KernelModel's decision is SVC's decision_function, from the fitted model's public
     attributes (support vectors, dual coefficients, intercept, γ), on standardised features."""
