@@ -9,7 +9,9 @@ For 640×480 and 1920×1080 frames, the median time of
 Each round runs every variant once, in an order shuffled per round (seeded), so that machine
 noise and the cache each variant leaves behind hit them alike. The histograms run on both cores
 (OpenCV's calcHist): on a machine busy with other work the T² path's ratio rises, so the load
-average is printed first.
+average is printed first. Last, the channel histograms alone, timed right after a decode and
+right after the fleet path: what ran before moves them (likely OpenCV's worker threads, asleep
+after a long call).
 
     python bench/classify.py [--rounds 200]
 """
@@ -31,6 +33,7 @@ from app.platform.db.models import CameraKind
 from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
+from app.platform.frames.stats import channel_histograms
 from app.solar.core import fleet
 
 CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
@@ -113,6 +116,16 @@ def main() -> None:
         for name, ts in times.items():
             m = statistics.median(ts)
             print(f"  {name:30s} {m * 1000:7.2f} ms   {m / ref:5.2f} × decode")
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR_RGB)
+        for before in ("decode only", "service, fleet path"):
+            spent = []
+            for _ in range(args.rounds):
+                variants[before]()
+                t = time.perf_counter()
+                channel_histograms(image)
+                spent.append(time.perf_counter() - t)
+            m = statistics.median(spent)
+            print(f"  histograms alone, after {before:19s} {m * 1000:7.3f} ms")
 
 
 if __name__ == "__main__":
