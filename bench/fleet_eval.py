@@ -28,10 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from sklearn.metrics import balanced_accuracy_score
-from sklearn.model_selection import GridSearchCV, StratifiedGroupKFold, StratifiedKFold
-from sklearn.pipeline import Pipeline
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import SVC
+from sklearn.model_selection import StratifiedGroupKFold
 
 from app.main import register_kinds
 from app.platform.db.models import CameraKind
@@ -41,7 +38,7 @@ from app.platform.frames.ingest import analyse
 from app.platform.frames.jpeg import decode_rgb
 from app.solar.core import fleet
 from app.solar.panels import as_core_model
-from app.solar.training import fit_fleet
+from app.solar.training import fit_fleet, fleet_search
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = CameraInfo(id="eval", kind=CameraKind.panel, panel_id=None, roi=None)
@@ -93,16 +90,6 @@ SCALES = ((8, 2), (8, 3), (16, 2), (16, 3), (24, 3), (16, 4))
 """(P, R) of the uniform LBP scales the study compares."""
 
 
-def svm(k: int) -> GridSearchCV:
-    """The fleet model's classifier as ``training.fit_fleet`` chooses it, for ``k`` features."""
-    return GridSearchCV(
-        Pipeline([("scale", StandardScaler()), ("svm", SVC(class_weight="balanced"))]),
-        {"svm__C": [1.0, 3.0, 10.0], "svm__gamma": [0.3 / k, 1.0 / k, 3.0 / k]},
-        cv=StratifiedKFold(5, shuffle=True, random_state=0),
-        scoring="balanced_accuracy",
-    )
-
-
 def scale_study(
     images: list[np.ndarray], feats: np.ndarray, label: np.ndarray, groups: np.ndarray, seeds: int
 ) -> None:
@@ -119,7 +106,15 @@ def scale_study(
 
     def fit_predict(x: np.ndarray, tr: np.ndarray, te: np.ndarray) -> np.ndarray:
         tr = tr[judged[tr]]
-        return np.asarray(svm(x.shape[1]).fit(x[tr], y[tr]).predict(x[te]))
+        return np.asarray(fleet_search(x.shape[1]).fit(x[tr], y[tr]).predict(x[te]))
+
+    def inner_score(x: np.ndarray, splits: list[tuple[np.ndarray, np.ndarray]]) -> float:
+        """Mean balanced accuracy over the inner folds (indices into the whole set)."""
+        scored = []
+        for a, b in splits:
+            b = b[judged[b]]
+            scored.append(balanced_accuracy_score(y[b], fit_predict(x, a, b)))
+        return float(np.mean(scored))
 
     scores: dict[str, list[float]] = {name: [] for name in [*candidates, "chosen inside"]}
     picks: dict[str, int] = dict.fromkeys(candidates, 0)
@@ -130,19 +125,8 @@ def scale_study(
             for name, x in candidates.items():
                 pred[name][te] = fit_predict(x, tr, te)
             inner = StratifiedGroupKFold(4, shuffle=True, random_state=seed)
-            splits = list(inner.split(base[tr], label[tr], groups[tr]))
-            inner_ba = {
-                name: np.mean(
-                    [
-                        balanced_accuracy_score(
-                            y[tr[b][judged[tr[b]]]],
-                            fit_predict(x, tr[a], tr[b][judged[tr[b]]]),
-                        )
-                        for a, b in splits
-                    ]
-                )
-                for name, x in candidates.items()
-            }
+            splits = [(tr[a], tr[b]) for a, b in inner.split(base[tr], label[tr], groups[tr])]
+            inner_ba = {name: inner_score(x, splits) for name, x in candidates.items()}
             best = max(inner_ba, key=lambda name: inner_ba[name])
             picks[best] += 1
             pred["chosen inside"][te] = fit_predict(candidates[best], tr, te)

@@ -222,6 +222,23 @@ FLEET_LABELS = ("clean", "dust", "bird_drop", "snow")
 """What a fleet photo may be labelled; ``dirty`` is read as dust."""
 
 
+def fleet_search(k: int) -> Any:
+    """The fleet classifier before its choice of C and γ, for ``k`` features: a standardised
+    RBF support-vector machine with balanced classes, C and γ to be chosen by 5-fold
+    cross-validated balanced accuracy (scikit-learn's ``GridSearchCV``)."""
+    from sklearn.model_selection import GridSearchCV, StratifiedKFold
+    from sklearn.pipeline import Pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC
+
+    return GridSearchCV(
+        Pipeline([("scale", StandardScaler()), ("svm", SVC(class_weight="balanced"))]),
+        {"svm__C": [1.0, 3.0, 10.0], "svm__gamma": [0.3 / k, 1.0 / k, 3.0 / k]},
+        cv=StratifiedKFold(n_splits=5, shuffle=True, random_state=0),
+        scoring="balanced_accuracy",
+    )
+
+
 def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: datetime) -> FleetModel:
     """The fleet model (``core.fleet.KernelModel``) from labelled photos of many panels.
 
@@ -232,15 +249,7 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
     choice, nested: outer 5 folds, the choice made again inside each. Heads on the same
     features: snow against the rest, droppings against dust, each when ≥ 3 photos show it."""
     from sklearn.linear_model import LogisticRegression
-    from sklearn.model_selection import (
-        GridSearchCV,
-        StratifiedKFold,
-        cross_val_predict,
-        cross_val_score,
-    )
-    from sklearn.pipeline import Pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC
+    from sklearn.model_selection import StratifiedKFold, cross_val_predict, cross_val_score
 
     names = np.array(["dust" if label == "dirty" else label for label in labels])
     counts = {label: int((names == label).sum()) for label in FLEET_LABELS}
@@ -256,12 +265,7 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
     judged = names != "snow"
     x, dirty = features[judged], np.isin(names[judged], ("dust", "bird_drop"))
     folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
-    search = GridSearchCV(
-        Pipeline([("scale", StandardScaler()), ("svm", SVC(class_weight="balanced"))]),
-        {"svm__C": [1.0, 3.0, 10.0], "svm__gamma": [0.3 / k, 1.0 / k, 3.0 / k]},
-        cv=folds,
-        scoring="balanced_accuracy",
-    )
+    search = fleet_search(k)
     outer = StratifiedKFold(n_splits=5, shuffle=True, random_state=1)
     cv = cross_val_score(search, x, dirty, cv=outer, scoring="balanced_accuracy")
     search.fit(x, dirty)
