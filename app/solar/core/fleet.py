@@ -54,8 +54,9 @@ neighbours, radius 1); colour: HSV and CIELAB means and standard deviations, CIE
 90th percentiles; the 26-bin histogram of uniform LBP at the coarser scale of 24 neighbours,
 radius 3 px (Ojala, Pietikäinen & Mäenpää, *Multiresolution gray-scale and rotation invariant
 texture classification with local binary patterns*, IEEE PAMI 24(7), 2002: the operators
-LBP^riu2 of (8, 1) and (24, 3)). The coarse scale sees a cell's grid and busbars against the
-film dust lays over them, which one pixel's neighbours cannot (``bench/fleet_eval.py``)."""
+LBP^riu2 of (8, 1) and (24, 3)). The coarse scale is meant for a cell's grid and busbars,
+which a dust film softens; one pixel's neighbours see finer speckle. Its gain, and how much of
+it comes from choosing the scale on the same photos: ``bench/fleet_eval.py --scales``."""
 
 ALL_FEATURES = HAZE_FEATURES + TEXTURE_FEATURES
 """What ``features`` computes, in its order; a model uses those it names."""
