@@ -784,8 +784,7 @@ def _split_kinks(
             continue
         gaps = np.diff(np.append(own, own[0] + len(contour)))
         run = contour[np.roll(own, -(int(np.argmax(gaps)) + 1))]  # in contour order
-        trim = SPLIT_TRIM
-        run = run[trim:-trim]
+        run = run[SPLIT_TRIM:-SPLIT_TRIM]
         one, _ = _line_rms(run)
         if one <= SPLIT_RMS:
             out.append(side)
@@ -816,7 +815,6 @@ SPLIT_TRIM = 3
 """Contour points left out at each end of a side's stretch when looking for a kink in it: the
 blur rounds a corner over about as many, and a short side meeting a long one at a gentle corner
 leaves only a few more beyond them."""
-"""A side's contour further than this (RMS) from one line may have a corner in it [px]."""
 
 
 def _turns(corners: NDArray[np.float64]) -> NDArray[np.float64]:

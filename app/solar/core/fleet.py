@@ -284,8 +284,8 @@ class KernelModel:
         shared photos (``bench/fleet_eval.py``, folds grouped by panel) the answers outside
         that band are right more often than all answers are: the band is where the two
         classes' photos mix."""
+        z = self.standardised(f)
         if self.training is not None and self.reach is not None and len(self.training):
-            z = self.standardised(f)
             nearest = float(np.sqrt(((self.training - z) ** 2).sum(axis=1)).min())
             if nearest > self.reach:
                 return (
@@ -293,7 +293,7 @@ class KernelModel:
                     f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"
                 )
         if self.snow is not None:
-            p_snow = float(self.snow.probability(self.standardised(f)))
+            p_snow = float(self.snow.probability(z))
             if 0.5 - UNSURE <= p_snow < 0.5:  # brushing a snow-covered panel is no cleaning
                 return (
                     f"the fleet model is not sure the panel is free of snow: p(snow) {p_snow:.2f}"
