@@ -50,6 +50,24 @@ def test_random_image_matches_numpy() -> None:
         assert stats.means[c] == pytest.approx(image[..., c].mean(), abs=1e-9)
 
 
+@pytest.mark.parametrize(
+    "shape",
+    [(480, 640), (700, 800), (1080, 1920), (2, 600_000), (600_000, 1)],
+    ids=["small, read interleaved", "one band", "two bands", "wide rows", "a column"],
+)
+def test_every_size_and_view_matches_numpy(shape: tuple[int, int]) -> None:
+    """Small regions are read interleaved, large ones split a band at a time into buffers
+    kept between calls: each way, and a region cut from a larger image (strided rows), counts
+    what ``np.bincount`` counts, also on the second call, when the buffers are reused."""
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    image[: shape[0] // 2] //= 4  # unlike halves: a band that kept the last one's counts shows
+    region = image[1:, 1:] if min(shape) > 1 else image[1:]
+    for view in (image, region, image):
+        expected = [np.bincount(view[..., c].ravel(), minlength=256) for c in range(3)]
+        np.testing.assert_array_equal(channel_stats(view).histograms, expected)
+
+
 def test_roi() -> None:
     image = np.zeros((10, 10, 3), np.uint8)
     image[2:5, 3:8] = 255
