@@ -237,7 +237,7 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     (``--reference``), from sub-folder names or a CSV."""
     paths = _images(args.folder)
     labels = _labels(args.folder, paths, args.labels, args.reference)
-    params: dict[str, Any] = {"method": args.method}
+    params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
     if args.applies_to:
         params["applies_to"] = args.applies_to
     if args.camera_id:
@@ -364,6 +364,12 @@ def parser() -> argparse.ArgumentParser:
     a.add_argument("--labels", type=Path, help="a CSV of file and the reference column")
     a.add_argument("--reference", choices=["levels", "pm25", "aqi"], default="levels")
     a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
+    a.add_argument(
+        "--breakpoints",
+        choices=["us_epa", "eu_eaqi"],
+        default="us_epa",
+        help="the table that makes pm25 levels: US EPA AQI or European Air Quality Index",
+    )
     a.add_argument("--applies-to", action="append", help="a sky camera it grades (repeat)")
     a.add_argument("--camera-id", help="the camera whose region the photos are measured in")
     a.set_defaults(run=air_calibrate)

@@ -18,8 +18,9 @@ where it is); and models fitted to the variation within places alone (features a
 their place's mean over the training folds: ridge and a random forest), whose predicted
 deviations are ranked against the AQI's deviation from its place's mean — whether the pixels
 carry anything about the air once the place is known.
-Milan (16 frames of one fixed webcam, hourly PM2.5): leave-one-out, sky rows 3–35 % of the
-height (below the overlay ribbon), ρ against PM2.5.
+Milan series (151 frames of one fixed webcam over 28 days, hourly PM2.5 of the nearest
+station): folds grouped by day and earlier days → later ones, the levels made from PM2.5 by
+each breakpoint table in turn (US EPA AQI, European Air Quality Index).
 
     python bench/airquality_eval.py [--data ../shared/data/sky]
 """
@@ -113,8 +114,15 @@ def smoothed(levels: np.ndarray, times: list[datetime]) -> np.ndarray:
 
 
 def milan(root: Path, folds: int) -> None:
+    """The fixed Milan webcam (``milan_series``) with levels by each breakpoint table."""
+    for table in breakpoints.TABLES:
+        milan_table(root, folds, table)
+
+
+def milan_table(root: Path, folds: int, table: str) -> None:
     """The fixed Milan webcam (``milan_series``): regression fitted in PM2.5 against the
-    dissertation's clusters, on folds grouped by day and on later days from earlier ones."""
+    dissertation's clusters, on folds grouped by day and on later days from earlier ones, the
+    levels made from PM2.5 by the breakpoint ``table``."""
     with open(root / "labels.csv") as f:
         rows = list(csv.DictReader(f))
     modes, feats = (
@@ -126,7 +134,7 @@ def milan(root: Path, folds: int) -> None:
     times = [
         datetime.fromisoformat(f"{r['date']}T{r['hour_local']}").replace(tzinfo=rome) for r in rows
     ]
-    level = np.array([breakpoints.level_of_pm25(v) for v in pm])
+    level = np.array([breakpoints.level_of_pm25(v, table) for v in pm])
     days = sorted(set(day))
     cut = days[len(days) * 2 // 3]
     splits = {
@@ -137,7 +145,9 @@ def milan(root: Path, folds: int) -> None:
     }
     print(
         f"Milan series: {len(rows)} frames over {len(days)} days; levels from PM2.5 by the "
-        f"{breakpoints.SOURCE}; ρ against −PM2.5 (a high level is clean air)"
+        f"{breakpoints.TABLES[table]} ({table}), {np.unique(level).size} levels among them, "
+        f"which rank the PM2.5 itself at ρ = {spearman(level, -pm):+.3f}; ρ against −PM2.5 "
+        "(a high level is clean air)"
     )
     for name, split in splits.items():
         t2 = np.full(len(rows), np.nan)
@@ -151,7 +161,9 @@ def milan(root: Path, folds: int) -> None:
         for tr, te in split:
             tested[te] = True
             t2[te] = t2_predict(modes[tr], level[tr], modes[te])
-            model, _ = airquality.fit_regression(feats[tr], pm[tr], unit="pm25", groups=day[tr])
+            model, _ = airquality.fit_regression(
+                feats[tr], pm[tr], unit="pm25", groups=day[tr], table=table
+            )
             for i in te:
                 e = model.estimate(feats[i])
                 lv[i], est[i], low[i], high[i] = e.level, e.value, e.low, e.high
@@ -169,7 +181,7 @@ def milan(root: Path, folds: int) -> None:
             f"    {'regression: PM2.5 estimate':34s} ρ = {spearman(-est[sel], -pm[sel]):+.3f}"
             f"   (ρ of the estimate against PM2.5)"
         )
-        cat = np.array([airquality.category(v) for v in level])
+        cat = np.array([airquality.category(v) for v in level])  # the table's own categories
         said = np.array([airquality.category(v) if np.isfinite(v) else "" for v in lv])
         sure = sel & ~doubt
         outside = np.array([w.startswith("outside") for w in why])

@@ -95,19 +95,30 @@ class References:
     """How the levels were made, for the calibration's warnings."""
     reference: tuple[str, list[float]] | None
     """("pm25" or "aqi", values) when given in a reference unit: the regression's unit."""
+    table: str = "us_epa"
+    """The breakpoint table the reference values became levels by."""
 
 
 def _as_levels(
-    levels: list[int] | None, pm25: list[float] | None, aqi: list[float] | None
+    levels: list[int] | None,
+    pm25: list[float] | None,
+    aqi: list[float] | None,
+    table: str = "us_epa",
 ) -> References:
-    """Levels as given, or from reference PM2.5 or AQI values (``core.breakpoints``)."""
+    """Levels as given, or from reference PM2.5 or AQI values by the breakpoint ``table``
+    (``core.breakpoints``); the European table maps PM2.5 only."""
+    if table != "us_epa" and pm25 is None:
+        raise Unprocessable(
+            f"breakpoints={table} maps PM2.5 to levels: give pm25 (the US AQI and levels "
+            "need no table of it)",
+            code="breakpoints_without_pm25",
+        )
     if levels is not None:
         return References(levels, [], None)
     if pm25 is not None:
-        mapped = [breakpoints.level_of_pm25(v) for v in pm25]
-        return References(
-            mapped, [f"levels from PM2.5 by the {breakpoints.SOURCE}"], ("pm25", pm25)
-        )
+        mapped = [breakpoints.level_of_pm25(v, table) for v in pm25]
+        note = f"levels from PM2.5 by the {breakpoints.TABLES[table]}"
+        return References(mapped, [note], ("pm25", pm25), table)
     assert aqi is not None
     return References(
         [breakpoints.level_of_aqi(v) for v in aqi],
@@ -149,6 +160,7 @@ def _from_files(
         camera_ids=applies_to,
         warnings=[*refs.notes, *warnings],
         reference=refs.reference,
+        table=refs.table,
     )
     return _calibration_out(row)
 
@@ -161,8 +173,9 @@ def _from_frames(
     policy: Policy,
     method: str,
     applies_to: list[str],
+    table: str,
 ) -> AirCalibrationOut:
-    refs = _as_levels(body.levels, body.pm25, body.aqi)
+    refs = _as_levels(body.levels, body.pm25, body.aqi, table)
     if len(body.frame_ids) != len(refs.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(refs.levels)} reference values")
     stored = air.of_frames(session, body.frame_ids)
@@ -181,6 +194,7 @@ def _from_frames(
         warnings=refs.notes,
         reference=refs.reference,
         groups=stored.days,
+        table=refs.table,
     )
     return _calibration_out(row)
 
@@ -249,13 +263,23 @@ async def calibrate(
             "by a ridge regression on richer sky features (better on real photos)."
         ),
     ] = "clusters",
+    breakpoints_table: Annotated[
+        Literal["us_epa", "eu_eaqi"],
+        Query(
+            alias="breakpoints",
+            description="The table that makes reference pm25 values levels: the US EPA AQI "
+            "breakpoints (2024) or the European Air Quality Index's PM2.5 bands (EEA, 2017), "
+            "finer between 5 and 50 µg/m³ and narrower in its categories. PM2.5 only.",
+        ),
+    ] = "us_epa",
 ) -> AirCalibrationOut:
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
 
     Multipart: repeated ``files`` and ``levels`` (1–10, same order); or JSON
     ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames. In place of ``levels``,
     the reference ``pm25`` [µg/m³] or US ``aqi`` of each, mapped to levels by the US EPA AQI
-    breakpoints (2024; ``app.air.core.breakpoints``).
+    breakpoints (2024) or, for PM2.5 with ``breakpoints=eu_eaqi``, the European Air Quality
+    Index's bands (``app.air.core.breakpoints``).
     """
     kind = content_type(request)
     if kind == "multipart/form-data":
@@ -272,7 +296,7 @@ async def calibrate(
         [(name, raw)] = given.items()
         if len(files) != len(raw):
             raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
-        refs = _as_levels(*_references(name, raw))
+        refs = _as_levels(*_references(name, raw), breakpoints_table)
         return await image_work(
             request,
             partial(
@@ -301,6 +325,7 @@ async def calibrate(
                 policy,
                 method,
                 applies_to or [],
+                breakpoints_table,
             ),
         )
     raise UnsupportedMediaType(

@@ -20,7 +20,8 @@ class AirCalibrationFromFrames(Schema):
         min_length=1,
         max_length=10_000,
         description="Instead of levels: the reference PM2.5 of each frame [µg/m³], mapped to "
-        "levels by the US EPA AQI breakpoints (2024).",
+        "levels by the US EPA AQI breakpoints (2024) or, with breakpoints=eu_eaqi, the European "
+        "Air Quality Index's bands.",
     )
     aqi: list[Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)]] | None = Field(
         default=None,
@@ -53,6 +54,10 @@ class AirClusterOut(Out):
 class AirRegressionOut(Out):
     unit: str = Field(
         default="level", description="What it is fitted in: pm25 [µg/m³], aqi or level."
+    )
+    breakpoints: str = Field(
+        default="us_epa",
+        description="The table its PM2.5 estimates become levels by: us_epa or eu_eaqi.",
     )
     n: int = Field(default=0, description="Images it was fitted to.")
     alpha: float | None = Field(default=None, description="Ridge penalty (leave-one-out).")

@@ -149,10 +149,12 @@ def fit_regression(
     *,
     unit: str = "level",
     groups: Sequence[str] | None = None,
+    table: str = "us_epa",
 ) -> dict[str, Any]:
-    """The ridge regression of ``targets`` (levels, or the reference in ``unit``) on the sky
-    features (``airquality.fit_regression``), as the calibration keeps it."""
-    if len(targets) < 10 or len({airquality.level_of(t, unit) for t in targets}) < 3:
+    """The ridge regression of ``targets`` (levels, or the reference in ``unit``, whose levels
+    come by the breakpoint ``table``) on the sky features (``airquality.fit_regression``), as
+    the calibration keeps it."""
+    if len(targets) < 10 or len({airquality.level_of(t, unit, table) for t in targets}) < 3:
         raise Unprocessable("the regression needs at least 10 images of at least 3 levels")
     if features.ndim != 2 or features.shape[1] != len(airquality.SKY_FEATURES):
         raise Unprocessable(
@@ -162,11 +164,14 @@ def fit_regression(
         )
     if not np.isfinite(features).all():
         raise Unprocessable("some images gave non-finite features")
-    model, alpha = airquality.fit_regression(features, targets, unit=unit, groups=groups)
+    model, alpha = airquality.fit_regression(
+        features, targets, unit=unit, groups=groups, table=table
+    )
     assert model.gram_inv is not None
     return {
         "features": list(airquality.SKY_FEATURES),
         "unit": unit,
+        "breakpoints": table,
         "mean": model.mean.tolist(),
         "scale": model.scale.tolist(),
         "coef": model.coef.tolist(),
@@ -207,6 +212,7 @@ def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:
         sigma=r.get("sigma"),
         dof=float(r.get("dof", 1.0)),
         max_leverage=r.get("max_leverage"),
+        table=str(r.get("breakpoints", "us_epa")),  # made before the choice: the EPA's
     )
 
 
@@ -226,10 +232,12 @@ def calibrate(
     regions: Sequence[tuple[str, str, Region]] = (),
     reference: tuple[str, Sequence[float]] | None = None,
     groups: Sequence[str] | None = None,
+    table: str = "us_epa",
 ) -> AirCalibration:
     """The level clusters (always) and, for ``method="regression"``, the regression too:
     fitted to ``reference`` (unit "pm25" or "aqi", one value per image) when given, so its
-    verdicts carry an estimate in that unit; else to the levels. ``groups``: each image's
+    verdicts carry an estimate in that unit, made a level by the breakpoint ``table``; else to
+    the levels. ``groups``: each image's
     capture day, for the regression's out-of-sample residuals.
 
     ``warnings`` are kept in the model beside its own (levels pooled for want of images).
@@ -270,7 +278,7 @@ def calibrate(
         if features is None:
             raise Unprocessable("the regression needs the images' sky features")
         unit, targets = reference if reference is not None else ("level", levels)
-        regression = fit_regression(features, list(targets), unit=unit, groups=groups)
+        regression = fit_regression(features, list(targets), unit=unit, groups=groups, table=table)
     try:
         cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
     except soiling.BaselineError as exc:

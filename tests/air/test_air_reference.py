@@ -77,11 +77,13 @@ def station(client: TestClient, admin: dict[str, str], clock: Any) -> dict[str, 
     return {"token": token, "frames": frames, "pm25": pm}
 
 
-def calibrate(client: TestClient, admin: dict[str, str], station: dict[str, Any]) -> Any:
+def calibrate(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], table: str = "us_epa"
+) -> Any:
     r = client.post(
         "/air/calibration",
         json={"frame_ids": station["frames"], "pm25": station["pm25"]},
-        params={"method": "regression", "applies_to": "m"},
+        params={"method": "regression", "applies_to": "m", "breakpoints": table},
         headers=admin,
     )
     assert r.status_code == 201, r.text
@@ -114,6 +116,36 @@ def test_a_verdict_carries_pm25_with_its_interval(
             assert v["level"] is None
             assert v["reason"].startswith("uncertain: ")
     assert inside >= 4
+
+
+def test_a_regression_grades_by_its_own_table(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """Calibrated with the European bands, it keeps them: a frame it is sure of gets the
+    European level of its estimate; one it doubts inside its range has an interval across two
+    of the index's categories."""
+    cal = calibrate(client, admin, station, table="eu_eaqi")
+    assert cal["regression"]["breakpoints"] == "eu_eaqi"
+    assert calibrate(client, admin, station)["regression"]["breakpoints"] == "us_epa"
+    calibrate(client, admin, station, table="eu_eaqi")  # the camera's latest: European again
+    sure = []
+    for k, truth in enumerate((6.0, 8.0, 17.0, 30.0, 45.0, 55.0)):
+        v = post(
+            client, station["token"], hazy_jpeg(truth, seed=9100 + k), START + timedelta(days=9)
+        )["verdict"]
+        value = v["estimate"]["value"]
+        if v["uncertain"] and "outside the calibration" not in v["reason"]:
+            low, high = v["estimate"]["low"], v["estimate"]["high"]
+            cats = {(breakpoints.level_of_pm25(x, "eu_eaqi") + 1) // 2 for x in (low, high)}
+            assert len(cats) == 2, v  # its interval spans two of the index's categories
+        elif not v["uncertain"]:
+            assert v["level"] == breakpoints.level_of_pm25(value, "eu_eaqi")
+            sure.append(value)
+    assert len(sure) >= 3
+    # and the table mattered: the EPA's would have given another level to one of them
+    assert any(
+        breakpoints.level_of_pm25(x, "eu_eaqi") != breakpoints.level_of_pm25(x) for x in sure
+    )
 
 
 def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(

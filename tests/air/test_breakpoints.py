@@ -1,5 +1,6 @@
 """Reference PM2.5 and AQI as levels (``app.air.core.breakpoints``): the US EPA AQI table
-(EPA-454/B-24-002, 2024) at every edge, and calibration from reference values over HTTP."""
+(EPA-454/B-24-002, 2024) and the European Air Quality Index's PM2.5 bands (EEA, 2017) at every
+edge, and calibration from reference values over HTTP."""
 
 from __future__ import annotations
 
@@ -59,10 +60,39 @@ def test_pm25_to_level_follows_the_categories() -> None:
     ]  # fmt: skip
 
 
+@pytest.mark.parametrize(
+    ("pm25", "level"),
+    [
+        (0.0, 10), (5.0, 10), (5.01, 9), (10.0, 9), (10.01, 8), (15.0, 8), (15.01, 7),
+        (20.0, 7), (20.01, 6), (22.5, 6), (22.51, 5), (25.0, 5), (25.01, 4), (37.5, 4),
+        (37.51, 3), (50.0, 3), (50.01, 2), (75.0, 2), (75.01, 1), (800.0, 1), (1e308, 1),
+    ],
+)  # fmt: skip
+def test_the_european_bands_at_every_edge(pm25: float, level: int) -> None:
+    """EEA bands Good ≤ 10, Fair ≤ 20, Moderate ≤ 25, Poor ≤ 50, Very poor ≤ 75 µg/m³, each
+    halved; Extremely poor is level 1."""
+    assert level_of_pm25(pm25, "eu_eaqi") == level
+
+
+def test_the_european_categories_are_its_bands() -> None:
+    """The service's categories, two levels each, are the index's first five bands."""
+    from app.air.core.airquality import category
+
+    said = [category(level_of_pm25(c, "eu_eaqi")) for c in (7.0, 12.0, 21.0, 30.0, 60.0, 90.0)]
+    assert said == ["Very Good", "Good", "Fair", "Poor", "Very Poor", "Very Poor"]
+
+
+def test_an_unknown_table_is_refused() -> None:
+    with pytest.raises(ValueError, match="table must be one of"):
+        level_of_pm25(10.0, "uk_daqi")
+
+
 @pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
 def test_no_level_for_a_bad_value(bad: float) -> None:
     with pytest.raises(ValueError, match="finite number ≥ 0"):
         level_of_pm25(bad)
+    with pytest.raises(ValueError, match="finite number ≥ 0"):
+        level_of_pm25(bad, "eu_eaqi")
     with pytest.raises(ValueError, match="finite number ≥ 0"):
         level_of_aqi(bad)
 
@@ -94,6 +124,49 @@ def test_a_calibration_from_reference_pm25(
     assert r.status_code == 201, r.text
     assert sorted(c["level"] for c in r.json()["clusters"]) == [1, 3, 5, 7, 10]
     assert any("US EPA AQI" in w for w in r.json()["warnings"])
+
+
+def test_a_calibration_from_pm25_by_the_european_index(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """The same images, their PM2.5 made levels by the European bands: 100 → 1, 45 → 3,
+    24 → 5, 18 → 7, 3 → 10 µg/m³ (by the EPA table 45 and 24 would both be 6, 18 an 8)."""
+    files, refs = files_and({1: 100.0, 3: 45.0, 5: 24.0, 7: 18.0, 10: 3.0})
+    r = client.post(
+        "/air/calibration",
+        files=files,
+        data={"pm25": refs},
+        params={"camera_id": "sky0", "significance": 0.01, "breakpoints": "eu_eaqi"},
+        headers=admin,
+    )
+    assert r.status_code == 201, r.text
+    assert sorted(c["level"] for c in r.json()["clusters"]) == [1, 3, 5, 7, 10]
+    assert any("European Air Quality Index" in w for w in r.json()["warnings"])
+
+
+@pytest.mark.parametrize(
+    ("data", "params", "fault"),
+    [
+        ({"levels": ["3"] * 40}, {"breakpoints": "eu_eaqi"}, "give pm25"),
+        ({"aqi": ["30"] * 40}, {"breakpoints": "eu_eaqi"}, "give pm25"),
+        ({"pm25": ["30"] * 40}, {"breakpoints": "uk_daqi"}, "breakpoints"),
+    ],
+    ids=["levels", "aqi", "unknown-table"],
+)
+def test_the_european_index_maps_pm25_only(
+    client: TestClient,
+    admin: dict[str, str],
+    city: dict[str, Any],
+    data: dict[str, Any],
+    params: dict[str, str],
+    fault: str,
+) -> None:
+    files, _ = files_and({1: 0, 3: 0, 5: 0, 7: 0, 10: 0})
+    r = client.post("/air/calibration", files=files, data=data, params=params, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"].startswith("application/problem+json")
+    assert fault in r.text
+    assert client.get("/air/calibrations", headers=admin).json() == []
 
 
 @pytest.mark.parametrize(

@@ -416,10 +416,11 @@ def _t_quantile(dof: float) -> float:
     return float(t_dist.ppf((1 + INTERVAL) / 2, dof))
 
 
-def level_of(value: float, unit: str) -> int:
-    """The level 1–10 of an estimate in ``unit``."""
+def level_of(value: float, unit: str, table: str = "us_epa") -> int:
+    """The level 1–10 of an estimate in ``unit``; PM2.5 by the breakpoint ``table``
+    (``breakpoints.TABLES``)."""
     if unit == "pm25":
-        return breakpoints.level_of_pm25(max(value, 0.0))
+        return breakpoints.level_of_pm25(max(value, 0.0), table)
     if unit == "aqi":
         return breakpoints.level_of_aqi(max(value, 0.0))
     return int(np.clip(np.rint(value), 1, 10))
@@ -462,6 +463,8 @@ class Regression:
     """The largest leverage a training image has against the others, hᵢ/(1 − hᵢ) (its
     leverage in the fit that leaves it out): a frame farther out than any image was from the
     rest is extrapolation."""
+    table: str = "us_epa"
+    """The breakpoint table (``breakpoints.TABLES``) its PM2.5 estimates become levels by."""
 
     def _fitted(self, features: ArrayLike) -> tuple[float, NDArray[np.float64]]:
         z = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
@@ -484,7 +487,7 @@ class Regression:
         interval's two ends fall in different categories."""
         y, z = self._fitted(features)
         value = self._out(y)
-        level = level_of(value, self.unit)
+        level = level_of(value, self.unit, self.table)
         if self.gram_inv is None or self.sigma is None or self.max_leverage is None:
             return Estimate(level, value, None, None, None, None)
         h = float(z @ self.gram_inv @ z)
@@ -498,8 +501,8 @@ class Regression:
                 f"({self.max_leverage:.3g})"
             )
         else:
-            lo_cat = category(level_of(low, self.unit))
-            hi_cat = category(level_of(high, self.unit))
+            lo_cat = category(level_of(low, self.unit, self.table))
+            hi_cat = category(level_of(high, self.unit, self.table))
             if lo_cat != hi_cat:
                 uncertain = (
                     f"the {INTERVAL:.0%} interval spans {hi_cat} to {lo_cat}"
@@ -516,6 +519,7 @@ def fit_regression(
     unit: str = "level",
     groups: Sequence[str] | None = None,
     alphas: ArrayLike | None = None,
+    table: str = "us_epa",
 ) -> tuple[Regression, float]:
     """Ridge regression of ``targets`` (levels, or reference values in ``unit``) on the
     features, α by scikit-learn's efficient leave-one-out, and (α). σ for the intervals comes
@@ -529,6 +533,8 @@ def fit_regression(
     t = np.asarray(targets, dtype=np.float64)
     if unit not in UNITS:
         raise ValueError(f"unit must be one of {UNITS}")
+    if table not in breakpoints.TABLES or (table != "us_epa" and unit != "pm25"):
+        raise ValueError(f"table {table!r} does not map {unit} to levels")
     y = np.log1p(t) if unit != "level" else t
     scaler = StandardScaler().fit(x)
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
@@ -564,5 +570,6 @@ def fit_regression(
         sigma=float(np.sqrt(np.mean(residuals**2))),
         dof=dof,
         max_leverage=float(np.max(lev / np.maximum(1 - lev - 1 / n, 1e-6))),
+        table=table,
     )
     return reg, alpha

@@ -1,8 +1,10 @@
-"""Reference measurements as the service's levels 1–10: PM2.5 [µg/m³] or US AQI → level.
+"""Reference measurements as the service's levels 1–10: PM2.5 [µg/m³] or US AQI → level, by
+one of two published tables (``TABLES``): the US EPA's AQI (the default) or the European Air
+Quality Index.
 
-Source: US EPA, *Technical Assistance Document for the Reporting of Daily Air Quality – the Air
-Quality Index (AQI)*, EPA-454/B-24-002 (May 2024), Table 6, with the PM2.5 breakpoints of the
-February 2024 revision. PM2.5 is truncated to 0.1 µg/m³ and turned into the AQI by linear
+US EPA source: *Technical Assistance Document for the Reporting of Daily Air Quality – the
+Air Quality Index (AQI)*, EPA-454/B-24-002 (May 2024), Table 6, with the PM2.5 breakpoints of
+the February 2024 revision. PM2.5 is truncated to 0.1 µg/m³ and turned into the AQI by linear
 interpolation within its category (the document's eq. 1):
 
     I = (I_hi − I_lo)/(C_hi − C_lo) · (C − C_lo) + I_lo, rounded to a whole number.
@@ -15,6 +17,21 @@ The AQI's six categories fill the service's five, each category's lower and uppe
     AQI 101–125 → 6, 126–150 → 5    Unhealthy for Sensitive Groups    → Fair
     AQI 151–175 → 4, 176–200 → 3    Unhealthy                         → Poor
     AQI 201–300 → 2, above 300 → 1  Very Unhealthy and Hazardous      → Very Poor
+
+European source: European Environment Agency, *European Air Quality Index* (2017), the PM2.5
+bands [µg/m³] Good 0–10, Fair 10–20, Moderate 20–25, Poor 25–50, Very poor 50–75, Extremely
+poor 75–800 (upper edges inclusive), applied to the reference values as given. Its first five
+bands are the service's five categories, halved into levels as above; the last is level 1:
+
+    0–5 → 10,    5–10 → 9       Good                              → Very Good
+    10–15 → 8,   15–20 → 7      Fair                              → Good
+    20–22.5 → 6, 22.5–25 → 5    Moderate                          → Fair
+    25–37.5 → 4, 37.5–50 → 3    Poor                              → Poor
+    50–75 → 2,   above 75 → 1   Very poor and Extremely poor      → Very Poor
+
+Its levels are finer where a European city's air mostly lies (5–50 µg/m³: eight levels against
+the EPA table's four), so they rank the hours more finely; its categories are narrower, so a
+camera's estimate is more often unsure of its category (bench/README.md, air quality).
 """
 
 from __future__ import annotations
@@ -46,6 +63,24 @@ LEVEL_EDGES = (
 
 SOURCE = "US EPA AQI breakpoints (EPA-454/B-24-002, 2024)"
 
+EAQI_PM25_LEVELS = (
+    (5.0, 10),
+    (10.0, 9),
+    (15.0, 8),
+    (20.0, 7),
+    (22.5, 6),
+    (25.0, 5),
+    (37.5, 4),
+    (50.0, 3),
+    (75.0, 2),
+)
+"""(highest PM2.5 [µg/m³], level) of the European Air Quality Index's bands, halved; 1 beyond."""
+
+EAQI_SOURCE = "European Air Quality Index PM2.5 bands (EEA, 2017)"
+
+TABLES = {"us_epa": SOURCE, "eu_eaqi": EAQI_SOURCE}
+"""The breakpoint tables by name, with their sources."""
+
 
 def aqi_of_pm25(pm25: float) -> int:
     """The AQI of a PM2.5 concentration [µg/m³], 500 beyond the table. ValueError for a
@@ -69,6 +104,13 @@ def level_of_aqi(aqi: float) -> int:
     return next((level for top, level in LEVEL_EDGES if value <= top), 1)
 
 
-def level_of_pm25(pm25: float) -> int:
-    """The level 1–10 of a PM2.5 concentration [µg/m³] (through its AQI)."""
+def level_of_pm25(pm25: float, table: str = "us_epa") -> int:
+    """The level 1–10 of a PM2.5 concentration [µg/m³] by ``table``: through its US AQI, or
+    by the European index's bands. ValueError for a negative or non-finite one."""
+    if table == "eu_eaqi":
+        if not math.isfinite(pm25) or pm25 < 0:
+            raise ValueError(f"PM2.5 must be a finite number ≥ 0 µg/m³; got {pm25}")
+        return next((level for top, level in EAQI_PM25_LEVELS if pm25 <= top), 1)
+    if table != "us_epa":
+        raise ValueError(f"table must be one of {sorted(TABLES)}; got {table!r}")
     return level_of_aqi(aqi_of_pm25(pm25))
