@@ -264,7 +264,7 @@ async def calibrate(
         ),
     ] = "clusters",
     breakpoints_table: Annotated[
-        Literal["us_epa", "eu_eaqi"],
+        breakpoints.Table,
         Query(
             alias="breakpoints",
             description="The table that makes reference pm25 values levels: the US EPA AQI "

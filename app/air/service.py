@@ -237,8 +237,8 @@ def calibrate(
     """The level clusters (always) and, for ``method="regression"``, the regression too:
     fitted to ``reference`` (unit "pm25" or "aqi", one value per image) when given, so its
     verdicts carry an estimate in that unit, made a level by the breakpoint ``table``; else to
-    the levels. ``groups``: each image's
-    capture day, for the regression's out-of-sample residuals.
+    the levels. ``groups``: each image's capture day, for the regression's out-of-sample
+    residuals.
 
     ``warnings`` are kept in the model beside its own (levels pooled for want of images).
     ``regions``: (frame, camera, region) of stored frames it is made from; a camera it is made

@@ -37,6 +37,7 @@ camera's estimate is more often unsure of its category (bench/README.md, air qua
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 PM25 = (
     (0.0, 9.0, 0, 50),
@@ -78,8 +79,11 @@ EAQI_PM25_LEVELS = (
 
 EAQI_SOURCE = "European Air Quality Index PM2.5 bands (EEA, 2017)"
 
-TABLES = {"us_epa": SOURCE, "eu_eaqi": EAQI_SOURCE}
-"""The breakpoint tables by name, with their sources."""
+Table = Literal["us_epa", "eu_eaqi"]
+"""A breakpoint table's name."""
+
+TABLES: dict[str, str] = {"us_epa": SOURCE, "eu_eaqi": EAQI_SOURCE}
+"""The breakpoint tables by name (``Table``), with their sources."""
 
 
 def aqi_of_pm25(pm25: float) -> int:
@@ -107,10 +111,10 @@ def level_of_aqi(aqi: float) -> int:
 def level_of_pm25(pm25: float, table: str = "us_epa") -> int:
     """The level 1–10 of a PM2.5 concentration [µg/m³] by ``table``: through its US AQI, or
     by the European index's bands. ValueError for a negative or non-finite one."""
-    if table == "eu_eaqi":
-        if not math.isfinite(pm25) or pm25 < 0:
-            raise ValueError(f"PM2.5 must be a finite number ≥ 0 µg/m³; got {pm25}")
-        return next((level for top, level in EAQI_PM25_LEVELS if pm25 <= top), 1)
-    if table != "us_epa":
+    if table == "us_epa":
+        return level_of_aqi(aqi_of_pm25(pm25))
+    if table != "eu_eaqi":
         raise ValueError(f"table must be one of {sorted(TABLES)}; got {table!r}")
-    return level_of_aqi(aqi_of_pm25(pm25))
+    if not math.isfinite(pm25) or pm25 < 0:
+        raise ValueError(f"PM2.5 must be a finite number ≥ 0 µg/m³; got {pm25}")
+    return next((level for top, level in EAQI_PM25_LEVELS if pm25 <= top), 1)

@@ -186,7 +186,7 @@ class LogisticModel:
     def probability(self, f: ArrayLike) -> NDArray[np.float64]:
         """p(needs cleaning) for ``ALL_FEATURES`` vectors of shape (..., K)."""
         z = ((pick(f, self.feature_names) - self.mean) / self.scale) @ self.coef
-        return np.asarray(1.0 / (1.0 + np.exp(-(z + self.intercept))), dtype=np.float64)
+        return _sigmoid(z + self.intercept)
 
     def condition(self, f: ArrayLike) -> str:
         """clean or dirty: the linear model tells no more."""
