@@ -258,3 +258,27 @@ def test_reference_values_are_checked(
     )
     assert nan.status_code in (400, 422)
     assert client.get("/air/calibrations").json() == []
+
+
+def test_a_regression_stored_before_the_choice_of_table_grades_by_the_epa_s() -> None:
+    """A regression kept without ``breakpoints`` was made when the EPA table was the only
+    one: 30 µg/m³ is AQI 89, level 7 (by the European bands it would be 4)."""
+    from app.air import service
+    from app.air.core import airquality
+    from app.air.models import AirCalibration
+
+    k = len(airquality.SKY_FEATURES)
+    stored = {
+        "features": list(airquality.SKY_FEATURES),
+        "unit": "pm25",
+        "mean": [0.0] * k,
+        "scale": [1.0] * k,
+        "coef": [0.0] * k,
+        "intercept": float(np.log1p(30.0)),
+    }
+    row = AirCalibration(id="before-tables", regression=stored)
+    regression = service.as_regression(row)
+    assert regression is not None
+    assert regression.table == "us_epa"
+    assert regression.level(np.zeros(k)) == 7 == breakpoints.level_of_pm25(30.0)
+    assert breakpoints.level_of_pm25(30.0, "eu_eaqi") == 4
