@@ -166,7 +166,9 @@ def milan_table(root: Path, folds: int, table: str) -> None:
             )
             for i in te:
                 e = model.estimate(feats[i])
-                lv[i], est[i], low[i], high[i] = e.level, e.value, e.low, e.high
+                # the level a verdict gives: none outside the calibration
+                lv[i] = np.nan if e.outside else e.level
+                est[i], low[i], high[i] = e.value, e.low, e.high
                 doubt[i] = e.uncertain is not None
                 why[i] = e.uncertain or ""
         sel = tested
@@ -176,7 +178,10 @@ def milan_table(root: Path, folds: int, table: str) -> None:
             f"    {'clusters (modes, T²)':34s} ρ = {spearman(t2[sel], -pm[sel]):+.3f}"
             f"   graded {np.isfinite(t2[sel]).mean():.2f}"
         )
-        print(f"    {'regression: level':34s} ρ = {spearman(lv[sel], -pm[sel]):+.3f}")
+        print(
+            f"    {'regression: level':34s} ρ = {spearman(lv[sel], -pm[sel]):+.3f}"
+            f"   (as verdicts give it: {np.isfinite(lv[sel]).mean():.2f} of frames levelled)"
+        )
         print(
             f"    {'regression: PM2.5 estimate':34s} ρ = {spearman(-est[sel], -pm[sel]):+.3f}"
             f"   (ρ of the estimate against PM2.5)"
@@ -195,6 +200,12 @@ def milan_table(root: Path, folds: int, table: str) -> None:
         print(
             f"    {'regression: smoothed level':34s} ρ = "
             f"{spearman(smoothed(lv[sel], tt), -pm[sel]):+.3f}   (NowCast of every level)"
+        )
+        public = smoothed(np.where(doubt, np.nan, lv)[sel], tt)
+        print(
+            f"    {'regression: public level':34s} ρ = {spearman(public, -pm[sel]):+.3f}"
+            f"   (NowCast of the sure levels, as /latest gives it: "
+            f"{np.isfinite(public).mean():.2f} of frames have one)"
         )
         print(
             f"    {'clusters: smoothed level':34s} ρ = "

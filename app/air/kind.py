@@ -35,9 +35,17 @@ def _features(pixels: Pixels) -> NDArray[np.float64]:
     return airquality.sky_features(pixels.region, below, pixels.stats.histograms)
 
 
+NOT_SURE = "Not sure: the camera cannot judge the air with confidence from this frame"
+
+
 def category_message(category: str | None) -> str | None:
     """The public message of a category (ch. 6: the screen below the camera)."""
     return f"Today's Air Quality is {category}" if category else None
+
+
+def verdict_message(verdict: SkyVerdict) -> str | None:
+    """A frame's message: its category's, or that it is not sure (never a doubted guess)."""
+    return NOT_SURE if verdict.uncertain else category_message(verdict.category)
 
 
 def estimate_out(verdict: SkyVerdict) -> SkyEstimate | None:
@@ -58,7 +66,7 @@ def verdict_out(verdict: Verdict) -> SkyVerdictOut:
     return SkyVerdictOut(
         level=verdict.level,
         category=verdict.category,
-        message=category_message(verdict.category),
+        message=verdict_message(verdict),
         calibration_id=verdict.calibration_id,
         uncertain=bool(verdict.uncertain),
         estimate=estimate_out(verdict),

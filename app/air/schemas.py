@@ -111,7 +111,8 @@ class AirLatest(Out):
     )
     smoothed_category: str | None
     frame_level: int | None = Field(
-        description="The latest frame's own grade (null when it could not be graded: reason)."
+        description="The latest frame's own grade (null when it could not be graded: reason; "
+        "when uncertain, the estimate's level, which the public level does not follow)."
     )
     frame_category: str | None
     uncertain: bool = Field(
@@ -138,7 +139,11 @@ class AirReading(Out):
     category: str | None
     smoothed_level: float | None
     reason: str | None
-    uncertain: bool = Field(default=False, description="The regression doubted this frame.")
+    uncertain: bool = Field(
+        default=False,
+        description="The regression doubted this frame (reason): its level, if any, is the "
+        "estimate's, left out of the smoothed level, the aggregates and the map.",
+    )
     estimate: float | None = Field(
         default=None, description="The regression's estimate, in estimate_unit."
     )

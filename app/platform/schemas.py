@@ -279,9 +279,16 @@ class SkyEstimate(Out):
 
 class SkyVerdictOut(VerdictBase):
     kind: Literal["sky"] = "sky"
-    level: int | None
+    level: int | None = Field(
+        description="The frame's level 1–10; null when it could not be graded (reason) or lies "
+        "outside what the regression was calibrated on. When uncertain, the level of the "
+        "estimate, which the public level does not follow."
+    )
     category: str | None
-    message: str | None
+    message: str | None = Field(
+        description='"Today\'s Air Quality is <category>"; when uncertain, that the camera is '
+        "not sure, not the category."
+    )
     calibration_id: str | None = Field(
         default=None,
         description="The calibration that graded the frame (the camera's own or "
@@ -289,9 +296,10 @@ class SkyVerdictOut(VerdictBase):
     )
     uncertain: bool = Field(
         default=False,
-        description="The regression doubts this frame (reason says why: outside what it was "
-        "calibrated on, or an interval across categories): no level, and the camera's public "
-        "level does not move.",
+        description="The regression doubts this frame (reason says why): outside what it was "
+        "calibrated on (no level), or an 80 % interval across categories (the estimate's "
+        "level, to weigh with the interval). Either way the camera's public level, its "
+        "history and the map do not move.",
     )
     estimate: SkyEstimate | None = Field(
         default=None, description="The regression's estimate (null for the T² clusters)."

@@ -1213,12 +1213,14 @@ def test_regression_calibration(
         assert e["low"] < e["value"] < e["high"]
         low, high = airquality.category(e["low"]), airquality.category(e["high"])
         assert v["uncertain"] is (low != high)
+        # an interval across categories doubts the level, but still says the estimate's
+        assert v["level"] == round(e["value"])
         if low == high:
-            assert v["level"] == round(e["value"])
             assert v["reason"] is None
+            assert v["message"] == f"Today's Air Quality is {v['category']}"
         else:
-            assert v["level"] is None
             assert v["reason"].startswith("uncertain: the 80% interval")
+            assert v["message"].startswith("Not sure")
     # too few images for a regression
     r = client.post(
         "/air/calibration",

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.air.core import breakpoints
+from app.air.core import airquality, breakpoints
 
 SKY_ROWS = 50
 ROI = [0, 0, 160, SKY_ROWS]
@@ -111,11 +111,12 @@ def test_a_verdict_carries_pm25_with_its_interval(
         assert e["low"] < e["value"] < e["high"]
         assert 0.6 * truth < e["value"] < 1.6 * truth
         inside += e["low"] <= truth <= e["high"]
-        if not v["uncertain"]:
-            assert v["level"] == breakpoints.level_of_pm25(e["value"])
-        else:
-            assert v["level"] is None
+        if v["uncertain"]:
             assert v["reason"].startswith("uncertain: ")
+        if v["uncertain"] and "outside the calibration" in v["reason"]:
+            assert v["level"] is None
+        else:  # sure, or doubted for an interval across categories: the estimate's level
+            assert v["level"] == breakpoints.level_of_pm25(e["value"])
     assert inside >= 4
 
 
@@ -144,6 +145,49 @@ def test_a_regression_grades_by_its_own_table(
     # and the table mattered: the EPA's would have given another level to one of them
     assert any(
         breakpoints.level_of_pm25(x, "eu_eaqi") != breakpoints.level_of_pm25(x) for x in sure
+    )
+
+
+def test_a_doubted_level_is_said_but_moves_nothing(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """A frame whose interval spans two categories keeps the estimate's level, flagged
+    uncertain, with a message that is not sure; the smoothed levels, and the hourly history,
+    are those of the sure frames alone."""
+    calibrate(client, admin, station, table="eu_eaqi")  # narrow categories: many doubts
+    clock.now = START + timedelta(days=20)
+    first = clock.now - timedelta(hours=2)
+    verdicts = []
+    for k, truth in enumerate((6.0, 8.0, 17.0, 30.0, 45.0, 55.0, 12.0, 25.0)):
+        taken = first + timedelta(minutes=12 * k)
+        v = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), taken)["verdict"]
+        verdicts.append((taken, v))
+    doubted = [
+        v for _, v in verdicts if v["uncertain"] and "outside the calibration" not in v["reason"]
+    ]
+    sure = [(t, v) for t, v in verdicts if not v["uncertain"]]
+    assert doubted
+    assert len(sure) >= 2
+    for v in doubted:
+        assert v["level"] == breakpoints.level_of_pm25(v["estimate"]["value"], "eu_eaqi")
+        assert v["category"] is not None
+        assert v["message"].startswith("Not sure")
+    expected = airquality.nowcasts(
+        [t for t, _ in sure], [float(v["level"]) for _, v in sure], [t for t, _ in verdicts]
+    )
+    readings = client.get(
+        "/air/readings", params={"camera_id": "m", "since": first.isoformat(), "limit": 100}
+    ).json()
+    by_time = {datetime.fromisoformat(r["captured_at"]): r for r in readings}
+    for (taken, _), smoothed in zip(verdicts, expected, strict=True):
+        assert by_time[taken]["smoothed_level"] == pytest.approx(smoothed, rel=1e-12)
+    hourly = client.get(
+        "/air/readings",
+        params={"camera_id": "m", "since": first.isoformat(), "aggregate": "hourly"},
+    ).json()
+    assert sum(h["n"] for h in hourly) == len(sure)
+    assert sum(h["mean_level"] * h["n"] for h in hourly) == pytest.approx(
+        sum(v["level"] for _, v in sure)
     )
 
 

@@ -655,6 +655,7 @@ class TestRegression:
         e = model.estimate(far)
         assert e.uncertain is not None
         assert e.uncertain.startswith("outside the calibration")
+        assert e.outside is True
         assert model.estimate(np.zeros(5)).leverage == pytest.approx(0.0, abs=1e-3)
 
     def test_an_interval_across_a_category_edge_is_uncertain(self) -> None:
@@ -667,6 +668,7 @@ class TestRegression:
         edge = model.estimate([4.5])
         assert edge.uncertain is not None
         assert "interval spans Poor to Fair" in edge.uncertain
+        assert edge.outside is False  # inside the calibration: its level stands, doubted
         sure = model.estimate([9.6])
         assert sure.uncertain is None
         assert sure.level == 10

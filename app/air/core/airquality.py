@@ -440,6 +440,9 @@ class Estimate:
     """h = z·(ZᵀZ + αI)⁻¹·z of the frame's standardised features."""
     uncertain: str | None
     """Why the level is not to be trusted, or None."""
+    outside: bool = False
+    """The frame lies outside the calibration: its level is a guess beyond what was learnt,
+    not an estimate with a wide interval."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -495,7 +498,8 @@ class Regression:
         half *= float(np.sqrt(1 + 1 / max(self.n, 1) + h))
         low, high = sorted((self._out(y - half), self._out(y + half)))
         uncertain = None
-        if not np.isfinite(h) or h > self.max_leverage:
+        outside = not np.isfinite(h) or h > self.max_leverage
+        if outside:
             uncertain = (
                 f"outside the calibration: leverage {h:.3g} above the largest of its images "
                 f"({self.max_leverage:.3g})"
@@ -509,7 +513,7 @@ class Regression:
                     if self.unit != "level"
                     else f"the {INTERVAL:.0%} interval spans {lo_cat} to {hi_cat}"
                 )
-        return Estimate(level, value, low, high, h, uncertain)
+        return Estimate(level, value, low, high, h, uncertain, outside)
 
 
 def fit_regression(
