@@ -375,6 +375,22 @@ def trusted(level: int | None, uncertain: bool | None) -> bool:
     return level is not None and not uncertain
 
 
+def _levels_of(camera_id: str) -> Select[str, datetime, int | None, bool, float | None]:
+    """A camera's readings as smoothing reads them: id, capture time, level, doubt and
+    smoothed level."""
+    return (
+        select(
+            Frame.id,
+            Frame.captured_at,
+            SkyVerdict.level,
+            SkyVerdict.uncertain,
+            SkyVerdict.smoothed_level,
+        )
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.camera_id == camera_id)
+    )
+
+
 def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
     """Grade a sky frame, smooth the camera's level, and raise an alert when it turns Poor
     (or clear the camera's last one when it is back to ``CLEAR_LEVEL``)."""
@@ -395,17 +411,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyV
     # before it was taken, not with the readings taken since); those after it, smoothed
     # before it arrived, are smoothed again with it
     # (an ungraded reading has a smoothed level too: the camera's, from the readings before)
-    readings = (
-        select(
-            Frame.id,
-            Frame.captured_at,
-            SkyVerdict.level,
-            SkyVerdict.uncertain,
-            SkyVerdict.smoothed_level,
-        )
-        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == camera.id)
-    )
+    readings = _levels_of(camera.id)
     graded = readings.where(TRUSTED)
     hours = timedelta(hours=airquality.NOWCAST_HOURS)
     around = session.execute(
@@ -596,18 +602,7 @@ def _smooth_again(session: Session, camera_id: str, since: datetime, last: datet
     hours after ``last``, the last one re-graded, when given), from its graded readings
     (``airquality.nowcasts``)."""
     hours = timedelta(hours=airquality.NOWCAST_HOURS)
-    q = (
-        select(
-            Frame.id,
-            Frame.captured_at,
-            SkyVerdict.level,
-            SkyVerdict.uncertain,
-            SkyVerdict.smoothed_level,
-        )
-        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == camera_id, Frame.captured_at > since - hours)
-        .order_by(Frame.captured_at)
-    )
+    q = _levels_of(camera_id).where(Frame.captured_at > since - hours).order_by(Frame.captured_at)
     if last is not None:
         q = q.where(Frame.captured_at <= last + hours)
     rows = session.execute(q).all()
