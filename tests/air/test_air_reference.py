@@ -148,17 +148,21 @@ def test_a_regression_grades_by_its_own_table(
     )
 
 
+TRUTHS = (6.0, 8.0, 17.0, 30.0, 45.0, 55.0, 12.0, 25.0)
+"""PM2.5 of the frames a doubted level is tested on [µg/m³]."""
+
+
 def test_a_doubted_level_is_said_but_moves_nothing(
     client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
 ) -> None:
     """A frame whose interval spans two categories keeps the estimate's level, flagged
-    uncertain, with a message that is not sure; the smoothed levels, and the hourly history,
-    are those of the sure frames alone."""
+    uncertain, with a message that is not sure; the smoothed levels, the hourly history and
+    the map are those of the sure frames alone."""
     calibrate(client, admin, station, table="eu_eaqi")  # narrow categories: many doubts
     clock.now = START + timedelta(days=20)
     first = clock.now - timedelta(hours=2)
     verdicts = []
-    for k, truth in enumerate((6.0, 8.0, 17.0, 30.0, 45.0, 55.0, 12.0, 25.0)):
+    for k, truth in enumerate(TRUTHS):
         taken = first + timedelta(minutes=12 * k)
         v = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), taken)["verdict"]
         verdicts.append((taken, v))
@@ -189,6 +193,21 @@ def test_a_doubted_level_is_said_but_moves_nothing(
     assert sum(h["mean_level"] * h["n"] for h in hourly) == pytest.approx(
         sum(v["level"] for _, v in sure)
     )
+    # on the map: the newest reading's smoothed level; a doubted frame alone, hours later,
+    # with no sure reading before it to smooth with, does not put the camera on it
+    place = {"lat": 45.46, "lon": 9.19}
+    assert client.patch("/cameras/m", json=place, headers=admin).status_code == 200
+    shown = client.get("/air/isopleths", params={"window": 3 * 3600}).json()["cameras"]
+    assert [c["camera_id"] for c in shown] == ["m"]
+    assert shown[0]["level"] == pytest.approx(expected[-1], rel=1e-12)
+    k, _ = next((k, v) for k, (_, v) in enumerate(verdicts) if v in doubted)
+    clock.now += timedelta(hours=6)
+    truth = TRUTHS[k]
+    late = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), clock.now)
+    assert late["verdict"]["uncertain"] is True
+    assert late["verdict"]["level"] is not None
+    shown = client.get("/air/isopleths", params={"window": 3600}).json()["cameras"]
+    assert shown == []
 
 
 def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(
