@@ -100,8 +100,11 @@ def milan_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    """ρ over the pairs where both are finite; nan for fewer than 3 or a constant side."""
     ok = np.isfinite(a) & np.isfinite(b)
-    return float(spearmanr(a[ok], b[ok])[0]) if ok.sum() > 2 else float("nan")
+    if ok.sum() < 3 or np.ptp(a[ok]) == 0 or np.ptp(b[ok]) == 0:
+        return float("nan")
+    return float(spearmanr(a[ok], b[ok])[0])
 
 
 def smoothed(levels: np.ndarray, times: list[datetime]) -> np.ndarray:
@@ -205,7 +208,8 @@ def milan_table(root: Path, folds: int, table: str) -> None:
         print(
             f"    {'regression: public level':34s} ρ = {spearman(public, -pm[sel]):+.3f}"
             f"   (NowCast of the sure levels, as /latest gives it: "
-            f"{np.isfinite(public).mean():.2f} of frames have one)"
+            f"{np.isfinite(public).mean():.2f} of frames have one, "
+            f"distinct levels: {np.unique(np.rint(public[np.isfinite(public)])).size})"
         )
         print(
             f"    {'clusters: smoothed level':34s} ρ = "
