@@ -56,9 +56,9 @@ def test_random_image_matches_numpy() -> None:
     ids=["small, read interleaved", "one band", "two bands", "wide rows", "a column"],
 )
 def test_every_size_and_view_matches_numpy(shape: tuple[int, int]) -> None:
-    """Small regions are read interleaved, large ones split a band at a time into buffers
-    kept between calls: each way, and a region cut from a larger image (strided rows), counts
-    what ``np.bincount`` counts, also on the second call, when the buffers are reused."""
+    """Small regions are read interleaved, large ones split a band at a time into one
+    buffer of planes: each way, and a region cut from a larger image (strided rows), counts
+    what ``np.bincount`` counts, on every call."""
     rng = np.random.default_rng(7)
     image = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
     image[: shape[0] // 2] //= 4  # unlike halves: a band that kept the last one's counts shows

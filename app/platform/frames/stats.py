@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import os
-import queue
 from dataclasses import dataclass
 
 import cv2
@@ -74,11 +71,6 @@ _BAND_PIXELS = 1 << 20
 _SPLIT_FROM = 1 << 19
 """Pixels from which ``channel_histograms`` splits the image into planes first."""
 
-_SPARE_PLANES: queue.LifoQueue[NDArray[np.uint8]] = queue.LifoQueue(maxsize=os.cpu_count() or 1)
-"""Buffers of shape (3, ``_BAND_PIXELS``) for a band's planes, kept between calls: a fresh
-3 MiB takes its pages from the kernel on first touch. At most one per core is kept: more calls
-at once than cores gain nothing from their own buffers, and take fresh ones."""
-
 
 def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
     """Histograms of shape (3, 256) of an RGB image of shape (H, W, 3), uint8."""
@@ -93,14 +85,10 @@ def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
         return np.asarray(counts).round().astype(np.int64)
     # a large one, as contiguous planes, a band of rows at a time: calcHist runs faster over a
     # plane than over one channel of the interleaved image, by more than the split costs; a
-    # band's planes take 3 MiB where a 36 MP region's would take 100
+    # band's planes take 3 MiB where a 36 MP region's would take 100, split into one buffer
     height, width = image.shape[:2]
     step = max(1, _BAND_PIXELS // width)
-    try:
-        spare = _SPARE_PLANES.get_nowait()
-    except queue.Empty:
-        spare = np.empty((3, _BAND_PIXELS), np.uint8)
-    planes = spare if step * width <= _BAND_PIXELS else np.empty((3, step * width), np.uint8)
+    planes = np.empty((3, step * width), np.uint8)
     hist = np.zeros((3, 256), dtype=np.float64)  # float32, calcHist's own, is exact to 2²⁴
     for y in range(0, height, step):
         band = image[y : y + step]
@@ -108,8 +96,6 @@ def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
         cv2.split(band, views)
         for c, view in enumerate(views):
             hist[c] += cv2.calcHist([view], [0], None, [256], [0, 256]).ravel()
-    with contextlib.suppress(queue.Full):
-        _SPARE_PLANES.put_nowait(spare)
     return hist.round().astype(np.int64)
 
 
