@@ -114,7 +114,9 @@ class AirLatest(Out):
         description="The latest frame's own grade (null when it could not be graded: reason; "
         "when uncertain, the estimate's level, which the public level does not follow)."
     )
-    frame_category: str | None
+    frame_category: str | None = Field(
+        description="The latest frame's category; null when ungraded or uncertain."
+    )
     uncertain: bool = Field(
         default=False,
         description="The latest frame was uncertain (reason says why): it left the public "

@@ -514,20 +514,19 @@ def grade_verdict(verdict: SkyVerdict, camera: CameraInfo, decoded: Decoded, how
 def estimated(
     verdict: SkyVerdict, regression: airquality.Regression, features: NDArray[np.float64]
 ) -> None:
-    """Grade the verdict by the regression: its estimate and interval always; its level and
-    category unless the frame lies outside the calibration (a guess beyond what was learnt).
-    A doubted verdict is ``uncertain``, with the reason: its level is the estimate's, which a
-    reader may weigh, but it moves neither the camera's public level nor its history
+    """Grade the verdict by the regression: its estimate and interval always; its level
+    unless the frame lies outside the calibration (a guess beyond what was learnt); its
+    category only when sure. A doubted verdict is ``uncertain``, with the reason: its level is
+    the estimate's, to be weighed with the interval, and names no category (the category is
+    what is in doubt); it moves neither the camera's public level nor its history
     (``TRUSTED``)."""
     e = regression.estimate(features)
     verdict.estimate, verdict.estimate_unit = e.value, regression.unit
     verdict.estimate_low, verdict.estimate_high = e.low, e.high
     verdict.uncertain = e.uncertain is not None
     verdict.reason = f"uncertain: {e.uncertain}"[:200] if e.uncertain is not None else None
-    if e.outside:
-        verdict.level = verdict.category = None
-    else:
-        verdict.level, verdict.category = e.level, airquality.category(e.level)
+    verdict.level = None if e.outside else e.level
+    verdict.category = None if e.uncertain is not None else airquality.category(e.level)
 
 
 REGRADE_LIMIT = 2000

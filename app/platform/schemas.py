@@ -284,7 +284,10 @@ class SkyVerdictOut(VerdictBase):
         "outside what the regression was calibrated on. When uncertain, the level of the "
         "estimate, which the public level does not follow."
     )
-    category: str | None
+    category: str | None = Field(
+        description="The level's category; null when uncertain (the category is what is in "
+        "doubt) or ungraded."
+    )
     message: str | None = Field(
         description='"Today\'s Air Quality is <category>"; when uncertain, that the camera is '
         "not sure, not the category."
