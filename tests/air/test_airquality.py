@@ -6,6 +6,7 @@ from datetime import UTC, datetime, timedelta
 from itertools import pairwise
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from shapely.geometry import Point, shape
@@ -604,6 +605,52 @@ class TestSkyFeatures:
             want = np.log(np.maximum((sky - g) / (sky + 1), airquality.MIN_CONTRAST))
             np.testing.assert_allclose(got[b, 0], want, rtol=1e-12)
             np.testing.assert_allclose(got[b, 1], want, rtol=1e-12)
+
+    def test_skyline_edges_of_a_ramp(self) -> None:
+        """A grey ramp of 1 level/px, 200 px wide (under ``EDGE_WIDTH``: not resized): the
+        scaled Sobel derivative is 1 inside and 0 in the two edge columns (reflected border),
+        so every band's mean is (W − 2)/W, exactly in float32."""
+        w = 200
+        ramp = np.arange(20, 20 + w, dtype=np.uint8)
+        strip = np.repeat(np.repeat(ramp[None, :, None], 3, axis=2), 40, axis=0)
+        np.testing.assert_allclose(
+            airquality.skyline_edges(strip), np.log((w - 2) / w), rtol=0, atol=1e-6
+        )
+
+    def scene(self) -> np.ndarray:
+        """A skyline-like luma field (seeded blocks, blurred), 1920×320, float."""
+        blocks = np.random.default_rng(0).integers(30, 200, (40, 240)).astype(np.float64)
+        scene = cv2.resize(blocks, (1920, 320), interpolation=cv2.INTER_NEAREST)
+        return np.repeat(cv2.GaussianBlur(scene, (0, 0), 3)[..., None], 3, axis=2)
+
+    @pytest.mark.parametrize("t", [0.3, 0.6])
+    def test_a_veil_lowers_each_bands_edges_by_its_transmission(self, t: float) -> None:
+        """Koschmieder: a veil of transmission 1 − t towards a sky of 230 scales every
+        gradient by 1 − t, so each band's feature falls by ln(1 − t) (to 0.005, for the
+        rounding to whole grey levels)."""
+        scene = self.scene()
+        clear = airquality.skyline_edges(scene.round().astype(np.uint8))
+        veiled = ((1 - t) * scene + t * 230).round().astype(np.uint8)
+        np.testing.assert_allclose(
+            airquality.skyline_edges(veiled) - clear, np.log(1 - t), rtol=0, atol=0.005
+        )
+
+    def test_skyline_edges_are_the_same_at_half_the_resolution(self) -> None:
+        """The same view from a camera of half the resolution (area-averaged): both are
+        measured at ``EDGE_WIDTH`` px across, so the features agree (to 0.005)."""
+        full = self.scene().round().astype(np.uint8)
+        half = cv2.resize(full, (960, 160), interpolation=cv2.INTER_AREA)
+        np.testing.assert_allclose(
+            airquality.skyline_edges(half), airquality.skyline_edges(full), rtol=0, atol=0.005
+        )
+
+    def test_no_strip_or_a_flat_one_has_no_edges(self) -> None:
+        floor = np.log(airquality.MIN_GRADIENT)
+        flat = np.full((40, 50, 3), 128, np.uint8)
+        np.testing.assert_array_equal(airquality.skyline_edges(flat), floor)
+        np.testing.assert_array_equal(airquality.skyline_edges(None), floor)
+        f = airquality.sky_features(self.image(40, 60))
+        np.testing.assert_array_equal(f[-len(airquality.SKYLINE_BANDS) :], floor)
 
     def test_no_strip_is_no_contrast(self) -> None:
         f = airquality.sky_features(self.image(40, 60))
