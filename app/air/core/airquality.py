@@ -344,9 +344,8 @@ def log_contrasts(
 
 EDGE_WIDTH = 480
 """Width [px] the skyline strip is area-averaged to before its edges are measured (never
-enlarged): one scale of detail for every camera's resolution, above the pixel noise and JPEG
-blocks of a full-size frame. Widths of 320–960 px ranked the Milan webcam's held-out days within
-0.006 of each other (``bench/airquality_eval.py``)."""
+enlarged): one scale of detail whatever the camera's resolution. With widths of 320–960 px the
+Milan webcam's held-out days were ranked within 0.007 of each other (bench/README.md)."""
 MIN_GRADIENT = 1e-3
 """Mean gradients [grey level/px] are clipped to this before their logarithm (a flat band)."""
 
