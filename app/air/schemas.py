@@ -70,6 +70,11 @@ class AirRegressionOut(Out):
         default=None, description="days left out (stored frames of ≥ 3 days) or images left out."
     )
     interval: float | None = Field(default=None, description="Coverage of its intervals.")
+    features: list[str] = Field(
+        default_factory=list,
+        description="The sky features it was fitted on, in order: a calibration made before "
+        "features were added grades by these.",
+    )
 
 
 class AirCalibrationOut(Out):

@@ -192,13 +192,18 @@ _REGRESSIONS: ById[airquality.Regression | None] = ById()
 
 
 def as_regression(row: AirCalibration) -> airquality.Regression | None:
-    """The calibration's regression; None without one, or one made on another feature set
-    (its frames must be graded by a new calibration)."""
+    """The calibration's regression; None without one, or one made on features that are no
+    longer measured (its frames must be graded by a new calibration). One made before
+    features were added grades by the features it was fitted on."""
     return _REGRESSIONS.get(row.id, lambda: _read_regression(row.regression))
 
 
 def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:
-    if not r or r.get("features", []) != list(airquality.SKY_FEATURES):
+    if not r:
+        return None
+    names = list(airquality.SKY_FEATURES)
+    fitted_on = r.get("features", [])
+    if not fitted_on or not set(fitted_on) <= set(names):
         return None
     gram = r.get("gram_inv")
     return airquality.Regression(
@@ -213,6 +218,7 @@ def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:
         dof=float(r.get("dof", 1.0)),
         max_leverage=r.get("max_leverage"),
         table=str(r.get("breakpoints", "us_epa")),  # made before the choice: the EPA's
+        columns=None if fitted_on == names else tuple(names.index(n) for n in fitted_on),
     )
 
 

@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session
 
 from app.air.core import airquality, breakpoints
 
@@ -345,3 +347,89 @@ def test_a_regression_stored_before_the_choice_of_table_grades_by_the_epa_s() ->
     assert regression.table == "us_epa"
     assert regression.level(np.zeros(k)) == 7 == breakpoints.level_of_pm25(30.0)
     assert breakpoints.level_of_pm25(30.0, "eu_eaqi") == 4
+
+
+def earlier_features(monkeypatch: pytest.MonkeyPatch, names: tuple[str, ...]) -> None:
+    """The service as a version that measured the first ``len(names)`` features, by these
+    names, would be."""
+    measure = airquality.sky_features
+    monkeypatch.setattr(airquality, "SKY_FEATURES", names)
+    monkeypatch.setattr(airquality, "sky_features", lambda *a, **k: measure(*a, **k)[: len(names)])
+
+
+def calibrate_as_earlier(
+    client: TestClient,
+    admin: dict[str, str],
+    station: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+    names: tuple[str, ...],
+) -> Any:
+    """The station's frames measured again and calibrated by the earlier version; then the
+    current version again."""
+    earlier_features(monkeypatch, names)
+    since = {"since": START.isoformat()}
+    r = client.post("/air/cameras/m/regrade", params=since, headers=admin)
+    assert r.status_code == 200, r.text
+    cal = calibrate(client, admin, station)
+    assert cal["regression"]["features"] == list(names)
+    monkeypatch.undo()
+    return cal
+
+
+def test_a_regression_made_before_features_were_added_grades_by_its_own(
+    client: TestClient,
+    admin: dict[str, str],
+    station: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+    engine: Engine,
+) -> None:
+    """A calibration fitted when the skyline's edges were not yet measured keeps grading the
+    camera's new frames, by the features it was fitted on: the same estimate as its
+    regression on those features of the frame."""
+    from app.air import service
+    from app.air.models import AirCalibration
+
+    n = len(airquality.SKY_FEATURES) - len(airquality.SKYLINE_BANDS)
+    cal = calibrate_as_earlier(client, admin, station, monkeypatch, airquality.SKY_FEATURES[:n])
+    jpeg = hazy_jpeg(25.0, seed=4242)
+    v = post(client, station["token"], jpeg, START + timedelta(days=9))["verdict"]
+    assert v["calibration_id"] == cal["id"]
+    assert v["estimate"] is not None, v["reason"]
+    with Session(engine) as session:
+        earlier = service.as_regression(session.get_one(AirCalibration, cal["id"]))
+    assert earlier is not None
+    assert earlier.columns == tuple(range(n))
+    # the frame's features as the camera measures them: its region, the strip below
+    from app.air.kind import band_below
+    from app.platform.frames.jpeg import decode_rgb
+
+    _, image = decode_rgb(jpeg, max_pixels=10**6)
+    x, y, w, h = ROI
+    features = airquality.sky_features(image[y : y + h, x : x + w], band_below(image, ROI))
+    assert len(features) == len(airquality.SKY_FEATURES)
+    alone = airquality.Regression(**{**_fields(earlier), "columns": None})
+    want = alone.estimate(features[:n])
+    assert earlier.estimate(features) == want
+    assert v["estimate"]["value"] == pytest.approx(want.value, rel=1e-9)
+    assert v["estimate"]["low"] == pytest.approx(want.low, rel=1e-9)
+
+
+def test_a_regression_on_a_feature_no_longer_measured_grades_nothing(
+    client: TestClient,
+    admin: dict[str, str],
+    station: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A calibration fitted on a feature the service no longer measures (here one renamed)
+    cannot grade, and the frame says why."""
+    names = ("mode_r_before", *airquality.SKY_FEATURES[1:])
+    calibrate_as_earlier(client, admin, station, monkeypatch, names)
+    v = post(client, station["token"], hazy_jpeg(25.0, seed=4243), START + timedelta(days=9))
+    verdict = v["verdict"]
+    assert verdict["level"] is None
+    assert verdict["estimate"] is None
+    assert "earlier set of sky features" in verdict["reason"]
+
+
+def _fields(regression: airquality.Regression) -> dict[str, Any]:
+    return {name: getattr(regression, name) for name in regression.__dataclass_fields__}

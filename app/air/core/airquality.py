@@ -508,9 +508,15 @@ class Regression:
     rest is extrapolation."""
     table: str = "us_epa"
     """The breakpoint table (``breakpoints.TABLES``) its PM2.5 estimates become levels by."""
+    columns: tuple[int, ...] | None = None
+    """Positions in a ``SKY_FEATURES`` vector of the features it was fitted on, in its order,
+    when those are fewer (made before features were added); None: all of them."""
 
     def _fitted(self, features: ArrayLike) -> tuple[float, NDArray[np.float64]]:
-        z = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        x = np.asarray(features, dtype=np.float64)
+        if self.columns is not None:
+            x = x[list(self.columns)]
+        z = (x - self.mean) / self.scale
         return float(z @ self.coef) + self.intercept, z
 
     def _out(self, y: float) -> float:
