@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
-import subprocess
 import sys
 import tempfile
 from datetime import datetime
@@ -37,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 from app.air.core import airquality, breakpoints  # noqa: E402
 from app.main import create_app  # noqa: E402
 from app.platform.settings import Settings  # noqa: E402
+from tests.factories import migrate  # noqa: E402
 
 TOKEN = "bench-admin-token-0123456789abcdef"
 ADMIN = {"Authorization": f"Bearer {TOKEN}"}
@@ -118,20 +117,13 @@ def main() -> None:
     with open(args.data / "labels.csv") as f:
         rows = list(csv.DictReader(f))
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "VANTAGE_DATA_DIR": tmp}
-        subprocess.run(
-            [sys.executable, "-m", "alembic", "upgrade", "head"],
-            cwd=ROOT,
-            env=env,
-            check=True,
-            capture_output=True,
-        )
         settings = Settings(
             data_dir=Path(tmp),
             admin_token=TOKEN,  # type: ignore[arg-type]
             frame_retention_days=1000.0,
             log_level="WARNING",
         )
+        migrate(settings.effective_database_url)
         with TestClient(create_app(settings)) as client:
             for table in breakpoints.TABLES:
                 trial(client, args.data, rows, table)
