@@ -614,7 +614,7 @@ class TestSkyFeatures:
         ramp = np.arange(20, 20 + w, dtype=np.uint8)
         strip = np.repeat(np.repeat(ramp[None, :, None], 3, axis=2), 40, axis=0)
         np.testing.assert_allclose(
-            airquality.skyline_edges(strip), np.log((w - 2) / w), rtol=0, atol=1e-6
+            airquality.skyline_edges(airquality.luma(strip)), np.log((w - 2) / w), atol=1e-6
         )
 
     def scene(self) -> np.ndarray:
@@ -629,8 +629,8 @@ class TestSkyFeatures:
         gradient by 1 − t, so each band's feature falls by ln(1 − t) (to 0.005, for the
         rounding to whole grey levels)."""
         scene = self.scene()
-        clear = airquality.skyline_edges(scene.round().astype(np.uint8))
-        veiled = ((1 - t) * scene + t * 230).round().astype(np.uint8)
+        clear = airquality.skyline_edges(airquality.luma(scene.round().astype(np.uint8)))
+        veiled = airquality.luma(((1 - t) * scene + t * 230).round().astype(np.uint8))
         np.testing.assert_allclose(
             airquality.skyline_edges(veiled) - clear, np.log(1 - t), rtol=0, atol=0.005
         )
@@ -640,14 +640,13 @@ class TestSkyFeatures:
         measured at ``EDGE_WIDTH`` px across, so the features agree (to 0.005)."""
         full = self.scene().round().astype(np.uint8)
         half = cv2.resize(full, (960, 160), interpolation=cv2.INTER_AREA)
-        np.testing.assert_allclose(
-            airquality.skyline_edges(half), airquality.skyline_edges(full), rtol=0, atol=0.005
-        )
+        edges = [airquality.skyline_edges(airquality.luma(im)) for im in (half, full)]
+        np.testing.assert_allclose(edges[0], edges[1], rtol=0, atol=0.005)
 
     def test_no_strip_or_a_flat_one_has_no_edges(self) -> None:
         floor = np.log(airquality.MIN_GRADIENT)
         flat = np.full((40, 50, 3), 128, np.uint8)
-        np.testing.assert_array_equal(airquality.skyline_edges(flat), floor)
+        np.testing.assert_array_equal(airquality.skyline_edges(airquality.luma(flat)), floor)
         np.testing.assert_array_equal(airquality.skyline_edges(None), floor)
         f = airquality.sky_features(self.image(40, 60))
         np.testing.assert_array_equal(f[-len(airquality.SKYLINE_BANDS) :], floor)

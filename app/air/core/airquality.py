@@ -345,26 +345,35 @@ def log_contrasts(
 EDGE_WIDTH = 480
 """Width [px] the skyline strip is area-averaged to before its edges are measured (never
 enlarged): one scale of detail whatever the camera's resolution. With widths of 320–960 px the
-Milan webcam's held-out days were ranked within 0.007 of each other (bench/README.md)."""
+Milan webcam's held-out days were ranked within 0.008 of each other (bench/README.md)."""
 MIN_GRADIENT = 1e-3
 """Mean gradients [grey level/px] are clipped to this before their logarithm (a flat band)."""
 
 
-def skyline_edges(strip: NDArray[np.uint8] | None) -> NDArray[np.float64]:
-    """ln of the mean gradient magnitude [grey level/px] of the strip's luma in each of the
-    ``SKYLINE_BANDS``, the strip area-averaged to ``EDGE_WIDTH`` px across; Sobel's 3×3
-    derivative scaled by 1/8, so a ramp of slope s gives s. Shape (bands,).
+def luma(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """BT.601 luma of an RGB image (H, W, 3), uint8, as float32 (H, W), channel by channel:
+    no float copy of all three channels at once."""
+    grey = image[..., 0] * np.float32(0.299)
+    grey += image[..., 1] * np.float32(0.587)
+    grey += image[..., 2] * np.float32(0.114)
+    return grey
+
+
+def skyline_edges(grey: NDArray[np.float32] | None) -> NDArray[np.float64]:
+    """ln of the mean gradient magnitude [grey level/px] of the skyline strip's luma ``grey``
+    (H, W; ``luma``) in each of the ``SKYLINE_BANDS``, the strip area-averaged to
+    ``EDGE_WIDTH`` px across; Sobel's 3×3 derivative scaled by 1/8, so a ramp of slope s gives
+    s. Shape (bands,).
 
     Not in the dissertation: haze veils an object of contrast C₀ at distance d to
     C₀·e^(−b·d) (Koschmieder; Middleton, *Vision through the Atmosphere*, 1952, ch. 5), and a
     veil scales every gradient of the object alike, so ln |∇L| falls by b·d: the edges of
     windows, roofs and masts, where ``log_contrasts`` sees only a band's darkest pixels."""
     n = len(SKYLINE_BANDS)
-    if strip is None or strip.shape[0] < n:
+    if grey is None or grey.shape[0] < n:
         return np.full(n, np.log(MIN_GRADIENT))
-    h, w = strip.shape[:2]
+    h, w = grey.shape
     k = min(1.0, EDGE_WIDTH / w)
-    grey = cv2.cvtColor(strip, cv2.COLOR_RGB2GRAY)
     small = cv2.resize(
         grey, (max(1, round(w * k)), max(n, round(h * k))), interpolation=cv2.INTER_AREA
     )
@@ -402,11 +411,9 @@ def sky_features(
     spread = np.sqrt(np.maximum(hist @ levels**2 / n - means**2, 0.0)).mean()
     medians = np.array([_median(h) for h in hist])
     contrast = [0.0, 0.0]
-    if below is not None and below.size:
-        # luma channel by channel, the second difference down the columns in place
-        grey = below[..., 0] * np.float32(0.299)
-        grey += below[..., 1] * np.float32(0.587)
-        grey += below[..., 2] * np.float32(0.114)
+    grey = luma(below) if below is not None and below.size else None
+    if grey is not None:
+        # the second difference down the columns, in place
         lap = 0.0
         if grey.shape[0] > 2:
             d = grey[2:] - grey[1:-1]
@@ -424,7 +431,7 @@ def sky_features(
             *contrast,
             *log_contrasts(medians, below),
             *np.log(medians + 1),
-            *skyline_edges(below if below is not None and below.size else None),
+            *skyline_edges(grey),
         ]
     )
 
