@@ -13,6 +13,8 @@ command exits with status 1; nothing is retried silently.
     vantage export readings readings.csv --camera-id cam-1 --since 2026-05-01T00:00:00Z
     vantage export panel-history PANEL_ID history.csv --bucket day
     vantage replay CAMERA_ID frames/ --camera-token vc_… --every 1
+    vantage replay CAMERA_ID archive/ --camera-token vc_… --time-from-name %Y%m%d-%H%M \
+        --timezone Europe/Rome
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ import os
 import sys
 import time
 from collections.abc import Iterator, Sequence
+from datetime import datetime
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import httpx2 as httpx
 from rich.console import Console
@@ -44,6 +48,7 @@ class Service:
     """The running service: its URL and a token."""
 
     def __init__(self, url: str, token: str | None, timeout: float = 300.0) -> None:
+        token = token and token.strip()  # as read from a file or a CSV cell: no token has spaces
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.http = httpx.Client(base_url=url.rstrip("/"), headers=headers, timeout=timeout)
         self.url = url
@@ -180,9 +185,12 @@ def _files(paths: Sequence[Path], what: str) -> list[tuple[str, tuple[str, bytes
     return out
 
 
-def _labels(folder: Path, paths: list[Path], labels: Path | None, column: str | None) -> list[str]:
-    """Each image's label: from ``labels`` (a CSV of file and ``column``, file relative to
-    the folder or a bare name), else the name of its sub-folder."""
+def _labels(
+    folder: Path, paths: list[Path], labels: Path | None, column: str | None
+) -> tuple[list[Path], list[str]]:
+    """The images to send and each one's label: those ``labels`` names (a CSV of file and
+    ``column``, file relative to the folder or a bare name; the folder's other images are left
+    out, and the user told how many), else every image, labelled by its sub-folder's name."""
     if labels is None:
         out = []
         for p in paths:
@@ -191,7 +199,7 @@ def _labels(folder: Path, paths: list[Path], labels: Path | None, column: str | 
                     f"{p.name} is not in a sub-folder named by its label (or give --labels)"
                 )
             out.append(p.parent.name)
-        return out
+        return paths, out
     rows = _rows(labels)
     if not rows:
         raise Failed(f"{labels} has no rows")
@@ -199,14 +207,22 @@ def _labels(folder: Path, paths: list[Path], labels: Path | None, column: str | 
     if "file" not in rows[0] or key not in rows[0]:
         raise Failed(f"{labels} needs the columns file and {key}")
     table = {r["file"]: r[key] for r in rows}
-    out = []
+    kept, out, named = [], [], set()
     for p in paths:
         rel = p.relative_to(folder).as_posix()
-        value = table.get(rel, table.get(p.name))
-        if value is None:
-            raise Failed(f"{rel} has no row in {labels}")
-        out.append(value)
-    return out
+        name = rel if rel in table else p.name if p.name in table else None
+        if name is not None:
+            kept.append(p)
+            out.append(table[name])
+            named.add(name)
+    if missing := [f for f in table if f not in named]:
+        raise Failed(
+            f"{labels} names {len(missing)} files not in {folder}: {', '.join(missing[:3])}"
+            + (" …" if len(missing) > 3 else "")
+        )
+    if left := len(paths) - len(kept):
+        err.print(f"{left} of the {len(paths)} images in {folder} are not in {labels}: left out")
+    return kept, out
 
 
 def baseline(service: Service, args: argparse.Namespace) -> None:
@@ -225,8 +241,7 @@ def baseline(service: Service, args: argparse.Namespace) -> None:
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
     """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
-    paths = _images(args.folder)
-    labels = _labels(args.folder, paths, args.labels, "label")
+    paths, labels = _labels(args.folder, _images(args.folder), args.labels, "label")
     data = {"labels": labels}
     r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
     print(json.dumps(r.json(), indent=2))
@@ -235,8 +250,8 @@ def fleet(service: Service, args: argparse.Namespace) -> None:
 def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     """An air calibration from labelled sky photos: levels 1–10, or the reference pm25 or aqi
     (``--reference``), from sub-folder names or a CSV."""
-    paths = _images(args.folder)
-    labels = _labels(args.folder, paths, args.labels, args.reference)
+    column = args.column or args.reference
+    paths, labels = _labels(args.folder, _images(args.folder), args.labels, column)
     params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
     if args.applies_to:
         params["applies_to"] = args.applies_to
@@ -298,14 +313,35 @@ def export_history(service: Service, args: argparse.Namespace) -> None:
     err.print(f"{len(rows)} buckets of panel {args.panel_id} written to {args.out}")
 
 
+def _times(paths: Sequence[Path], fmt: str | None, zone: str) -> list[str | None]:
+    """Each frame's capture time (RFC 3339) read from its file name's stem by the strptime
+    ``fmt``, in the IANA time zone ``zone``; None each without ``fmt`` (the service stamps
+    the frame on arrival). Every name is read before any frame is posted."""
+    if fmt is None:
+        return [None] * len(paths)
+    try:
+        tz = ZoneInfo(zone)
+    except (ZoneInfoNotFoundError, ValueError):
+        raise Failed(f"--timezone {zone!r} is not an IANA time zone (Europe/Rome, UTC)") from None
+    out: list[str | None] = []
+    for p in paths:
+        try:
+            out.append(datetime.strptime(p.stem, fmt).replace(tzinfo=tz).isoformat())
+        except ValueError:
+            raise Failed(f"{p.name}: its name does not read as a time by {fmt!r}") from None
+    return out
+
+
 def replay(service: Service, args: argparse.Namespace) -> None:
     """Post a folder of JPEGs as the camera (a trial), in name order, ``--every`` seconds
-    apart; each frame's verdict in a line of JSON."""
+    apart, each taken when its name says (``--time-from-name``) or now; each frame's verdict
+    in a line of JSON."""
     paths = [p for p in _images(args.folder) if p.suffix.lower() in (".jpg", ".jpeg")]
+    times = _times(paths, args.time_from_name, args.timezone)
     camera = Service(service.url, args.camera_token)
     with Progress(console=err) as progress, contextlib.closing(camera):
         task = progress.add_task(f"replaying as {args.camera_id}", total=len(paths))
-        for i, p in enumerate(paths):
+        for i, (p, taken) in enumerate(zip(paths, times, strict=True)):
             if i and args.every:
                 time.sleep(args.every)
             r = camera.call(
@@ -313,6 +349,7 @@ def replay(service: Service, args: argparse.Namespace) -> None:
                 f"/cameras/{args.camera_id}/frames",
                 content=p.read_bytes(),
                 headers={"Content-Type": "image/jpeg"},
+                params={} if taken is None else {"captured_at": taken},
             )
             print(json.dumps({"file": p.name, **r.json()}))
             progress.advance(task)
@@ -363,6 +400,7 @@ def parser() -> argparse.ArgumentParser:
     a.add_argument("folder", type=Path, help="sub-folders named by level, or with --labels")
     a.add_argument("--labels", type=Path, help="a CSV of file and the reference column")
     a.add_argument("--reference", choices=["levels", "pm25", "aqi"], default="levels")
+    a.add_argument("--column", help="the CSV's column of the values (default: --reference's name)")
     a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
     a.add_argument(
         "--breakpoints",
@@ -396,6 +434,13 @@ def parser() -> argparse.ArgumentParser:
     rp.add_argument("folder", type=Path)
     rp.add_argument("--camera-token", required=True, help="the camera's own token")
     rp.add_argument("--every", type=float, default=0.0, help="seconds between frames")
+    rp.add_argument(
+        "--time-from-name",
+        metavar="FORMAT",
+        help="each frame was taken when its name says, read by this strptime format "
+        "(%%Y%%m%%d-%%H%%M reads 20250514-0900.jpg); else it is stamped on arrival",
+    )
+    rp.add_argument("--timezone", default="UTC", help="the zone of those times (Europe/Rome)")
     rp.set_defaults(run=replay)
     return top
 

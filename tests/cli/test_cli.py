@@ -6,8 +6,10 @@ import csv
 import json
 import subprocess
 import sys
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo
 
 import httpx2 as httpx
 import numpy as np
@@ -156,3 +158,64 @@ def test_clear_errors(live: str, tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "401" in capsys.readouterr().err
     assert vantage(live, "baseline", "p1", str(tmp_path)) == 1
     assert "no images" in capsys.readouterr().err
+
+
+def test_a_labels_csv_chooses_the_images_and_its_column(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    skies = tmp_path / "archive"
+    skies.mkdir()
+    rows = []
+    for level in (2, 5, 9):
+        for k in range(6):
+            name = f"l{level}-{k}.jpg"
+            (skies / name).write_bytes(sky_jpeg(level, seed=20 * level + k))
+            rows.append({"file": name, "station_grade": level})
+    (skies / "not-labelled.jpg").write_bytes(sky_jpeg(5, seed=999))
+    labels = write_csv(tmp_path / "grades.csv", rows)
+    assert (
+        vantage(
+            live, "air-calibrate", str(skies), "--labels", str(labels), "--column", "station_grade"
+        )
+        == 0
+    )
+    done = capsys.readouterr()
+    assert json.loads(done.out)["n_images"] == 18
+    assert "1 of the 19 images" in done.err
+    before = httpx.get(f"{live}/air/calibration", headers=ADMIN).json()["id"]
+    more = write_csv(tmp_path / "more.csv", [*rows, {"file": "gone.jpg", "station_grade": 3}])
+    assert (
+        vantage(
+            live, "air-calibrate", str(skies), "--labels", str(more), "--column", "station_grade"
+        )
+        == 1
+    )
+    assert "names 1 files not in" in capsys.readouterr().err
+    assert httpx.get(f"{live}/air/calibration", headers=ADMIN).json()["id"] == before
+
+
+def test_replay_takes_each_frames_time_from_its_name(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    r = httpx.post(f"{live}/cameras", json={"id": "s2", "kind": "sky"}, headers=ADMIN)
+    token = r.json()["token"] + "\r\n"  # as cut from a CSV written on another system
+    rome = ZoneInfo("Europe/Rome")
+    taken = [
+        (datetime.now(rome) - timedelta(days=1, hours=h)).replace(second=0, microsecond=0)
+        for h in (3, 2)
+    ]
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k, t in enumerate(taken):
+        (frames / f"{t:%Y%m%d-%H%M}.jpg").write_bytes(sky_jpeg(7, seed=k))
+    args = ["replay", "s2", str(frames), "--camera-token", token, "--time-from-name"]
+    assert vantage(live, *args, "%Y%m%d-%H%M", "--timezone", "Europe/Rome") == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [datetime.fromisoformat(x["captured_at"]) for x in lines] == taken
+    (frames / "snapshot.jpg").write_bytes(sky_jpeg(7, seed=9))
+    assert vantage(live, *args, "%Y%m%d-%H%M") == 1  # read before anything is posted
+    assert "snapshot.jpg: its name does not read" in capsys.readouterr().err
+    assert vantage(live, *args, "%Y%m%d-%H%M", "--timezone", "Mars/Olympus") == 1
+    assert "not an IANA time zone" in capsys.readouterr().err
+    listed = httpx.get(f"{live}/cameras/s2/frames", headers=ADMIN)
+    assert len(listed.json()) == 2
