@@ -251,3 +251,47 @@ def test_the_cells_page_outlines_a_part(browser: Any, live: str, admin: dict[str
     p.page.wait_for_function("document.querySelector('#outlined').naturalWidth > 0")
     p.shot("cells-outline")
     assert p.errors == []
+
+
+def test_a_camera_without_a_reading_stays_on_the_map(
+    browser: Any, live: str, admin: dict[str, str], city: dict[str, str]
+) -> None:
+    with httpx.Client(base_url=live, timeout=30) as http:
+        sky_camera(http, admin, "lambrate", "Lambrate", 45.484, 9.238)  # installed, no frame yet
+    p = Page(browser)
+    p.page.goto(f"{live}/map")
+    p.page.locator(".cam.silent .cam-label").wait_for()
+    p.page.wait_for_function("Number(document.body.dataset.quiet) >= 2")  # the view fitted
+    assert p.page.locator(".cam.silent .cam-label").inner_text() == "Lambrate –"
+    assert sorted(p.page.locator(".cam:not(.silent) .cam-label").all_inner_texts()) == [
+        "Brera 7",
+        "Duomo 3",
+        "Navigli 10",
+    ]
+    assert "1 more without a reading" in p.page.locator("#status").inner_text()
+    p.page.locator(".cam.silent .dot").click()
+    popup = p.page.locator(".popup")
+    popup.wait_for()
+    assert "No reading on this map" in popup.inner_text()
+    assert "no frames yet" in popup.inner_text()
+    p.shot("map-silent-camera")
+    assert p.errors == []
+
+
+def test_a_city_with_no_reading_yet_is_shown_where_its_cameras_are(
+    browser: Any, live: str, admin: dict[str, str]
+) -> None:
+    with httpx.Client(base_url=live, timeout=30) as http:  # in Turin, far from the default view
+        sky_camera(http, admin, "mole", "Mole", 45.069, 7.693)
+        sky_camera(http, admin, "lingotto", "Lingotto", 45.032, 7.667)
+    p = Page(browser)
+    p.page.goto(f"{live}/map")
+    p.page.wait_for_function("Number(document.body.dataset.quiet) >= 2")  # the view fitted
+    assert p.page.locator(".cam.silent").count() == 2
+    box = p.page.locator("#map").bounding_box()
+    for cam in p.page.locator(".cam.silent .dot").all():
+        dot = cam.bounding_box()
+        assert box["x"] < dot["x"] < box["x"] + box["width"]
+        assert box["y"] < dot["y"] < box["y"] + box["height"]
+    assert "Nothing drawn" in p.page.locator("#status").inner_text()
+    assert p.errors == []

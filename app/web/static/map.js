@@ -1,5 +1,6 @@
 // The city map: the isopleth bands of /air/isopleths over a base map, each sky camera a
-// marker labelled with its name and level (labels that would overlap hidden, worst air kept),
+// marker labelled with its name and level (labels that would overlap hidden, worst air kept;
+// a camera with no reading on the map grey, with why),
 // a popup with its category, time, sky and last 24 h / 7 d; uncertainty and method toggles; a
 // time slider over the last 24 h. Refreshes itself every minute.
 (() => {
@@ -102,6 +103,46 @@
     return div;
   }
 
+  // Every sky camera in service (a promise of /air/latest's list; empty when it fails).
+  async function everyCamera() {
+    try {
+      const r = await fetch("/air/latest?limit=1000", { cache: "no-store" });
+      return r.ok ? await r.json() : [];
+    } catch (e) {
+      return [];
+    }
+  }
+
+  // Those cameras this map has no reading of (new, quiet, or unsure of the air): a grey marker
+  // each, so that a camera never vanishes from the city's map. Marked as seen.
+  function quiet(every, seen) {
+    const silent = every.filter((c) => !seen.has(c.camera_id) && c.lat !== null && c.lon !== null);
+    for (const c of silent) {
+      seen.add(c.camera_id);
+      const key = `silent:${c.lat},${c.lon},${c.name},${c.captured_at},${c.reason}`;
+      let m = markers.get(c.camera_id);
+      if (m && m.options.key === key) continue;
+      if (m) cameras.removeLayer(m);
+      const html = `<span class="dot"></span><span class="cam-label"></span>`;
+      m = L.marker([c.lat, c.lon], { icon: L.divIcon({ className: "cam silent", html, iconSize: null }), key, level: 11, camera: c });
+      m.bindPopup(() => quietPopup(c), { maxWidth: 300 });
+      markers.set(c.camera_id, m);
+      cameras.addLayer(m);
+      m.getElement().querySelector(".cam-label").textContent = `${c.name || c.camera_id} –`;
+    }
+    return silent;
+  }
+
+  function quietPopup(c) {
+    const div = document.createElement("div");
+    div.className = "popup";
+    div.innerHTML = `<strong></strong><br><span class="cat">No reading on this map</span><br><small class="why"></small>`;
+    div.querySelector("strong").textContent = c.name || c.camera_id;
+    const last = c.captured_at ? `latest frame ${new Date(c.captured_at).toLocaleString()}` : "";
+    div.querySelector(".why").textContent = [c.message, c.reason, last].filter(Boolean).join(" · ");
+    return div;
+  }
+
   async function refresh() {
     const q = new URLSearchParams({ method: state.method, layer: state.layer });
     if (state.fitted) {
@@ -111,6 +152,7 @@
       q.set("bbox", box.map((v) => v.toFixed(5)).join(","));
     }
     if (state.hours < 0) q.set("at", new Date(Date.now() + state.hours * 3600e3).toISOString());
+    const every = everyCamera(); // asked for beside the map, placed after it
     let fc;
     try {
       const r = await fetch(`/air/isopleths?${q}`, { cache: "no-store" });
@@ -144,14 +186,16 @@
       m.getElement().querySelector(".cam-label").textContent = label(c);
     }
     for (const [id, m] of markers) {
-      if (!seen.has(id)) {
+      if (!seen.has(id) && !m.options.key.startsWith("silent:")) {
         cameras.removeLayer(m);
         markers.delete(id);
       }
     }
+    let view = null;
     if (!state.fitted && fc.bbox) {
       state.fitted = true;
-      map.fitBounds([[fc.bbox[1], fc.bbox[0]], [fc.bbox[3], fc.bbox[2]]], { padding: [30, 30] });
+      view = L.latLngBounds([[fc.bbox[1], fc.bbox[0]], [fc.bbox[3], fc.bbox[2]]]);
+      map.fitBounds(view, { padding: [30, 30] });
     }
     legend(fc);
     const notes = [`${fc.cameras.length} cameras, ${fc.method}, map of ${new Date(fc.at).toLocaleString()}`];
@@ -160,6 +204,29 @@
     $("status").textContent = notes.join(" ");
     declutter();
     document.body.dataset.maps = String(Number(document.body.dataset.maps || 0) + 1);
+
+    // then the cameras without a reading on this map, not holding the map up (the list of
+    // every camera takes as long as the map with a thousand of them)
+    const silent = quiet(await every, seen);
+    for (const [id, m] of markers) {
+      if (!seen.has(id)) {
+        cameras.removeLayer(m);
+        markers.delete(id);
+      }
+    }
+    const shown = view || map.getBounds(); // the view just fitted, though still animating
+    const outside = silent.filter((c) => !shown.contains([c.lat, c.lon]));
+    if ((view || !state.fitted) && outside.length) {
+      // the first view holds every camera: the city is where its cameras are
+      state.fitted = true;
+      const all = L.latLngBounds(silent.map((c) => [c.lat, c.lon]));
+      if (view) all.extend(view);
+      map.fitBounds(all, { padding: [30, 30], maxZoom: 14 });
+    }
+    if (silent.length) notes.splice(1, 0, `${silent.length} more without a reading on this map (grey).`);
+    $("status").textContent = notes.join(" ");
+    declutter();
+    document.body.dataset.quiet = String(Number(document.body.dataset.quiet || 0) + 1);
   }
 
   let moved = null;
