@@ -491,10 +491,15 @@ def _latest_out(
         estimate=estimate_out(v),
         reason=v.reason
         if current
-        else f"no reading in the last 3 hours: the latest was taken "
-        f"{age / timedelta(hours=1):.0f} h ago",
+        else f"no reading in the last 3 hours: the latest was taken {_ago(age)}",
         current=current,
     )
+
+
+def _ago(age: timedelta) -> str:
+    """How long ago, as a person says it: hours up to two days, then days."""
+    hours = age / timedelta(hours=1)
+    return f"{hours:.0f} h ago" if hours < 48 else f"{age / timedelta(days=1):.0f} days ago"
 
 
 def _message(category: str | None, current: bool, v: SkyVerdict) -> str | None:

@@ -1022,7 +1022,11 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
     assert quiet["message"] is None
     assert quiet["smoothed_level"] is None
     assert quiet["smoothed_category"] is None
-    assert "no reading in the last 3 hours" in quiet["reason"]
+    assert quiet["reason"] == "no reading in the last 3 hours: the latest was taken 3 h ago"
+    city["clock"].advance(hours=44)
+    assert client.get("/air/cameras/sky2/latest").json()["reason"].endswith("taken 47 h ago")
+    city["clock"].advance(hours=1)  # from two days on, a person counts days
+    assert client.get("/air/cameras/sky2/latest").json()["reason"].endswith("taken 2 days ago")
 
     post(client, city, "sky2", 10, seed=2)  # it speaks again
     assert client.get("/air/cameras/sky2/latest").json()["current"] is True
