@@ -14,6 +14,12 @@ each candidate scale's histogram (P neighbours, radius R px), and once more with
 by 4 grouped folds inside each training fold: that last figure is what choosing a scale on
 photos like these earns on panels it never saw.
 
+Photos that show no panel (the sky photos of ../shared/data/sky: a fixed camera's street view,
+city skylines), judged by each fold's model as a panel camera's frames would be: how many it
+calls unlike every photo it learnt from, how many it is not sure of, how many it gives a
+condition; and how many held-out panel photos it calls unlike (at most 5 % by
+``training.reach``'s design).
+
     python bench/fleet_eval.py [--data ../shared/data/solar] [--seeds 5] [--scales]
 """
 
@@ -159,6 +165,13 @@ def main() -> None:
     images = [decode_rgb(d, max_pixels=10**9)[1] for d in data]
     groups = near_duplicate_groups(images)
     judged = label != "snow"
+    sky = sorted(
+        p for p in (args.data.parent / "sky").rglob("*.jpg") if p.parent.name != "milan_webcam"
+    )  # milan_webcam's frames are also in milan_series
+    no_panel = np.array(
+        [analyse(p.read_bytes(), camera=CAMERA, max_pixels=10**9).features for p in sky]
+    ).reshape(len(sky), -1)
+    unlike = {"panels": [0, 0], "no panel": [0, 0, 0, 0]}  # called unlike, of; not sure, condition
     y = np.isin(label, ("dust", "bird_drop")).astype(int)
     counts = ", ".join(f"{(label == c).sum()} {c}" for c in LABELS)
     print(f"{len(rows)} photos ({counts}), {len(set(groups))} groups after near-duplicate grouping")
@@ -179,6 +192,14 @@ def main() -> None:
             pred[te] = (model.probability(feats[te]) >= model.threshold).astype(int)
             condition[te] = [model.condition(f) for f in feats[te]]
             doubted[te] = [model.doubt(f) is not None for f in feats[te]]
+            why = [model.doubt(vec) or "" for vec in feats[te]]
+            unlike["panels"][0] += sum(reason.startswith("unlike") for reason in why)
+            unlike["panels"][1] += len(te)
+            for vec in no_panel:
+                reason = model.doubt(vec) or ""
+                slot = 0 if reason.startswith("unlike") else 2 if reason else 3
+                unlike["no panel"][slot] += 1
+                unlike["no panel"][1] += 1
             clean_train = tr[label[tr] == "clean"]
             baseline = soiling.fit_baseline(modes[clean_train], significance=0.05)
             t2_pred[te] = [0 if soiling.classify(baseline, m).clean else 1 for m in modes[te]]
@@ -212,6 +233,14 @@ def main() -> None:
     print("|---" * (len(LABELS) + 3) + "|")
     for i, name in enumerate(LABELS):
         print(f"| {name} | " + " | ".join(str(v) for v in confusion[i]) + " |")
+    if len(sky):
+        u, n, unsure, judged_anyway = unlike["no panel"]
+        print(
+            f"\n{len(sky)} photos that show no panel (../shared/data/sky), each fold's model: "
+            f"called unlike its photos {u / n:.0%}, not sure {unsure / n:.0%}, given a "
+            f"condition {judged_anyway / n:.0%}; held-out panel photos called unlike: "
+            f"{unlike['panels'][0] / unlike['panels'][1]:.1%}"
+        )
     print(json.dumps({"seeds": table, "mean": summary, "confusion": confusion.tolist()}))
     if args.scales:
         scale_study(images, feats, label, groups, args.seeds)

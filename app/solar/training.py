@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -209,13 +210,25 @@ def evaluate(
     return Evaluation(test, rates, clean, dirty)
 
 
-def reach(z: NDArray[np.float64]) -> float:
-    """The largest distance from a row of ``z`` (n, K) to its nearest other row: how far a
-    frame may lie from every training photo and still be among them (``KernelModel.doubt``)."""
+NOVELTY = 0.05
+"""How often a photo like the training photos may be called unlike them (``reach``)."""
+
+
+def reach(z: NDArray[np.float64], alpha: float = NOVELTY) -> float:
+    """How far a frame may lie from its nearest training photo (rows of ``z``, (n, K), standard
+    units) and still be among them (``KernelModel.doubt``): a conformal novelty threshold.
+
+    Each photo's distance to its nearest other photo is what a new photo like them would show;
+    the ⌈(n + 1)(1 − α)⌉-th smallest of the n is exceeded by such a photo with probability at
+    most α (split-conformal rank argument: Angelopoulos & Bates, *A gentle introduction to
+    conformal prediction*, 2021, §1; the largest of them when n < 1/α − 1). The largest alone
+    let street views posted to a panel camera be judged dirty (``bench/fleet_eval.py``)."""
     from sklearn.neighbors import NearestNeighbors
 
     distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
-    return float(distances[:, 1].max())
+    nearest = np.sort(distances[:, 1])
+    k = math.ceil((len(nearest) + 1) * (1 - alpha))
+    return float(nearest[min(k, len(nearest)) - 1])
 
 
 FLEET_LABELS = ("clean", "dust", "bird_drop", "snow")

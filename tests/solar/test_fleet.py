@@ -16,6 +16,7 @@ from app.solar.core.fleet import (
     lbp_histogram,
     reduce,
 )
+from app.solar.training import reach
 from tests.factories import panel
 
 
@@ -229,3 +230,27 @@ def test_a_frame_that_may_be_snow_is_not_judged_for_brushing() -> None:
     assert maybe.condition(dirty) != "snow"
     clear = one_feature_model(snow=Head(np.zeros(k), float(np.log(0.2 / 0.8))))
     assert clear.doubt(dirty) is None
+
+
+def test_reach_is_the_conformal_rank_of_the_nearest_neighbour_distances() -> None:
+    """Points on a line with gaps 1, 2, …, 38: their nearest-neighbour distances are 1, 1, 2,
+    …, 38 (each point's gap before it; the first's is 1). For n = 39 the reach is the
+    ⌈40 · 0.95⌉ = 38th smallest, 37; for n = 10 (gaps 1–9), ⌈11 · 0.95⌉ = 11 > n: the
+    largest, 9."""
+    x = np.concatenate([[0.0], np.cumsum(np.arange(1.0, 39.0))])[:, None]
+    assert reach(x) == 37.0
+    assert reach(x[:10]) == 9.0
+
+
+def test_a_photo_like_the_training_photos_is_called_unlike_them_at_most_5_percent() -> None:
+    """Training and new photos drawn alike (seeded Gaussians in 20 dimensions): over 40
+    training sets of 80, the share of 500 new photos each beyond ``reach`` is at most α = 0.05
+    on average (the conformal guarantee), and not far below it (the threshold is not slack)."""
+    rng = np.random.default_rng(3)
+    shares = []
+    for _ in range(40):
+        train = rng.normal(0, 1, (80, 20))
+        new = rng.normal(0, 1, (500, 20))
+        d = np.sqrt(((new[:, None, :] - train[None]) ** 2).sum(-1)).min(axis=1)
+        shares.append(float(np.mean(d > reach(train))))
+    assert 0.02 < np.mean(shares) <= 0.05 + 0.01  # ±0.01: 40 sets' spread of the mean

@@ -247,8 +247,9 @@ class KernelModel:
     """(n, K) standardised features of the photos it learnt from (None: a model from before
     they were kept, which cannot tell a photo unlike them)."""
     reach: float | None = None
-    """The largest distance from a training photo to its nearest other one (standard units):
-    a frame further than this from every one of them lies outside what was learnt."""
+    """How far from every training photo a frame may lie (standard units) and still be among
+    them: a photo like them lies further with probability at most 5 % (``training.reach``;
+    models fitted before that kept the largest nearest-neighbour distance of their photos)."""
 
     def standardised(self, f: ArrayLike) -> NDArray[np.float64]:
         return (pick(f, self.feature_names) - self.mean) / self.scale
