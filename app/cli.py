@@ -225,6 +225,22 @@ def _labels(
     return kept, out
 
 
+def _column(folder: Path, paths: list[Path], labels: Path, column: str) -> list[str]:
+    """Each image's value in ``column`` of the labels CSV (images as ``_labels`` chose them)."""
+    rows = _rows(labels)
+    if column not in rows[0]:
+        raise Failed(f"{labels} has no column {column}")
+    table = {r["file"]: r[column] for r in rows}
+    out = []
+    for p in paths:
+        rel = p.relative_to(folder).as_posix()
+        value = table.get(rel, table.get(p.name, ""))
+        if not value:
+            raise Failed(f"{rel} has no {column} in {labels}")
+        out.append(value)
+    return out
+
+
 def baseline(service: Service, args: argparse.Namespace) -> None:
     """A panel's clean baseline from a folder of clean photos."""
     paths = _images(args.folder)
@@ -252,6 +268,11 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     (``--reference``), from sub-folder names or a CSV."""
     column = args.column or args.reference
     paths, labels = _labels(args.folder, _images(args.folder), args.labels, column)
+    data: dict[str, list[str]] = {args.reference: labels}
+    if args.groups:
+        if args.labels is None:
+            raise Failed("--groups names a column of the --labels CSV: give --labels")
+        data["groups"] = _column(args.folder, paths, args.labels, args.groups)
     params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
     if args.applies_to:
         params["applies_to"] = args.applies_to
@@ -261,7 +282,7 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
         "POST",
         "/air/calibration",
         files=_files(paths, "skies"),
-        data={args.reference: labels},
+        data=data,
         params=params,
     )
     body = r.json()
@@ -401,6 +422,13 @@ def parser() -> argparse.ArgumentParser:
     a.add_argument("--labels", type=Path, help="a CSV of file and the reference column")
     a.add_argument("--reference", choices=["levels", "pm25", "aqi"], default="levels")
     a.add_argument("--column", help="the CSV's column of the values (default: --reference's name)")
+    a.add_argument(
+        "--groups",
+        metavar="COLUMN",
+        help="the CSV's column of each photo's day or session: the regression leaves a group "
+        "out at a time to measure its interval (near-duplicate photos of one day otherwise "
+        "make it too narrow)",
+    )
     a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
     a.add_argument(
         "--breakpoints",

@@ -142,6 +142,7 @@ def _from_files(
     policy: Policy,
     method: str,
     applies_to: list[str],
+    groups: list[str] | None,
 ) -> AirCalibrationOut:
     camera, warnings = air.upload_region(session, camera_id, applies_to)
     release(session)  # while decoding
@@ -160,6 +161,7 @@ def _from_files(
         camera_ids=applies_to,
         warnings=[*refs.notes, *warnings],
         reference=refs.reference,
+        groups=None if groups is None else [g.strip() for g in groups],
         table=refs.table,
     )
     return _calibration_out(row)
@@ -226,7 +228,12 @@ def _references(
     response_model=AirCalibrationOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
-        json=AirCalibrationFromFrames, files="files", levels="texts", pm25="texts", aqi="texts"
+        json=AirCalibrationFromFrames,
+        files="files",
+        levels="texts",
+        pm25="texts",
+        aqi="texts",
+        groups="texts",
     ),
 )
 async def calibrate(
@@ -275,7 +282,9 @@ async def calibrate(
 ) -> AirCalibrationOut:
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
 
-    Multipart: repeated ``files`` and ``levels`` (1–10, same order); or JSON
+    Multipart: repeated ``files`` and ``levels`` (1–10, same order), and optionally ``groups``
+    (each image's capture day or session: the regression leaves a group's images out together
+    when it measures its interval, as it leaves out a day of stored frames); or JSON
     ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames. In place of ``levels``,
     the reference ``pm25`` [µg/m³] or US ``aqi`` of each, mapped to levels by the US EPA AQI
     breakpoints (2024) or, for PM2.5 with ``breakpoints=eu_eaqi``, the European Air Quality
@@ -287,9 +296,14 @@ async def calibrate(
             request,
             settings.max_upload_bytes,
             max_files=5000,
-            parts=("files", "levels", "pm25", "aqi"),
+            parts=("files", "levels", "pm25", "aqi", "groups"),
         )
         files = form.files_of("files")
+        groups = form.fields.get("groups") or None
+        if groups is not None and len(groups) != len(files):
+            raise Unprocessable(f"{len(files)} files but {len(groups)} groups; give one each")
+        if groups is not None and not all(g.strip() for g in groups):
+            raise Unprocessable("groups: each image's group must name something (a day)")
         given = {k: form.fields[k] for k in ("levels", "pm25", "aqi") if form.fields.get(k)}
         if len(given) != 1:
             raise Unprocessable("give one of levels, pm25 or aqi per file")
@@ -311,6 +325,7 @@ async def calibrate(
                 policy,
                 method,
                 applies_to or [],
+                groups,
             ),
         )
     if kind == "application/json":

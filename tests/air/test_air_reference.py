@@ -66,17 +66,19 @@ def station(client: TestClient, admin: dict[str, str], clock: Any) -> dict[str, 
     assert r.status_code == 201, r.text
     token = r.json()["token"]
     rng = np.random.default_rng(7)
-    frames, pm = [], []
+    frames, pm, jpegs, days = [], [], [], []
     for day in range(8):
         base = rng.uniform(5, 45)
         for hour in range(6):
             value = float(np.clip(base * rng.uniform(0.75, 1.3), 4, 60))
             taken = START + timedelta(days=day, hours=hour)
-            v = post(client, token, hazy_jpeg(value, seed=100 * day + hour), taken)
+            jpegs.append(hazy_jpeg(value, seed=100 * day + hour))
+            v = post(client, token, jpegs[-1], taken)
             assert v["verdict"]["level"] is None
             frames.append(v["frame_id"])
             pm.append(round(value, 1))
-    return {"token": token, "frames": frames, "pm25": pm}
+            days.append(f"{taken:%Y-%m-%d}")
+    return {"token": token, "frames": frames, "pm25": pm, "jpegs": jpegs, "days": days}
 
 
 def calibrate(
@@ -323,6 +325,37 @@ def test_reference_values_are_checked(
     )
     assert nan.status_code in (400, 422)
     assert client.get("/air/calibrations").json() == []
+
+
+def test_uploaded_images_left_out_a_day_at_a_time(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """The same 48 images uploaded with their days as ``groups`` are calibrated as their
+    stored frames are: σ from days left out, equal to 1e-9. Without groups, σ comes from images
+    left out (the frames of a day are alike, so it is smaller). A count that differs or an empty
+    group: 422, nothing made."""
+    stored = calibrate(client, admin, station)["regression"]
+
+    def upload(groups: list[str] | None) -> Any:
+        data: dict[str, Any] = {"pm25": [str(v) for v in station["pm25"]]}
+        if groups is not None:
+            data["groups"] = groups
+        files = [("files", (f"{i}.jpg", j, "image/jpeg")) for i, j in enumerate(station["jpegs"])]
+        params = {"method": "regression", "camera_id": "m", "applies_to": "m"}
+        return client.post("/air/calibration", files=files, data=data, params=params, headers=admin)
+
+    grouped = upload(station["days"])
+    assert grouped.status_code == 201, grouped.text
+    g = grouped.json()["regression"]
+    assert g["sigma_from"] == "days left out"
+    assert g["sigma"] == pytest.approx(stored["sigma"], abs=1e-9)
+    alone = upload(None).json()["regression"]
+    assert alone["sigma_from"] == "images left out"
+    assert alone["sigma"] < g["sigma"]
+    made = len(client.get("/air/calibrations").json())
+    assert upload(station["days"][:-1]).status_code == 422
+    assert upload([*station["days"][:-1], " "]).status_code == 422
+    assert len(client.get("/air/calibrations").json()) == made
 
 
 def test_a_regression_stored_before_the_choice_of_table_grades_by_the_epa_s() -> None:

@@ -170,7 +170,7 @@ def test_a_labels_csv_chooses_the_images_and_its_column(
         for k in range(6):
             name = f"l{level}-{k}.jpg"
             (skies / name).write_bytes(sky_jpeg(level, seed=20 * level + k))
-            rows.append({"file": name, "station_grade": level})
+            rows.append({"file": name, "station_grade": level, "day": f"2026-05-0{k + 1}"})
     (skies / "not-labelled.jpg").write_bytes(sky_jpeg(5, seed=999))
     labels = write_csv(tmp_path / "grades.csv", rows)
     assert (
@@ -192,6 +192,12 @@ def test_a_labels_csv_chooses_the_images_and_its_column(
     )
     assert "names 1 files not in" in capsys.readouterr().err
     assert httpx.get(f"{live}/air/calibration", headers=ADMIN).json()["id"] == before
+    # the regression measures its interval a day left out at a time
+    grade = ["--labels", str(labels), "--column", "station_grade", "--method", "regression"]
+    assert vantage(live, "air-calibrate", str(skies), *grade, "--groups", "day") == 0
+    assert json.loads(capsys.readouterr().out)["regression"]["sigma_from"] == "days left out"
+    assert vantage(live, "air-calibrate", str(skies), "--groups", "day") == 1
+    assert "give --labels" in capsys.readouterr().err
 
 
 def test_replay_takes_each_frames_time_from_its_name(
