@@ -103,13 +103,19 @@
     return div;
   }
 
-  // Every sky camera in service (a promise of /air/latest's list; empty when it fails).
+  // Every sky camera in service (/air/latest, page by page; what came before a failure).
   async function everyCamera() {
+    const every = [];
     try {
-      const r = await fetch("/air/latest?limit=1000", { cache: "no-store" });
-      return r.ok ? await r.json() : [];
+      for (let offset = 0; ; offset += 1000) {
+        const r = await fetch(`/air/latest?limit=1000&offset=${offset}`, { cache: "no-store" });
+        if (!r.ok) return every;
+        const page = await r.json();
+        every.push(...page);
+        if (page.length < 1000) return every;
+      }
     } catch (e) {
-      return [];
+      return every;
     }
   }
 
