@@ -186,35 +186,34 @@ def _files(paths: Sequence[Path], what: str) -> list[tuple[str, tuple[str, bytes
 
 
 def _labels(
-    folder: Path, paths: list[Path], labels: Path | None, column: str | None
-) -> tuple[list[Path], list[str]]:
-    """The images to send and each one's label: those ``labels`` names (a CSV of file and
-    ``column``, file relative to the folder or a bare name; the folder's other images are left
-    out, and the user told how many), else every image, labelled by its sub-folder's name."""
+    folder: Path, paths: list[Path], labels: Path | None, *columns: str
+) -> tuple[list[Path], list[list[str]]]:
+    """The images to send and, for each of ``columns``, each image's value: from ``labels`` (a
+    CSV of ``file`` and those columns, file relative to the folder or a bare name), which
+    chooses the images (the folder's others are left out, and the user told how many); else
+    every image, its one value the name of its sub-folder."""
     if labels is None:
-        out = []
         for p in paths:
             if p.parent == folder:
                 raise Failed(
                     f"{p.name} is not in a sub-folder named by its label (or give --labels)"
                 )
-            out.append(p.parent.name)
-        return paths, out
+        return paths, [[p.parent.name for p in paths]]
     rows = _rows(labels)
     if not rows:
         raise Failed(f"{labels} has no rows")
-    key = column or next(k for k in rows[0] if k != "file")
-    if "file" not in rows[0] or key not in rows[0]:
-        raise Failed(f"{labels} needs the columns file and {key}")
-    table = {r["file"]: r[key] for r in rows}
-    kept, out, named = [], [], set()
+    for column in ("file", *columns):
+        if column not in rows[0]:
+            raise Failed(f"{labels} has no column {column}")
+    table = {r["file"]: r for r in rows}
+    kept, chosen = [], []
     for p in paths:
         rel = p.relative_to(folder).as_posix()
-        name = rel if rel in table else p.name if p.name in table else None
-        if name is not None:
+        row = table.get(rel, table.get(p.name))
+        if row is not None:
             kept.append(p)
-            out.append(table[name])
-            named.add(name)
+            chosen.append(row)
+    named = {row["file"] for row in chosen}
     if missing := [f for f in table if f not in named]:
         raise Failed(
             f"{labels} names {len(missing)} files not in {folder}: {', '.join(missing[:3])}"
@@ -222,23 +221,11 @@ def _labels(
         )
     if left := len(paths) - len(kept):
         err.print(f"{left} of the {len(paths)} images in {folder} are not in {labels}: left out")
-    return kept, out
-
-
-def _column(folder: Path, paths: list[Path], labels: Path, column: str) -> list[str]:
-    """Each image's value in ``column`` of the labels CSV (images as ``_labels`` chose them)."""
-    rows = _rows(labels)
-    if column not in rows[0]:
-        raise Failed(f"{labels} has no column {column}")
-    table = {r["file"]: r[column] for r in rows}
-    out = []
-    for p in paths:
-        rel = p.relative_to(folder).as_posix()
-        value = table.get(rel, table.get(p.name, ""))
-        if not value:
-            raise Failed(f"{rel} has no {column} in {labels}")
-        out.append(value)
-    return out
+    for row in chosen:
+        for column in columns:
+            if not row[column]:
+                raise Failed(f"{row['file']} has no {column} in {labels}")
+    return kept, [[row[column] for row in chosen] for column in columns]
 
 
 def baseline(service: Service, args: argparse.Namespace) -> None:
@@ -257,7 +244,7 @@ def baseline(service: Service, args: argparse.Namespace) -> None:
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
     """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
-    paths, labels = _labels(args.folder, _images(args.folder), args.labels, "label")
+    paths, [labels] = _labels(args.folder, _images(args.folder), args.labels, "label")
     data = {"labels": labels}
     r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
     print(json.dumps(r.json(), indent=2))
@@ -266,13 +253,11 @@ def fleet(service: Service, args: argparse.Namespace) -> None:
 def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     """An air calibration from labelled sky photos: levels 1–10, or the reference pm25 or aqi
     (``--reference``), from sub-folder names or a CSV."""
-    column = args.column or args.reference
-    paths, labels = _labels(args.folder, _images(args.folder), args.labels, column)
-    data: dict[str, list[str]] = {args.reference: labels}
-    if args.groups:
-        if args.labels is None:
-            raise Failed("--groups names a column of the --labels CSV: give --labels")
-        data["groups"] = _column(args.folder, paths, args.labels, args.groups)
+    if args.groups and args.labels is None:
+        raise Failed("--groups names a column of the --labels CSV: give --labels")
+    columns = [args.column or args.reference, *([args.groups] if args.groups else [])]
+    paths, values = _labels(args.folder, _images(args.folder), args.labels, *columns)
+    data = dict(zip([args.reference, "groups"], values, strict=False))
     params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
     if args.applies_to:
         params["applies_to"] = args.applies_to

@@ -198,6 +198,23 @@ def test_a_labels_csv_chooses_the_images_and_its_column(
     assert json.loads(capsys.readouterr().out)["regression"]["sigma_from"] == "days left out"
     assert vantage(live, "air-calibrate", str(skies), "--groups", "day") == 1
     assert "give --labels" in capsys.readouterr().err
+    assert vantage(live, "air-calibrate", str(skies), *grade, "--groups", "hour") == 1
+    assert "has no column hour" in capsys.readouterr().err
+    undated = write_csv(tmp_path / "undated.csv", [{**rows[0], "day": ""}, *rows[1:]])
+    assert (
+        vantage(
+            live,
+            "air-calibrate",
+            str(skies),
+            *grade[2:],
+            "--labels",
+            str(undated),
+            "--groups",
+            "day",
+        )
+        == 1
+    )
+    assert "l2-0.jpg has no day" in capsys.readouterr().err
 
 
 def test_replay_takes_each_frames_time_from_its_name(
