@@ -191,8 +191,8 @@ def main() -> None:
             model = as_core_model(fit_fleet(feats[tr], list(label[tr]), now=now))
             pred[te] = (model.probability(feats[te]) >= model.threshold).astype(int)
             condition[te] = [model.condition(f) for f in feats[te]]
-            doubted[te] = [model.doubt(f) is not None for f in feats[te]]
             why = [model.doubt(vec) or "" for vec in feats[te]]
+            doubted[te] = [bool(reason) for reason in why]
             unlike["panels"][0] += sum(reason.startswith("unlike") for reason in why)
             unlike["panels"][1] += len(te)
             for vec in no_panel:
