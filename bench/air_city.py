@@ -23,7 +23,6 @@ import tempfile
 from datetime import datetime
 from pathlib import Path
 from typing import Any
-from zoneinfo import ZoneInfo
 
 import numpy as np
 from fastapi.testclient import TestClient
@@ -35,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 from app.air.core import airquality, breakpoints  # noqa: E402
 from app.main import create_app  # noqa: E402
 from app.platform.settings import Settings  # noqa: E402
+from bench.airquality_eval import earlier_days, milan_times  # noqa: E402
 from tests.factories import migrate  # noqa: E402
 
 TOKEN = "bench-admin-token-0123456789abcdef"
@@ -63,12 +63,10 @@ def trial(client: TestClient, root: Path, rows: list[dict[str, str]], table: str
     )
     assert r.status_code == 201, r.text
     token = r.json()["token"]
-    rome = ZoneInfo("Europe/Rome")  # the hours are local
-    times = [
-        datetime.fromisoformat(f"{r['date']}T{r['hour_local']}").replace(tzinfo=rome) for r in rows
-    ]
+    times = milan_times(rows)
     days = sorted({r["date"] for r in rows})
-    cut = days[len(days) * 2 // 3]
+    k = earlier_days(days)
+    cut = days[k]
     earlier = [i for i, r in enumerate(rows) if r["date"] < cut]
     later = [i for i, r in enumerate(rows) if r["date"] >= cut]
     frames = [
@@ -94,8 +92,8 @@ def trial(client: TestClient, root: Path, rows: list[dict[str, str]], table: str
     truth = [airquality.category(breakpoints.level_of_pm25(p, table)) for p in pm]
     sure_right = [v["category"] == t for v, t in zip(verdicts, truth, strict=True) if v["category"]]
     print(
-        f"{breakpoints.TABLES[table]}: {len(earlier)} frames of {len(days) * 2 // 3} days "
-        f"calibrate, {len(later)} frames of the later {len(days) - len(days) * 2 // 3} graded"
+        f"{breakpoints.TABLES[table]}: {len(earlier)} frames of {k} days "
+        f"calibrate, {len(later)} frames of the later {len(days) - k} graded"
     )
     print(
         f"  level ρ = {spearmanr(level[levelled], -pm[levelled])[0]:+.3f} "

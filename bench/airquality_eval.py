@@ -99,6 +99,19 @@ def milan_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return modes, airquality.sky_features(region, band_below(image, roi))
 
 
+def milan_times(rows: list[dict[str, str]]) -> list[datetime]:
+    """Each Milan frame's capture time: its date and local hour, in Milan's zone."""
+    rome = ZoneInfo("Europe/Rome")
+    return [
+        datetime.fromisoformat(f"{r['date']}T{r['hour_local']}").replace(tzinfo=rome) for r in rows
+    ]
+
+
+def earlier_days(days: list[str]) -> int:
+    """How many of the sorted ``days`` the earlier → later split fits on: two thirds."""
+    return len(days) * 2 // 3
+
+
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
     """ρ over the pairs where both are finite; nan for fewer than 3 or a constant side."""
     ok = np.isfinite(a) & np.isfinite(b)
@@ -133,16 +146,14 @@ def milan_table(root: Path, folds: int, table: str) -> None:
     )
     pm = np.array([float(r["pm25_ugm3"]) for r in rows])
     day = np.array([r["date"] for r in rows])
-    rome = ZoneInfo("Europe/Rome")  # the hours are local
-    times = [
-        datetime.fromisoformat(f"{r['date']}T{r['hour_local']}").replace(tzinfo=rome) for r in rows
-    ]
+    times = milan_times(rows)
     level = np.array([breakpoints.level_of_pm25(v, table) for v in pm])
     days = sorted(set(day))
-    cut = days[len(days) * 2 // 3]
+    k = earlier_days(days)
+    cut = days[k]
     splits = {
         f"{folds} folds grouped by day": list(GroupKFold(folds).split(feats, pm, day)),
-        f"earlier {len(days) * 2 // 3} days → later {len(days) - len(days) * 2 // 3}": [
+        f"earlier {k} days → later {len(days) - k}": [
             (np.flatnonzero(day < cut), np.flatnonzero(day >= cut))
         ],
     }
