@@ -130,6 +130,7 @@
       if (m && m.options.key === key) continue;
       if (m) cameras.removeLayer(m);
       const html = `<span class="dot"></span><span class="cam-label"></span>`;
+      // level 11, past the best air: declutter places its label last
       m = L.marker([c.lat, c.lon], { icon: L.divIcon({ className: "cam silent", html, iconSize: null }), key, level: 11, camera: c });
       m.bindPopup(() => quietPopup(c), { maxWidth: 300 });
       markers.set(c.camera_id, m);
