@@ -60,7 +60,9 @@ class AirRegressionOut(Out):
         description="The table its PM2.5 estimates become levels by: us_epa or eu_eaqi.",
     )
     n: int = Field(default=0, description="Images it was fitted to.")
-    alpha: float | None = Field(default=None, description="Ridge penalty (leave-one-out).")
+    alpha: float | None = Field(
+        default=None, description="Ridge penalty, chosen as σ is measured: days or images left out."
+    )
     sigma: float | None = Field(
         default=None,
         description="Residual scale on data it was not fitted to, in ln(1 + unit) (level: "

@@ -694,6 +694,36 @@ class TestRegression:
         assert by_day.sigma is not None
         assert 0.45 < by_day.sigma < 0.7
 
+    def test_the_penalty_is_chosen_with_days_left_out(self) -> None:
+        """Ten features that are constant within a day and noise across days let a fit
+        remember each day's offset (σ 0.5) when single frames are left out, so leave-one-out
+        picks a small α. With days as groups, α is the grid value of least mean squared
+        error over days left out, computed here by the closed-form ridge (intercept
+        unpenalised) on the same standardised features: a larger one."""
+        rng = np.random.default_rng(7)
+        x, y = self.data(240, 8)
+        days = np.repeat(np.arange(24), 10)
+        x = np.hstack([x, np.repeat(rng.normal(0, 1, (24, 10)), 10, axis=0)])
+        y = y + np.repeat(rng.normal(0, 0.5, 24), 10)
+        grid = np.logspace(-2, 3, 30)
+        _, by_frame = airquality.fit_regression(x, y)
+        _, by_day = airquality.fit_regression(x, y, groups=[str(d) for d in days])
+
+        z = (x - x.mean(0)) / x.std(0)
+
+        def error(alpha: float) -> float:
+            per_day = []
+            for d in range(24):
+                tr, te = days != d, days == d
+                zm, ym = z[tr].mean(0), y[tr].mean()
+                zc = z[tr] - zm
+                beta = np.linalg.solve(zc.T @ zc + alpha * np.eye(z.shape[1]), zc.T @ (y[tr] - ym))
+                per_day.append(np.mean((y[te] - ym - (z[te] - zm) @ beta) ** 2))
+            return float(np.mean(per_day))
+
+        assert by_day == pytest.approx(grid[np.argmin([error(a) for a in grid])], rel=1e-12)
+        assert by_day > by_frame
+
     def test_a_frame_far_outside_is_uncertain(self) -> None:
         x, y = self.data(200, 4)
         model, _ = airquality.fit_regression(x, y)

@@ -579,11 +579,13 @@ def fit_regression(
     table: str = "us_epa",
 ) -> tuple[Regression, float]:
     """Ridge regression of ``targets`` (levels, or reference values in ``unit``) on the
-    features, α by scikit-learn's efficient leave-one-out, and (α). σ for the intervals comes
-    from residuals on data the fit did not see: leave one group (a day of frames) out when
-    ``groups`` has at least 3, else leave one image out (optimistic when images are
-    near-duplicates: frames of one day share their weather)."""
+    features, and its penalty α. α and σ for the intervals both come from data the fit did not
+    see: leave one group (a day of frames) out when ``groups`` has at least 3, else leave one
+    image out (scikit-learn's efficient leave-one-out; optimistic when images are
+    near-duplicates: frames of one day share their weather, so leaving one out rewards a fit
+    that remembers the day, and picks too small an α)."""
     from sklearn.linear_model import RidgeCV
+    from sklearn.model_selection import LeaveOneGroupOut
     from sklearn.preprocessing import StandardScaler
 
     x = np.asarray(features, dtype=np.float64)
@@ -597,14 +599,19 @@ def fit_regression(
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
     z = (x - scaler.mean_) / scale
     grid = np.logspace(-2, 3, 30) if alphas is None else np.asarray(alphas)
-    model = RidgeCV(alphas=grid).fit(z, y)
+    by_day = groups is not None and len(set(groups)) >= 3
+    if by_day:
+        days = list(LeaveOneGroupOut().split(z, y, np.asarray(groups)))
+        model = RidgeCV(alphas=grid, cv=days, scoring="neg_mean_squared_error").fit(z, y)
+    else:
+        model = RidgeCV(alphas=grid).fit(z, y)
     alpha = float(model.alpha_)
     n, p = z.shape
     zc = z - z.mean(axis=0)  # the features are standardised: already centred
     gram_inv = np.linalg.inv(zc.T @ zc + alpha * np.eye(p))
     lev = np.einsum("ij,jk,ik->i", zc, gram_inv, zc)
     fitted = model.predict(z)
-    if groups is not None and len(set(groups)) >= 3:
+    if by_day:
         g = np.asarray(groups)
         held = np.empty(n)
         for name in set(g.tolist()):
