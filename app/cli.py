@@ -244,8 +244,11 @@ def baseline(service: Service, args: argparse.Namespace) -> None:
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
     """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
-    paths, [labels] = _labels(args.folder, _images(args.folder), args.labels, "label")
-    data = {"labels": labels}
+    if args.groups and args.labels is None:
+        raise Failed("--groups names a column of the --labels CSV: give --labels")
+    columns = ["label", *([args.groups] if args.groups else [])]
+    paths, values = _labels(args.folder, _images(args.folder), args.labels, *columns)
+    data = dict(zip(["labels", "groups"], values, strict=False))
     r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
     print(json.dumps(r.json(), indent=2))
 
@@ -400,6 +403,12 @@ def parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fleet", help="the fleet model from labelled photos")
     f.add_argument("folder", type=Path, help="sub-folders clean, dust, bird_drop, snow")
     f.add_argument("--labels", type=Path, help="a CSV of file,label instead of sub-folders")
+    f.add_argument(
+        "--groups",
+        metavar="COLUMN",
+        help="the CSV's column of each photo's panel: the folds keep a panel's photos "
+        "together, so the reported accuracy is on panels the model never saw",
+    )
     f.set_defaults(run=fleet)
 
     a = sub.add_parser("air-calibrate", help="an air calibration from labelled sky photos")

@@ -143,6 +143,8 @@ class FleetModel(Base):
     (vs dust), each {coef, intercept}, when trained."""
     n_snow: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     n_bird_drop: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    n_groups: Mapped[int | None] = mapped_column(Integer, default=None)
+    """Groups (panels) its folds kept together; none when each photo was its own."""
 
 
 class Robot(TimestampMixin, Base):

@@ -221,7 +221,13 @@ class FleetModelOut(Out):
     n_snow: int = 0
     cv_balanced_accuracy: float | None = Field(
         description="Needs cleaning against clean: balanced accuracy over 5 folds, the model's "
-        "choice of C and γ made again inside each (nested)."
+        "choice of C and γ made again inside each (nested); on panels it never saw when "
+        "trained with groups."
+    )
+    n_groups: int | None = Field(
+        default=None,
+        description="Groups (panels) the folds kept together; null when trained without "
+        "groups, each photo then its own panel.",
     )
     threshold: float
 

@@ -214,7 +214,9 @@ NOVELTY = 0.05
 """How often a photo like the training photos may be called unlike them (``reach``)."""
 
 
-def reach(z: NDArray[np.float64], alpha: float = NOVELTY) -> float:
+def reach(
+    z: NDArray[np.float64], alpha: float = NOVELTY, groups: NDArray[np.str_] | None = None
+) -> float:
     """How far a frame may lie from its nearest training photo (rows of ``z``, (n, K), standard
     units) and still be among them (``KernelModel.doubt``): a conformal novelty threshold.
 
@@ -222,24 +224,46 @@ def reach(z: NDArray[np.float64], alpha: float = NOVELTY) -> float:
     the ⌈(n + 1)(1 − α)⌉-th smallest of the n is exceeded by such a photo with probability at
     most α (split-conformal rank argument: Angelopoulos & Bates, *A gentle introduction to
     conformal prediction*, 2021, §1; the largest of them when n < 1/α − 1). The largest alone
-    let street views posted to a panel camera be judged dirty (``bench/fleet_eval.py``)."""
+    let street views posted to a panel camera be judged dirty (``bench/fleet_eval.py``). With
+    ``groups`` (each photo's panel), the nearest photo of another group: a new panel is like
+    the training panels, not like a second photo of one of them."""
     from sklearn.neighbors import NearestNeighbors
 
-    distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
-    nearest = np.sort(distances[:, 1])
-    k = math.ceil((len(nearest) + 1) * (1 - alpha))
-    return float(nearest[min(k, len(nearest)) - 1])
+    n = len(z)
+    if groups is None:
+        distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
+        nearest = np.sort(distances[:, 1])
+    else:
+        largest = max(int(c) for c in np.unique(groups, return_counts=True)[1])
+        distances, index = NearestNeighbors(n_neighbors=min(n, largest + 1)).fit(z).kneighbors(z)
+        other = groups[index] != groups[:, None]  # the first column of each row is the photo
+        nearest = np.sort(distances[np.arange(n), other.argmax(axis=1)])
+    k = math.ceil((n + 1) * (1 - alpha))
+    return float(nearest[min(k, n) - 1])
 
+
+FLEET_FOLDS = 5
+"""Folds of the fleet model's choices and of its reported accuracy."""
 
 FLEET_LABELS = ("clean", "dust", "bird_drop", "snow")
 """What a fleet photo may be labelled; ``dirty`` is read as dust."""
 
 
-def fleet_search(k: int) -> Any:
+def fleet_folds(seed: int, grouped: bool, folds: int = FLEET_FOLDS) -> Any:
+    """Stratified folds (scikit-learn), shuffled by ``seed``; ``grouped``: a group's photos
+    (one panel's) all in one fold, so that a fold's score is on panels the fit never saw."""
+    from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
+
+    kind = StratifiedGroupKFold if grouped else StratifiedKFold
+    return kind(n_splits=folds, shuffle=True, random_state=seed)
+
+
+def fleet_search(k: int, grouped: bool = False, folds: int = FLEET_FOLDS) -> Any:
     """The fleet classifier before its choice of C and γ, for ``k`` features: a standardised
-    RBF support-vector machine with balanced classes, C and γ to be chosen by 5-fold
-    cross-validated balanced accuracy (scikit-learn's ``GridSearchCV``)."""
-    from sklearn.model_selection import GridSearchCV, StratifiedKFold
+    RBF support-vector machine with balanced classes, C and γ to be chosen by ``folds``-fold
+    cross-validated balanced accuracy (scikit-learn's ``GridSearchCV``); ``grouped``: by folds
+    that keep a group together (``fleet_folds``), its ``fit`` then given ``groups``."""
+    from sklearn.model_selection import GridSearchCV
     from sklearn.pipeline import Pipeline
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC
@@ -247,12 +271,30 @@ def fleet_search(k: int) -> Any:
     return GridSearchCV(
         Pipeline([("scale", StandardScaler()), ("svm", SVC(class_weight="balanced"))]),
         {"svm__C": [1.0, 3.0, 10.0], "svm__gamma": [0.3 / k, 1.0 / k, 3.0 / k]},
-        cv=StratifiedKFold(n_splits=5, shuffle=True, random_state=0),
+        cv=fleet_folds(0, grouped, folds),
         scoring="balanced_accuracy",
     )
 
 
-def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: datetime) -> FleetModel:
+def check_fleet_groups(groups: NDArray[np.str_], dirty: NDArray[np.bool_]) -> None:
+    """Refuse groups too few to fold: each of clean and needs cleaning in at least
+    ``FLEET_FOLDS`` groups (photos of snow aside), so that every fold can test both."""
+    for name, rows in (("clean", ~dirty), ("needing cleaning", dirty)):
+        if (n := len(set(groups[rows].tolist()))) < FLEET_FOLDS:
+            raise Unprocessable(
+                f"the photos {name} come from {n} groups; the folds that keep a group "
+                f"together need at least {FLEET_FOLDS}",
+                code="too_few_groups",
+            )
+
+
+def fit_fleet(
+    features: NDArray[np.float64],
+    labels: Sequence[str],
+    *,
+    now: datetime,
+    groups: Sequence[str] | None = None,
+) -> FleetModel:
     """The fleet model (``core.fleet.KernelModel``) from labelled photos of many panels.
 
     Needs cleaning (dust, bird_drop) against clean, on the photos that are not snow: a
@@ -260,9 +302,14 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
     chosen by 5-fold cross-validated balanced accuracy, its decisions Platt-scaled to a
     probability on cross-validated decisions. ``cv_balanced_accuracy`` is that of the whole
     choice, nested: outer 5 folds, the choice made again inside each. Heads on the same
-    features: snow against the rest, droppings against dust, each when ≥ 3 photos show it."""
+    features: snow against the rest, droppings against dust, each when ≥ 3 photos show it.
+
+    ``groups`` names each photo's panel (or any group of near-duplicates): every fold then
+    keeps a group's photos together, and the reach is measured to other groups' photos.
+    Without it each photo is its own panel; several photos of one panel then flatter the
+    choice, the accuracy and the probabilities, as a fold tests on panels it trained on."""
     from sklearn.linear_model import LogisticRegression
-    from sklearn.model_selection import StratifiedKFold, cross_val_predict, cross_val_score
+    from sklearn.model_selection import cross_val_predict, cross_val_score
 
     names = np.array(["dust" if label == "dirty" else label for label in labels])
     counts = {label: int((names == label).sum()) for label in FLEET_LABELS}
@@ -277,13 +324,33 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
     k = features.shape[1]
     judged = names != "snow"
     x, dirty = features[judged], np.isin(names[judged], ("dust", "bird_drop"))
-    folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
-    search = fleet_search(k)
-    outer = StratifiedKFold(n_splits=5, shuffle=True, random_state=1)
-    cv = cross_val_score(search, x, dirty, cv=outer, scoring="balanced_accuracy")
-    search.fit(x, dirty)
+    g = None if groups is None else np.asarray(groups, dtype=str)
+    if g is not None:
+        check_fleet_groups(g[judged], dirty)
+    fit_groups = None if g is None else {"groups": g[judged]}
+    search = fleet_search(k, grouped=g is not None)
+    outer = fleet_folds(1, g is not None)
+    # an outer fold's training part may hold only 4 groups of a class: 3 inner folds
+    inner = search if g is None else fleet_search(k, grouped=True, folds=3)
+    cv = cross_val_score(
+        inner,
+        x,
+        dirty,
+        groups=None if g is None else g[judged],
+        cv=outer,
+        scoring="balanced_accuracy",
+        params=fit_groups,
+    )
+    search.fit(x, dirty, **(fit_groups or {}))
     best = search.best_estimator_
-    decisions = cross_val_predict(best, x, dirty, cv=folds, method="decision_function")
+    decisions = cross_val_predict(
+        best,
+        x,
+        dirty,
+        groups=None if g is None else g[judged],
+        cv=fleet_folds(0, g is not None),
+        method="decision_function",
+    )
     platt = LogisticRegression(C=1e6).fit(decisions.reshape(-1, 1), dirty)
     scaler, svm = best.named_steps["scale"], best.named_steps["svm"]
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
@@ -316,7 +383,7 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
             "gamma": float(svm.gamma),
             "platt": [float(platt.coef_[0, 0]), float(platt.intercept_[0])],
             "training": z.tolist(),
-            "reach": reach(z),
+            "reach": reach(z, groups=g),
         },
         heads={name: h for name, h in heads.items() if h is not None},
         threshold=0.5,
@@ -325,4 +392,5 @@ def fit_fleet(features: NDArray[np.float64], labels: Sequence[str], *, now: date
         n_snow=counts["snow"],
         n_bird_drop=counts["bird_drop"],
         cv_balanced_accuracy=float(np.mean(cv)),
+        n_groups=None if g is None else len(set(g.tolist())),
     )

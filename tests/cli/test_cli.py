@@ -142,7 +142,17 @@ def test_baseline_fleet_and_history(live: str, tmp_path: Path) -> None:
         (photos / "clean" / f"c{i}.jpg").write_bytes(panel_jpeg(c, seed=i))
         (photos / "dirty" / f"d{i}.jpg").write_bytes(panel_jpeg(0.5 * c + 0.5 * sand, seed=100 + i))
     assert vantage(live, "fleet", str(photos)) == 0
-    assert httpx.get(f"{live}/fleet/model", headers=ADMIN).status_code == 200
+    assert httpx.get(f"{live}/fleet/model", headers=ADMIN).json()["n_groups"] is None
+    # each clean photo and its sandy copy are one panel's: the folds keep them together
+    rows = [
+        {"file": f"{label}/{label[0]}{i}.jpg", "label": label, "panel": f"row-{i}"}
+        for label in ("clean", "dirty")
+        for i in range(8)
+    ]
+    labels = write_csv(tmp_path / "fleet.csv", rows)
+    assert vantage(live, "fleet", str(photos), "--groups", "panel") == 1
+    assert vantage(live, "fleet", str(photos), "--labels", str(labels), "--groups", "panel") == 0
+    assert httpx.get(f"{live}/fleet/model", headers=ADMIN).json()["n_groups"] == 8
     out = tmp_path / "history.csv"
     assert vantage(live, "export", "panel-history", "p1", str(out), "--bucket", "day") == 0
     assert out.read_text().splitlines()[0].startswith("start,end,frames")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import numpy as np
 import pytest
 from sklearn.svm import SVC
@@ -16,7 +18,7 @@ from app.solar.core.fleet import (
     lbp_histogram,
     reduce,
 )
-from app.solar.training import reach
+from app.solar.training import fit_fleet, reach
 from tests.factories import panel
 
 
@@ -254,3 +256,55 @@ def test_a_photo_like_the_training_photos_is_called_unlike_them_at_most_5_percen
         d = np.sqrt(((new[:, None, :] - train[None]) ** 2).sum(-1)).min(axis=1)
         shares.append(float(np.mean(d > reach(train))))
     assert 0.02 < np.mean(shares) <= 0.05 + 0.01  # ±0.01: 40 sets' spread of the mean
+
+
+def test_reach_with_groups_is_measured_to_other_groups_photos() -> None:
+    """Seeded panels of 2–6 photos each, near-duplicates around the panel's own point: with
+    groups, each photo's distance is to the nearest photo of another panel (checked against
+    every pair's distance), and the reach the conformal rank of those; without, a photo's
+    twin makes it small."""
+    rng = np.random.default_rng(11)
+    sizes = rng.integers(2, 7, 40)
+    groups = np.repeat([f"p{i}" for i in range(40)], sizes)
+    z = np.repeat(rng.normal(0, 1, (40, 6)), sizes, axis=0) + rng.normal(0, 0.01, (len(groups), 6))
+    d = np.sqrt(((z[:, None] - z[None]) ** 2).sum(-1))
+    d[groups[:, None] == groups[None]] = np.inf
+    nearest = np.sort(d.min(axis=1))
+    k = int(np.ceil((len(z) + 1) * 0.95))
+    assert reach(z, groups=groups) == pytest.approx(nearest[k - 1], rel=1e-12)
+    assert reach(z) < 0.1 < reach(z, groups=groups)
+
+
+class TestGroups:
+    """Photos of one panel are near-duplicates: folds that split a panel test the model on
+    panels it trained on."""
+
+    def photos(self, seed: int) -> tuple[np.ndarray, list[str], list[str]]:
+        """12 panels, 6 photos each around the panel's own point (seeded), labelled by panel
+        at random: the features say which panel, never whether it is clean."""
+        rng = np.random.default_rng(seed)
+        centres = rng.normal(0, 1, (12, 8))
+        x = np.repeat(centres, 6, axis=0) + rng.normal(0, 0.05, (72, 8))
+        label = rng.permutation(["clean"] * 6 + ["dust"] * 6)
+        return x, list(np.repeat(label, 6)), [f"p{i}" for i in range(12) for _ in range(6)]
+
+    def test_grouped_folds_say_the_model_has_learnt_nothing(self) -> None:
+        """Over 5 seeds: without groups the reported accuracy is near 1 (a fold always holds
+        the panel's other photos); with them it is that of a guess, 0.5 ± 0.2."""
+        now = datetime(2026, 6, 1, tzinfo=UTC)
+        flattered, grouped = [], []
+        for seed in range(5):
+            x, labels, groups = self.photos(seed)
+            flattered.append(fit_fleet(x, labels, now=now).cv_balanced_accuracy)
+            model = fit_fleet(x, labels, now=now, groups=groups)
+            assert model.n_groups == 12
+            grouped.append(model.cv_balanced_accuracy)
+        assert min(flattered) > 0.9
+        assert abs(np.mean(grouped) - 0.5) < 0.2
+
+    def test_too_few_groups_of_a_class_are_refused(self) -> None:
+        x, labels, groups = self.photos(0)
+        clean = [g for g, label in zip(groups, labels, strict=True) if label == "clean"]
+        merged = [("one" if g in clean[:18] else g) for g in groups]  # 3 clean panels → 1
+        with pytest.raises(Exception, match="the photos clean come from 4 groups"):
+            fit_fleet(x, labels, now=datetime(2026, 6, 1, tzinfo=UTC), groups=merged)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from datetime import timedelta
 from typing import Any
 
@@ -925,6 +926,52 @@ class TestFleetModel:
         s = status(client, admin)
         assert s["state"] == "unknown", s
         assert client.get("/cleaning/tasks", headers=admin).json() == []
+
+    def farm_photos(self, panels: int) -> tuple[list[Any], list[str], list[str]]:
+        """Each panel photographed clean and half covered in sand (seeded)."""
+        rng = np.random.default_rng(6)
+        files, labels, groups = [], [], []
+        for i in range(panels):
+            c = CLEAN_RGB + rng.normal(0, 6, 3)
+            for name, rgb in (("clean", c), ("dust", 0.5 * c + 0.5 * SAND)):
+                photo = panel_jpeg(rgb, seed=10 * i + len(files))
+                files.append(("files", (f"{name}{i}.jpg", photo, "image/jpeg")))
+                labels.append(name)
+                groups.append(f" row-A-{i} ")  # as cut from a CSV: stripped
+        return files, labels, groups
+
+    def test_photos_grouped_by_panel(self, client: TestClient, admin: dict[str, str]) -> None:
+        files, labels, groups = self.farm_photos(8)
+        data = {"labels": labels, "groups": groups}
+        r = client.post("/fleet/model", files=files, data=data, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["n_groups"] == 8
+        assert r.json()["cv_balanced_accuracy"] == 1.0
+        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["n_groups"] is None
+
+    @pytest.mark.parametrize(
+        ("regroup", "code"),
+        [
+            (lambda g: g[1:], "groups_mismatch"),
+            (lambda g: [f"row-{i % 4}" for i in range(len(g))], "too_few_groups"),
+            (lambda g: [*g[:3], " ", *g[4:]], "empty_group"),
+        ],
+    )
+    def test_groups_that_cannot_fold_are_refused_and_nothing_stored(
+        self,
+        client: TestClient,
+        admin: dict[str, str],
+        regroup: Callable[[list[str]], list[str]],
+        code: str,
+    ) -> None:
+        files, labels, groups = self.farm_photos(8)
+        data = {"labels": labels, "groups": regroup(groups)}
+        r = client.post("/fleet/model", files=files, data=data, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.json()["code"] == code
+        assert client.get("/fleet/model", headers=admin).status_code == 404
 
     def test_labels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
         files = [("files", ("a.jpg", panel_jpeg(CLEAN_RGB), "image/jpeg"))]

@@ -34,13 +34,14 @@ def _train(
     session: Session,
     files: list[tuple[str | None, bytes]],
     labels: list[str],
+    groups: list[str] | None,
     max_pixels: int,
     policy: Policy,
 ) -> FleetModelOut:
     camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
     decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
     features = np.array([d.features for d in decoded], dtype=np.float64)
-    row = training.fit_fleet(features, labels, now=policy.now())
+    row = training.fit_fleet(features, labels, now=policy.now(), groups=groups)
     session.add(row)
     session.flush()
     return FleetModelOut.model_validate(row)
@@ -51,7 +52,7 @@ def _train(
     status_code=201,
     response_model=FleetModelOut,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
-    openapi_extra=multipart_body(files="files", labels="texts"),
+    openapi_extra=multipart_body(files="files", labels="texts", groups="texts"),
 )
 async def train(
     request: Request, session: SessionDep, settings: SettingsDep, policy: PolicyDep, _: Admin
@@ -61,23 +62,37 @@ async def train(
     as such and opens no brushing task), bird_drop photos droppings from dust (≥ 3 each).
 
     Multipart: repeated ``files`` and, in the same order, ``labels`` (clean, dust, bird_drop,
-    snow; dirty is read as dust).
+    snow; dirty is read as dust), and optionally ``groups``: each photo's panel (or any name
+    shared by near-duplicate photos). With groups, the choice of C and γ, the reported
+    accuracy and the probabilities come from folds that keep a panel's photos together, so
+    they speak of panels the model never saw; at least 5 groups of clean photos and 5 of
+    photos needing cleaning.
     """
     if content_type(request) != "multipart/form-data":
         raise UnsupportedMediaType("send multipart/form-data with files and labels")
     form = await read_form(
-        request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels")
+        request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels", "groups")
     )
     files, labels = form.files_of("files"), form.fields.get("labels", [])
+    groups = form.fields.get("groups") or None
     if len(files) != len(labels):
         raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")
+    if groups is not None and len(groups) != len(files):
+        raise Unprocessable(
+            f"{len(files)} files but {len(groups)} groups; give one group each, or none",
+            code="groups_mismatch",
+        )
+    if groups is not None and not all(g.strip() for g in groups):
+        raise Unprocessable("a group is empty: name each photo's panel", code="empty_group")
+    if groups is not None:
+        groups = [g.strip() for g in groups]
     bad = sorted({label for label in labels if label not in LABELS})
     if bad:
         raise Unprocessable(
             f"labels must be {', '.join(LABELS)}; got {', '.join(bad)}", code="unknown_label"
         )
     return await image_work(
-        request, partial(_train, session, files, labels, settings.max_pixels, policy)
+        request, partial(_train, session, files, labels, groups, settings.max_pixels, policy)
     )
 
 
