@@ -221,6 +221,7 @@ def test_the_farm_board_shows_nothing_until_signed_in(
     ]
     [task] = p.page.locator("#tasks tbody tr").all_inner_texts()
     assert task.split("\t")[:3] == ["p0", "claimed", "r1"]
+    assert p.page.locator("#fleet").inner_text().startswith("No fleet model")
     p.page.locator(".tile.cleaning").click()
     p.page.wait_for_function("document.querySelector('#thumb').naturalWidth > 0")
     p.shot("farm")
@@ -229,7 +230,42 @@ def test_the_farm_board_shows_nothing_until_signed_in(
     kiosk.page.goto(f"{live}/farm#token={admin['Authorization'].removeprefix('Bearer ')}")
     kiosk.page.locator(".tile").first.wait_for()
     assert "#token" not in kiosk.page.url
-    assert [e for e in p.errors if "401" not in e] == []  # the wrong token's answer is logged
+    # logged: the wrong token's answer, and the fleet model's 404 before there was one
+    assert [e for e in p.errors if "401" not in e and "404" not in e] == []
+    assert [e for e in kiosk.errors if "404" not in e] == []
+
+
+def test_the_farm_board_says_how_the_fleet_model_did(
+    browser: Any, live: str, admin: dict[str, str]
+) -> None:
+    """Eight panels, each photographed clean and half covered in sand, trained with their
+    panels as groups: the board names the photos, the panels and the accuracy on panels the
+    model never saw; trained again without groups, it says the figure may flatter."""
+    rng = np.random.default_rng(6)
+    files, labels, groups = [], [], []
+    for i in range(8):
+        c = CLEAN_RGB + rng.normal(0, 6, 3)
+        for name, rgb in (("clean", c), ("dust", 0.5 * c + 0.5 * np.array([190, 180, 160]))):
+            files.append(("files", (f"{name}{i}.jpg", panel_jpeg(rgb, seed=i), "image/jpeg")))
+            labels.append(name)
+            groups.append(f"row-{i}")
+    with httpx.Client(base_url=live, timeout=60) as http:
+        data = {"labels": labels, "groups": groups}
+        assert http.post("/fleet/model", files=files, data=data, headers=admin).status_code == 201
+        p = Page(browser)
+        p.page.goto(f"{live}/farm#token={admin['Authorization'].removeprefix('Bearer ')}")
+        p.page.wait_for_function("document.querySelector('#fleet').innerText.length > 0")
+        assert p.page.locator("#detail").is_hidden()  # no panel chosen: no empty detail
+        text = p.page.locator("#fleet").inner_text()
+        assert "8 clean, 8 needing cleaning photos of 8 panels" in text, text
+        assert "balanced accuracy 1.00 on panels it never saw" in text, text
+        data = {"labels": labels}
+        assert http.post("/fleet/model", files=files, data=data, headers=admin).status_code == 201
+        p.page.reload()
+        p.page.wait_for_function("document.querySelector('#fleet').innerText.includes('groups')")
+        assert "train with groups" in p.page.locator("#fleet").inner_text()
+        p.shot("farm-fleet")
+        assert p.errors == []
 
 
 def test_the_cells_page_outlines_a_part(browser: Any, live: str, admin: dict[str, str]) -> None:

@@ -42,12 +42,29 @@
     }
   }
 
+  // What judges the panels without a baseline of their own, and how well it did on photos it
+  // did not learn from: on panels it never saw when trained with groups, else on photos left out
+  // one at a time, which flatters it when several photos show one panel.
+  async function fleet() {
+    const r = await Auth.api("/fleet/model");
+    if (r.status === 404) return "No fleet model: panels without a baseline of their own are not judged.";
+    if (!r.ok) throw new Error(`/fleet/model: HTTP ${r.status}`);
+    const m = await r.json();
+    const photos = [`${m.n_clean} clean`, `${m.n_dirty} needing cleaning`, ...(m.n_snow ? [`${m.n_snow} under snow`] : [])].join(", ");
+    const of = m.n_groups ? ` of ${m.n_groups} panels` : "";
+    const where = m.n_groups ? "on panels it never saw" : "on photos it did not learn from (high if several show one panel: train with groups)";
+    const score = m.cv_balanced_accuracy == null ? "" : `; balanced accuracy ${m.cv_balanced_accuracy.toFixed(2)} ${where}`;
+    return `Fleet model of ${new Date(m.created_at).toLocaleDateString()}: ${photos} photos${of}${score}.`;
+  }
+
   async function load() {
-    const [panels, counts, tasks] = await Promise.all([
+    const [panels, counts, tasks, model] = await Promise.all([
       json("/panels?limit=1000"),
       json("/panel-states"),
       json("/cleaning/tasks?limit=500"),
+      fleet(),
     ]);
+    $("fleet").textContent = model;
     $("counts").textContent = Object.entries(counts.states).map(([k, v]) => `${NAMES[k] || k}: ${v}`).join(" · ") + ` (of ${counts.total})`;
     const grid = $("panels");
     grid.innerHTML = "";
