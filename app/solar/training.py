@@ -227,6 +227,7 @@ def reach(
     let street views posted to a panel camera be judged dirty (``bench/fleet_eval.py``). With
     ``groups`` (each photo's panel), the nearest photo of another group: a new panel is like
     the training panels, not like a second photo of one of them."""
+    from sklearn.metrics import pairwise_distances_chunked
     from sklearn.neighbors import NearestNeighbors
 
     n = len(z)
@@ -234,10 +235,14 @@ def reach(
         distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
         nearest = np.sort(distances[:, 1])
     else:
-        largest = max(int(c) for c in np.unique(groups, return_counts=True)[1])
-        distances, index = NearestNeighbors(n_neighbors=min(n, largest + 1)).fit(z).kneighbors(z)
-        other = groups[index] != groups[:, None]  # the first column of each row is the photo
-        nearest = np.sort(distances[np.arange(n), other.argmax(axis=1)])
+
+        def to_other_groups(d: NDArray[np.float64], start: int) -> NDArray[np.float64]:
+            rows = groups[start : start + len(d)]
+            return np.asarray(np.where(rows[:, None] == groups[None, :], np.inf, d).min(axis=1))
+
+        nearest = np.sort(
+            np.concatenate(list(pairwise_distances_chunked(z, reduce_func=to_other_groups)))
+        )
     k = math.ceil((n + 1) * (1 - alpha))
     return float(nearest[min(k, n) - 1])
 
