@@ -71,6 +71,11 @@ class AirRegressionOut(Out):
     sigma_from: str | None = Field(
         default=None, description="days left out (stored frames of ≥ 3 days) or images left out."
     )
+    groups: int | None = Field(
+        default=None,
+        description="The days (by the sun at each frame's camera) or upload groups left out "
+        "one at a time to choose α and measure σ; null when images were left out.",
+    )
     interval: float | None = Field(default=None, description="Coverage of its intervals.")
     features: list[str] = Field(
         default_factory=list,

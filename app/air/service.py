@@ -167,6 +167,7 @@ def fit_regression(
     model, alpha = airquality.fit_regression(
         features, targets, unit=unit, groups=groups, table=table
     )
+    by_group = groups is not None and len(set(groups)) >= 3
     assert model.gram_inv is not None
     return {
         "features": list(airquality.SKY_FEATURES),
@@ -183,7 +184,8 @@ def fit_regression(
         "dof": model.dof,
         "max_leverage": model.max_leverage,
         "interval": airquality.INTERVAL,
-        "sigma_from": "days left out" if groups and len(set(groups)) >= 3 else "images left out",
+        "sigma_from": "days left out" if by_group else "images left out",
+        "groups": len(set(groups)) if groups is not None and by_group else None,
     }
 
 
@@ -336,7 +338,15 @@ class StoredSkies:
     regions: list[tuple[str, str, Region]]
     """(frame, camera, the region it was measured in) of each frame."""
     days: list[str]
-    """The UTC date each frame was captured."""
+    """The day each frame was captured, by the sun at its camera (``solar_day``)."""
+
+
+def solar_day(captured_at: datetime, lon: float | None) -> str:
+    """The ISO date of ``captured_at`` by the sun at longitude ``lon`` [° east]: UTC shifted
+    by lon/15 h (mean solar time), so that a day's frames, which share its weather, share a
+    date; at 151° E daylight runs across UTC midnight. UTC's date without a longitude."""
+    shift = timedelta(hours=(lon or 0.0) / 15.0)
+    return (captured_at.astimezone(UTC) + shift).date().isoformat()
 
 
 def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
@@ -353,8 +363,10 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
             SkyVerdict.usable,
             SkyVerdict.reason,
             Frame.captured_at,
+            Camera.lon,
         )
         .join(Frame, Frame.id == SkyVerdict.frame_id)
+        .join(Camera, Camera.id == SkyVerdict.camera_id)
         .where(SkyVerdict.frame_id.in_(frame_ids))
     ).all()
     found = {r[0]: r for r in rows}
@@ -365,7 +377,7 @@ def of_frames(session: Session, frame_ids: Sequence[str]) -> StoredSkies:
     modes = np.array([found[f][1:4] for f in frame_ids], dtype=np.float64)
     feats = [(found[f][4] or {}).get("features") for f in frame_ids]
     regions = [(f, found[f][5], found[f][6]) for f in frame_ids]
-    days = [found[f][9].date().isoformat() for f in frame_ids]
+    days = [solar_day(found[f][9], found[f][10]) for f in frame_ids]
     if any(x is None for x in feats) or len({len(x or ()) for x in feats}) != 1:
         return StoredSkies(modes, None, regions, days)
     return StoredSkies(modes, np.array(feats, dtype=np.float64), regions, days)

@@ -103,6 +103,7 @@ def test_a_verdict_carries_pm25_with_its_interval(
     assert cal["regression"]["unit"] == "pm25"
     assert cal["regression"]["breakpoints"] == "us_epa"  # the default table
     assert cal["regression"]["sigma_from"] == "days left out"
+    assert cal["regression"]["groups"] == 8  # no longitude: UTC's dates
     assert cal["regression"]["n"] == 48
     inside = 0
     truths = (6.0, 12.0, 25.0, 40.0, 55.0)
@@ -466,3 +467,42 @@ def test_a_regression_on_a_feature_no_longer_measured_grades_nothing(
 
 def _fields(regression: airquality.Regression) -> dict[str, Any]:
     return {name: getattr(regression, name) for name in regression.__dataclass_fields__}
+
+
+def test_days_are_the_sun_s_days_at_the_camera(
+    client: TestClient, admin: dict[str, str], clock: Any
+) -> None:
+    """A camera at Sydney's longitude (151.21° E, mean solar time UTC + 10 h 05 min) films 8
+    mornings, 07:00–12:00 by the sun: 21:00–02:00 UTC, across UTC midnight. The regression
+    leaves out its 8 days, not the 9 UTC dates they touch."""
+    clock.now = START + timedelta(days=10)
+    body = {"id": "syd", "kind": "sky", "roi": ROI, "lat": -33.87, "lon": 151.21}
+    r = client.post("/cameras", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    auth = {"Authorization": f"Bearer {r.json()['token']}", "Content-Type": "image/jpeg"}
+    rng = np.random.default_rng(9)
+    frames, pm, dates = [], [], set()
+    for day in range(8):
+        base = rng.uniform(5, 45)
+        for hour in range(6):
+            value = float(np.clip(base * rng.uniform(0.75, 1.3), 4, 60))
+            taken = START.replace(hour=21) + timedelta(days=day, hours=hour)
+            dates.add(taken.date())
+            r = client.post(
+                "/cameras/syd/frames",
+                content=hazy_jpeg(value, seed=100 * day + hour),
+                headers=auth,
+                params={"captured_at": taken.isoformat()},
+            )
+            assert r.status_code == 201, r.text
+            frames.append(r.json()["frame_id"])
+            pm.append(round(value, 1))
+    assert len(dates) == 9
+    r = client.post(
+        "/air/calibration",
+        json={"frame_ids": frames, "pm25": pm},
+        params={"method": "regression", "applies_to": "syd"},
+        headers=admin,
+    )
+    assert r.status_code == 201, r.text
+    assert r.json()["regression"]["groups"] == 8
