@@ -161,7 +161,7 @@ def _from_files(
         camera_ids=applies_to,
         warnings=[*refs.notes, *warnings],
         reference=refs.reference,
-        groups=None if groups is None else [g.strip() for g in groups],
+        groups=groups,
         table=refs.table,
     )
     return _calibration_out(row)
@@ -299,11 +299,7 @@ async def calibrate(
             parts=("files", "levels", "pm25", "aqi", "groups"),
         )
         files = form.files_of("files")
-        groups = form.fields.get("groups") or None
-        if groups is not None and len(groups) != len(files):
-            raise Unprocessable(f"{len(files)} files but {len(groups)} groups; give one each")
-        if groups is not None and not all(g.strip() for g in groups):
-            raise Unprocessable("groups: each image's group must name something (a day)")
+        groups = form.groups_of(len(files))
         given = {k: form.fields[k] for k in ("levels", "pm25", "aqi") if form.fields.get(k)}
         if len(given) != 1:
             raise Unprocessable("give one of levels, pm25 or aqi per file")

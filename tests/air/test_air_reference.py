@@ -354,8 +354,8 @@ def test_uploaded_images_left_out_a_day_at_a_time(
     assert alone["sigma_from"] == "images left out"
     assert alone["sigma"] < g["sigma"]
     made = len(client.get("/air/calibrations").json())
-    assert upload(station["days"][:-1]).status_code == 422
-    assert upload([*station["days"][:-1], " "]).status_code == 422
+    assert upload(station["days"][:-1]).json()["code"] == "groups_mismatch"
+    assert upload([*station["days"][:-1], " "]).json()["code"] == "empty_group"
     assert len(client.get("/air/calibrations").json()) == made
 
 

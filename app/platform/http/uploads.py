@@ -125,6 +125,23 @@ class Form:
     def files_of(self, field: str) -> list[tuple[str | None, bytes]]:
         return [(name, data) for f, name, data in self.files if f == field]
 
+    def groups_of(self, files: int) -> list[str] | None:
+        """The optional ``groups`` field: one name per file (a photo's day or panel), stripped
+        as cut from a CSV; None when not sent. A count that differs from ``files`` or an empty
+        name: Unprocessable."""
+        groups = self.fields.get("groups")
+        if not groups:
+            return None
+        if len(groups) != files:
+            raise Unprocessable(
+                f"{files} files but {len(groups)} groups; give one group each, or none",
+                code="groups_mismatch",
+            )
+        names = [g.strip() for g in groups]
+        if not all(names):
+            raise Unprocessable("a group is empty: name each file's group", code="empty_group")
+        return names
+
 
 async def read_form(
     request: Request, limit: int, *, max_files: int, parts: Collection[str] | None

@@ -74,18 +74,9 @@ async def train(
         request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels", "groups")
     )
     files, labels = form.files_of("files"), form.fields.get("labels", [])
-    groups = form.fields.get("groups") or None
     if len(files) != len(labels):
         raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")
-    if groups is not None and len(groups) != len(files):
-        raise Unprocessable(
-            f"{len(files)} files but {len(groups)} groups; give one group each, or none",
-            code="groups_mismatch",
-        )
-    if groups is not None and not all(g.strip() for g in groups):
-        raise Unprocessable("a group is empty: name each photo's panel", code="empty_group")
-    if groups is not None:
-        groups = [g.strip() for g in groups]
+    groups = form.groups_of(len(files))
     bad = sorted({label for label in labels if label not in LABELS})
     if bad:
         raise Unprocessable(
