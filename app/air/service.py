@@ -167,7 +167,7 @@ def fit_regression(
     model, alpha = airquality.fit_regression(
         features, targets, unit=unit, groups=groups, table=table
     )
-    by_group = groups is not None and len(set(groups)) >= 3
+    left_out = airquality.groups_left_out(groups)
     assert model.gram_inv is not None
     return {
         "features": list(airquality.SKY_FEATURES),
@@ -184,8 +184,8 @@ def fit_regression(
         "dof": model.dof,
         "max_leverage": model.max_leverage,
         "interval": airquality.INTERVAL,
-        "sigma_from": "days left out" if by_group else "images left out",
-        "groups": len(set(groups)) if groups is not None and by_group else None,
+        "sigma_from": "images left out" if left_out is None else "days left out",
+        "groups": left_out,
     }
 
 

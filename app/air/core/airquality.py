@@ -455,6 +455,16 @@ and so the log contrasts, grow with the concentration's logarithm far better tha
 INTERVAL = 0.8
 """Coverage of a verdict's prediction interval."""
 
+MIN_GROUPS = 3
+"""Groups (days) a regression needs to leave one out at a time; with fewer, images."""
+
+
+def groups_left_out(groups: Sequence[str] | None) -> int | None:
+    """How many groups ``fit_regression`` leaves out one at a time, or None when it leaves out
+    images (no groups, or fewer than ``MIN_GROUPS``)."""
+    n = 0 if groups is None else len(set(groups))
+    return n if n >= MIN_GROUPS else None
+
 
 @lru_cache(maxsize=256)
 def _t_quantile(dof: float) -> float:
@@ -599,7 +609,7 @@ def fit_regression(
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
     z = (x - scaler.mean_) / scale
     grid = np.logspace(-2, 3, 30) if alphas is None else np.asarray(alphas)
-    by_day = groups is not None and len(set(groups)) >= 3
+    by_day = groups_left_out(groups) is not None
     if by_day:
         days = list(LeaveOneGroupOut().split(z, y, np.asarray(groups)))
         model = RidgeCV(alphas=grid, cv=days, scoring="neg_mean_squared_error").fit(z, y)
