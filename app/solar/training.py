@@ -228,21 +228,17 @@ def reach(
     ``groups`` (each photo's panel), the nearest photo of another group: a new panel is like
     the training panels, not like a second photo of one of them."""
     from sklearn.metrics import pairwise_distances_chunked
-    from sklearn.neighbors import NearestNeighbors
 
     n = len(z)
-    if groups is None:
-        distances, _ = NearestNeighbors(n_neighbors=2).fit(z).kneighbors(z)
-        nearest = np.sort(distances[:, 1])
-    else:
+    group = np.arange(n) if groups is None else np.asarray(groups)  # else each its own
 
-        def to_other_groups(d: NDArray[np.float64], start: int) -> NDArray[np.float64]:
-            rows = groups[start : start + len(d)]
-            return np.asarray(np.where(rows[:, None] == groups[None, :], np.inf, d).min(axis=1))
+    def to_other_groups(d: NDArray[np.float64], start: int) -> NDArray[np.float64]:
+        rows = group[start : start + len(d)]
+        return np.asarray(np.where(rows[:, None] == group[None, :], np.inf, d).min(axis=1))
 
-        nearest = np.sort(
-            np.concatenate(list(pairwise_distances_chunked(z, reduce_func=to_other_groups)))
-        )
+    nearest = np.sort(
+        np.concatenate(list(pairwise_distances_chunked(z, reduce_func=to_other_groups)))
+    )
     k = math.ceil((n + 1) * (1 - alpha))
     return float(nearest[min(k, n) - 1])
 
@@ -306,7 +302,8 @@ def fit_fleet(
     standardised RBF support-vector machine with balanced classes (scikit-learn), C and γ
     chosen by 5-fold cross-validated balanced accuracy, its decisions Platt-scaled to a
     probability on cross-validated decisions. ``cv_balanced_accuracy`` is that of the whole
-    choice, nested: outer 5 folds, the choice made again inside each. Heads on the same
+    choice, nested: outer 5 folds, the choice made again inside each (on 3 folds with groups).
+    Heads on the same
     features: snow against the rest, droppings against dust, each when ≥ 3 photos show it.
 
     ``groups`` names each photo's panel (or any group of near-duplicates): every fold then
@@ -330,32 +327,22 @@ def fit_fleet(
     judged = names != "snow"
     x, dirty = features[judged], np.isin(names[judged], ("dust", "bird_drop"))
     g = None if groups is None else np.asarray(groups, dtype=str)
-    if g is not None:
-        check_fleet_groups(g[judged], dirty)
-    fit_groups = None if g is None else {"groups": g[judged]}
-    search = fleet_search(k, grouped=g is not None)
-    outer = fleet_folds(1, g is not None)
+    gx = None if g is None else g[judged]  # the groups of the photos judged, as x
+    if gx is not None:
+        check_fleet_groups(gx, dirty)
+    grouped = gx is not None
+    fit_groups = {"groups": gx} if grouped else {}
+    search = fleet_search(k, grouped=grouped)
     # an outer fold's training part may hold only 4 groups of a class: 3 inner folds
-    inner = search if g is None else fleet_search(k, grouped=True, folds=3)
+    inner = fleet_search(k, grouped=True, folds=3) if grouped else search
+    outer = fleet_folds(1, grouped)
     cv = cross_val_score(
-        inner,
-        x,
-        dirty,
-        groups=None if g is None else g[judged],
-        cv=outer,
-        scoring="balanced_accuracy",
-        params=fit_groups,
+        inner, x, dirty, groups=gx, cv=outer, scoring="balanced_accuracy", params=fit_groups
     )
-    search.fit(x, dirty, **(fit_groups or {}))
+    search.fit(x, dirty, **fit_groups)
     best = search.best_estimator_
-    decisions = cross_val_predict(
-        best,
-        x,
-        dirty,
-        groups=None if g is None else g[judged],
-        cv=fleet_folds(0, g is not None),
-        method="decision_function",
-    )
+    folds = fleet_folds(0, grouped)
+    decisions = cross_val_predict(best, x, dirty, groups=gx, cv=folds, method="decision_function")
     platt = LogisticRegression(C=1e6).fit(decisions.reshape(-1, 1), dirty)
     scaler, svm = best.named_steps["scale"], best.named_steps["svm"]
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
