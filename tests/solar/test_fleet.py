@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from sklearn.svm import SVC
 
+from app.platform.http.errors import Unprocessable
 from app.solar.core.fleet import (
     ALL_FEATURES,
     FEATURES,
@@ -306,5 +307,5 @@ class TestGroups:
         x, labels, groups = self.photos(0)
         clean = [g for g, label in zip(groups, labels, strict=True) if label == "clean"]
         merged = [("one" if g in clean[:18] else g) for g in groups]  # 3 clean panels → 1
-        with pytest.raises(Exception, match="the photos clean come from 4 groups"):
+        with pytest.raises(Unprocessable, match="the photos clean come from 4 groups"):
             fit_fleet(x, labels, now=datetime(2026, 6, 1, tzinfo=UTC), groups=merged)
