@@ -185,6 +185,18 @@ def _files(paths: Sequence[Path], what: str) -> list[tuple[str, tuple[str, bytes
     return out
 
 
+def _labelled(
+    folder: Path, labels: Path | None, column: str, groups: str | None
+) -> tuple[list[Path], list[str], list[str] | None]:
+    """The folder's images to send, each one's label (``column`` of the ``labels`` CSV, or its
+    sub-folder's name) and, with ``groups`` (a column of that CSV), each one's group."""
+    if groups and labels is None:
+        raise Failed("--groups names a column of the --labels CSV: give --labels")
+    columns = [column, *([groups] if groups else [])]
+    paths, values = _labels(folder, _images(folder), labels, *columns)
+    return paths, values[0], values[1] if groups else None
+
+
 def _labels(
     folder: Path, paths: list[Path], labels: Path | None, *columns: str
 ) -> tuple[list[Path], list[list[str]]]:
@@ -244,11 +256,8 @@ def baseline(service: Service, args: argparse.Namespace) -> None:
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
     """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
-    if args.groups and args.labels is None:
-        raise Failed("--groups names a column of the --labels CSV: give --labels")
-    columns = ["label", *([args.groups] if args.groups else [])]
-    paths, values = _labels(args.folder, _images(args.folder), args.labels, *columns)
-    data = dict(zip(["labels", "groups"], values, strict=False))
+    paths, labels, groups = _labelled(args.folder, args.labels, "label", args.groups)
+    data = {"labels": labels, **({"groups": groups} if groups else {})}
     r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
     print(json.dumps(r.json(), indent=2))
 
@@ -256,11 +265,9 @@ def fleet(service: Service, args: argparse.Namespace) -> None:
 def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     """An air calibration from labelled sky photos: levels 1–10, or the reference pm25 or aqi
     (``--reference``), from sub-folder names or a CSV."""
-    if args.groups and args.labels is None:
-        raise Failed("--groups names a column of the --labels CSV: give --labels")
-    columns = [args.column or args.reference, *([args.groups] if args.groups else [])]
-    paths, values = _labels(args.folder, _images(args.folder), args.labels, *columns)
-    data = dict(zip([args.reference, "groups"], values, strict=False))
+    column = args.column or args.reference
+    paths, values, groups = _labelled(args.folder, args.labels, column, args.groups)
+    data = {args.reference: values, **({"groups": groups} if groups else {})}
     params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
     if args.applies_to:
         params["applies_to"] = args.applies_to
@@ -420,8 +427,8 @@ def parser() -> argparse.ArgumentParser:
         "--groups",
         metavar="COLUMN",
         help="the CSV's column of each photo's day or session: the regression leaves a group "
-        "out at a time to measure its interval (near-duplicate photos of one day otherwise "
-        "make it too narrow)",
+        "out at a time to choose its penalty and measure its interval (near-duplicate photos "
+        "of one day otherwise make it too narrow)",
     )
     a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
     a.add_argument(
