@@ -150,6 +150,16 @@
     return div;
   }
 
+  // Take off the markers of cameras not `seen`; `keepSilent`: the grey ones stay until the
+  // list of every camera has said whether they are still without a reading.
+  function prune(seen, keepSilent) {
+    for (const [id, m] of markers) {
+      if (seen.has(id) || (keepSilent && m.options.key.startsWith("silent:"))) continue;
+      cameras.removeLayer(m);
+      markers.delete(id);
+    }
+  }
+
   async function refresh() {
     const q = new URLSearchParams({ method: state.method, layer: state.layer });
     if (state.fitted) {
@@ -192,12 +202,7 @@
       cameras.addLayer(m);
       m.getElement().querySelector(".cam-label").textContent = label(c);
     }
-    for (const [id, m] of markers) {
-      if (!seen.has(id) && !m.options.key.startsWith("silent:")) {
-        cameras.removeLayer(m);
-        markers.delete(id);
-      }
-    }
+    prune(seen, true);
     let view = null;
     if (!state.fitted && fc.bbox) {
       state.fitted = true;
@@ -215,12 +220,7 @@
     // then the cameras without a reading on this map, not holding the map up (the list of
     // every camera takes as long as the map with a thousand of them)
     const silent = quiet(await every, seen);
-    for (const [id, m] of markers) {
-      if (!seen.has(id)) {
-        cameras.removeLayer(m);
-        markers.delete(id);
-      }
-    }
+    prune(seen, false);
     const shown = view || map.getBounds(); // the view just fitted, though still animating
     const outside = silent.filter((c) => !shown.contains([c.lat, c.lon]));
     if ((view || !state.fitted) && outside.length) {
