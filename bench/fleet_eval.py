@@ -178,17 +178,19 @@ def copies_study(images: list[np.ndarray], label: np.ndarray, seeds: int) -> Non
         reported = fit_fleet(x, list(y_names), now=now, groups=groups).cv_balanced_accuracy
         ba, brier, sure, right = [], [], [], []
         for seed in range(seeds):
-            p = np.zeros(len(y))
+            p, said = np.zeros(len(y)), np.zeros(len(y), bool)
             folds = StratifiedGroupKFold(5, shuffle=True, random_state=seed)
             for tr, te in folds.split(x, y_names, g):
                 fit = fit_fleet(
                     x[tr], list(y_names[tr]), now=now, groups=list(g[tr]) if grouped else None
                 )
-                p[te] = as_core_model(fit).probability(x[te])
-            ba.append(balanced_accuracy_score(y, p >= 0.5))
+                model = as_core_model(fit)
+                p[te] = model.probability(x[te])
+                said[te] = p[te] >= model.threshold
+            ba.append(balanced_accuracy_score(y, said))
             brier.append(np.mean((p - y) ** 2))
             sure.append(np.mean(np.maximum(p, 1 - p)))
-            right.append(np.mean((p >= 0.5) == y))
+            right.append(np.mean(said == y))
         print(
             f"| {'with groups' if grouped else 'without'} | {reported:.3f} | "
             f"{np.mean(ba):.3f} ± {np.std(ba):.3f} | {np.mean(brier):.3f} | "
