@@ -268,7 +268,9 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     column = args.column or args.reference
     paths, values, groups = _labelled(args.folder, args.labels, column, args.groups)
     data = {args.reference: values, **({"groups": groups} if groups else {})}
-    params: dict[str, Any] = {"method": args.method, "breakpoints": args.breakpoints}
+    params: dict[str, Any] = {"method": args.method}
+    if args.breakpoints:
+        params["breakpoints"] = args.breakpoints
     if args.applies_to:
         params["applies_to"] = args.applies_to
     if args.camera_id:
@@ -434,8 +436,8 @@ def parser() -> argparse.ArgumentParser:
     a.add_argument(
         "--breakpoints",
         choices=["us_epa", "eu_eaqi"],
-        default="us_epa",
-        help="the table that makes pm25 levels: US EPA AQI or European Air Quality Index",
+        help="the table that makes pm25 levels: US EPA AQI or European Air Quality Index "
+        "(default: the European one where the graded cameras stand in Europe)",
     )
     a.add_argument("--applies-to", action="append", help="a sky camera it grades (repeat)")
     a.add_argument("--camera-id", help="the camera whose region the photos are measured in")

@@ -99,26 +99,38 @@ class References:
     """The breakpoint table the reference values became levels by."""
 
 
-def _as_levels(
-    levels: list[int] | None,
-    pm25: list[float] | None,
-    aqi: list[float] | None,
-    table: str = "us_epa",
-) -> References:
-    """Levels as given, or from reference PM2.5 or AQI values by the breakpoint ``table``
-    (``core.breakpoints``); the European table maps PM2.5 only."""
-    if table != "us_epa" and pm25 is None:
+def _check_table(table: str | None, pm25_given: bool) -> None:
+    """Refuse a table other than the EPA's for references that are not PM2.5."""
+    if table is not None and table != "us_epa" and not pm25_given:
         raise Unprocessable(
             f"breakpoints={table} maps PM2.5 to levels: give pm25 (the US AQI and levels "
             "need no table of it)",
             code="breakpoints_without_pm25",
         )
+
+
+Raw = tuple[list[int] | None, list[float] | None, list[float] | None]
+"""(levels, pm25, aqi) as given, one of them."""
+
+
+def _as_levels(session: Session, raw: Raw, table: str | None, applies_to: list[str]) -> References:
+    """Levels as given, or from reference PM2.5 or AQI values by the breakpoint ``table``
+    (``core.breakpoints``); the European table maps PM2.5 only. Without a table, PM2.5 takes
+    the one of the graded cameras' place (``air.breakpoints_of_place``)."""
+    levels, pm25, aqi = raw
+    _check_table(table, pm25 is not None)
     if levels is not None:
         return References(levels, [], None)
     if pm25 is not None:
-        mapped = [breakpoints.level_of_pm25(v, table) for v in pm25]
-        note = f"levels from PM2.5 by the {breakpoints.TABLES[table]}"
-        return References(mapped, [note], ("pm25", pm25), table)
+        chosen = table or air.breakpoints_of_place(session, applies_to)
+        mapped = [breakpoints.level_of_pm25(v, chosen) for v in pm25]
+        note = f"levels from PM2.5 by the {breakpoints.TABLES[chosen]}"
+        if table is None:
+            note += (
+                ", the table of the graded cameras' place (breakpoints=us_epa or eu_eaqi "
+                "chooses one)"
+            )
+        return References(mapped, [note], ("pm25", pm25), chosen)
     assert aqi is not None
     return References(
         [breakpoints.level_of_aqi(v) for v in aqi],
@@ -134,7 +146,8 @@ def _calibration_out(row: Any) -> AirCalibrationOut:
 def _from_files(
     session: Session,
     files: list[tuple[str | None, bytes]],
-    refs: References,
+    raw: Raw,
+    table: str | None,
     camera_id: str | None,
     significance: float,
     shrinkage: float,
@@ -144,6 +157,7 @@ def _from_files(
     applies_to: list[str],
     groups: list[str] | None,
 ) -> AirCalibrationOut:
+    refs = _as_levels(session, raw, table, applies_to)
     camera, warnings = air.upload_region(session, camera_id, applies_to)
     release(session)  # while decoding
     decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
@@ -175,9 +189,9 @@ def _from_frames(
     policy: Policy,
     method: str,
     applies_to: list[str],
-    table: str,
+    table: str | None,
 ) -> AirCalibrationOut:
-    refs = _as_levels(body.levels, body.pm25, body.aqi, table)
+    refs = _as_levels(session, (body.levels, body.pm25, body.aqi), table, applies_to)
     if len(body.frame_ids) != len(refs.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(refs.levels)} reference values")
     stored = air.of_frames(session, body.frame_ids)
@@ -201,9 +215,7 @@ def _from_frames(
     return _calibration_out(row)
 
 
-def _references(
-    name: str, raw: list[str]
-) -> tuple[list[int] | None, list[float] | None, list[float] | None]:
+def _references(name: str, raw: list[str]) -> Raw:
     """A multipart field of levels (integers 1–10) or of PM2.5 or AQI values (finite, ≥ 0)."""
     if name == "levels":
         try:
@@ -271,14 +283,16 @@ async def calibrate(
         ),
     ] = "clusters",
     breakpoints_table: Annotated[
-        breakpoints.Table,
+        breakpoints.Table | None,
         Query(
             alias="breakpoints",
             description="The table that makes reference pm25 values levels: the US EPA AQI "
             "breakpoints (2024) or the European Air Quality Index's PM2.5 bands (EEA, 2017), "
-            "finer between 5 and 50 µg/m³ and narrower in its categories. PM2.5 only.",
+            "finer between 5 and 50 µg/m³ and narrower in its categories. PM2.5 only. "
+            "Default: the European index when the cameras it grades (applies_to; else every "
+            "sky camera) all stand in Europe, else the EPA's.",
         ),
-    ] = "us_epa",
+    ] = None,
 ) -> AirCalibrationOut:
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
 
@@ -288,7 +302,8 @@ async def calibrate(
     ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames. In place of ``levels``,
     the reference ``pm25`` [µg/m³] or US ``aqi`` of each, mapped to levels by the US EPA AQI
     breakpoints (2024) or, for PM2.5 with ``breakpoints=eu_eaqi``, the European Air Quality
-    Index's bands (``app.air.core.breakpoints``).
+    Index's bands (``app.air.core.breakpoints``); PM2.5 without ``breakpoints`` takes the
+    European index where the cameras it grades stand in Europe, the EPA's elsewhere.
     """
     kind = content_type(request)
     if kind == "multipart/form-data":
@@ -306,14 +321,16 @@ async def calibrate(
         [(name, raw)] = given.items()
         if len(files) != len(raw):
             raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
-        refs = _as_levels(*_references(name, raw), breakpoints_table)
+        raw_refs = _references(name, raw)
+        _check_table(breakpoints_table, name == "pm25")
         return await image_work(
             request,
             partial(
                 _from_files,
                 session,
                 files,
-                refs,
+                raw_refs,
+                breakpoints_table,
                 camera_id,
                 significance,
                 shrinkage,

@@ -25,7 +25,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import QueryableAttribute, Session, selectinload
 
-from app.air.core import airquality
+from app.air.core import airquality, breakpoints
 from app.air.models import AirAlert, AirCalibration, AirCalibrationCamera, SkyVerdict
 from app.platform.db.base import time_slot
 from app.platform.db.models import Camera, CameraKind, Frame
@@ -762,6 +762,18 @@ def upload_region(
         "camera_id naming a camera whose full frames they are, or each group of cameras with "
         "one region with applies_to"
     ]
+
+
+def breakpoints_of_place(session: Session, applies_to: Sequence[str]) -> str:
+    """The breakpoint table of the cameras a calibration grades (``applies_to``; a city-wide
+    one grades every sky camera in service): the European index where they all stand in
+    Europe, else the EPA's (``breakpoints.table_for_places``)."""
+    query = select(Camera.lat, Camera.lon).where(Camera.kind == CameraKind.sky)
+    if applies_to:
+        query = query.where(Camera.id.in_(sorted(set(applies_to))))
+    else:
+        query = query.where(Camera.retired_at.is_(None))
+    return breakpoints.table_for_places((lat, lon) for lat, lon in session.execute(query))
 
 
 def sky_cameras(session: Session, camera_ids: Sequence[str] | None) -> None:

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app.air.core.breakpoints import aqi_of_pm25, level_of_aqi, level_of_pm25
+from app.air.core.breakpoints import aqi_of_pm25, level_of_aqi, level_of_pm25, table_for_places
 from tests.factories import sky_jpeg
 
 # (PM2.5 µg/m³, AQI) at each category's edges, as the EPA table and eq. 1 give them
@@ -118,7 +118,7 @@ def test_a_calibration_from_reference_pm25(
         "/air/calibration",
         files=files,
         data={"pm25": refs},
-        params={"camera_id": "sky0", "significance": 0.01},
+        params={"camera_id": "sky0", "significance": 0.01, "breakpoints": "us_epa"},
         headers=admin,
     )
     assert r.status_code == 201, r.text
@@ -126,11 +126,78 @@ def test_a_calibration_from_reference_pm25(
     assert any("US EPA AQI" in w for w in r.json()["warnings"])
 
 
+@pytest.mark.parametrize(
+    ("place", "table"),
+    [
+        # city centres [°], rounded from their Wikipedia coordinates
+        ((45.46, 9.19), "eu_eaqi"),  # Milan
+        ((64.15, -21.94), "eu_eaqi"),  # Reykjavík
+        ((37.74, -25.67), "eu_eaqi"),  # Ponta Delgada, the Azores
+        ((35.90, 14.51), "eu_eaqi"),  # Valletta
+        ((35.17, 33.36), "eu_eaqi"),  # Nicosia
+        ((41.01, 28.98), "eu_eaqi"),  # Istanbul
+        ((36.14, -5.35), "eu_eaqi"),  # Gibraltar
+        ((40.71, -74.01), "us_epa"),  # New York
+        ((28.61, 77.21), "us_epa"),  # New Delhi
+        ((36.75, 3.06), "us_epa"),  # Algiers
+        ((36.81, 10.18), "us_epa"),  # Tunis
+        ((35.77, -5.80), "us_epa"),  # Tangier
+        ((33.89, 35.50), "us_epa"),  # Beirut
+        ((36.20, 37.13), "us_epa"),  # Aleppo
+        ((None, None), "us_epa"),  # nowhere known
+    ],
+)
+def test_the_table_of_a_place(place: tuple[float | None, float | None], table: str) -> None:
+    """Cameras in Europe read the European index, the rest of the world the EPA's; the coasts
+    facing Europe across the Mediterranean are not Europe."""
+    assert table_for_places([place]) == table
+    # a camera without a position changes nothing; one outside Europe makes it the EPA's
+    assert table_for_places([place, (None, None)]) == table
+    assert table_for_places([place, (40.71, -74.01)]) == "us_epa"
+
+
+def test_pm25_without_a_table_takes_the_one_of_the_cameras_place(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """The city's cameras stand in Milan: its PM2.5 become levels by the European index, and
+    the warning says why; cameras elsewhere, or of no known place, keep the EPA's."""
+    for cam, lat, lon in (("nyc", 40.71, -74.01), ("nowhere", None, None)):
+        body = {"id": cam, "kind": "sky", "lat": lat, "lon": lon, "roi": [0, 0, 160, 55]}
+        assert client.post("/cameras", json=body, headers=admin).status_code == 201
+    files, refs = files_and({1: 100.0, 3: 45.0, 5: 24.0, 7: 18.0, 10: 3.0})
+
+    def calibrate(applies_to: list[str], kind: str = "pm25") -> dict[str, Any]:
+        r = client.post(
+            "/air/calibration",
+            files=files,
+            data={kind: refs},
+            params={"camera_id": "sky0", "significance": 0.01, "applies_to": applies_to},
+            headers=admin,
+        )
+        assert r.status_code == 201, r.text
+        body: dict[str, Any] = r.json()
+        return body
+
+    milan = calibrate(["sky0", "sky1"])
+    assert sorted(c["level"] for c in milan["clusters"]) == [1, 3, 5, 7, 10]  # the EEA's bands
+    assert any("European Air Quality Index" in w and "place" in w for w in milan["warnings"])
+    assert any("European" in w for w in calibrate(["sky0", "nowhere"])["warnings"])
+    for graded in (["nyc"], ["sky0", "nyc"], ["nowhere"]):
+        epa = calibrate(graded)
+        assert sorted(c["level"] for c in epa["clusters"]) == [3, 6, 7, 8, 10]  # AQI 182 … 17
+        assert any("US EPA AQI" in w for w in epa["warnings"])
+    # a city-wide calibration grades every sky camera: New York's among them
+    assert any("US EPA AQI" in w for w in calibrate([])["warnings"])
+    # the US AQI needs no table, wherever the cameras stand
+    assert any("US EPA AQI" in w for w in calibrate(["sky0"], kind="aqi")["warnings"])
+
+
 def test_a_calibration_from_pm25_by_the_european_index(
     client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
     """The same images, their PM2.5 made levels by the European bands: 100 → 1, 45 → 3,
-    24 → 5, 18 → 7, 3 → 10 µg/m³ (by the EPA table 45 and 24 would both be 6, 18 an 8)."""
+    24 → 5, 18 → 7, 3 → 10 µg/m³ (by the EPA table, AQI 182, 124, 79, 68 and 17: levels 3, 6,
+    7, 8 and 10)."""
     files, refs = files_and({1: 100.0, 3: 45.0, 5: 24.0, 7: 18.0, 10: 3.0})
     r = client.post(
         "/air/calibration",

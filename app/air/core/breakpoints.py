@@ -32,12 +32,18 @@ bands are the service's five categories, halved into levels as above; the last i
 Its levels are finer where a European city's air mostly lies (5–50 µg/m³: eight levels against
 the EPA table's four), so they rank the hours more finely; its categories are narrower, so a
 camera's estimate is more often unsure of its category (bench/README.md, air quality).
+
+A city reads its air by its own index: cameras in Europe (``EUROPE``) take the European table
+unless told otherwise, all others the EPA's (``table_for_places``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Literal
+
+import numpy as np
 
 PM25 = (
     (0.0, 9.0, 0, 50),
@@ -84,6 +90,44 @@ Table = Literal["us_epa", "eu_eaqi"]
 
 TABLES: dict[str, str] = {"us_epa": SOURCE, "eu_eaqi": EAQI_SOURCE}
 """The breakpoint tables by name (``Table``), with their sources."""
+
+
+EUROPE = (
+    (-32.0, 36.5),
+    (-10.0, 36.0),
+    (-5.6, 35.95),
+    (-1.5, 36.3),
+    (2.0, 37.4),
+    (8.0, 37.7),
+    (10.5, 37.6),
+    (12.0, 36.5),
+    (12.2, 35.0),
+    (15.0, 34.5),
+    (34.7, 34.4),
+    (35.9, 36.0),
+    (36.6, 36.8),
+    (42.4, 37.1),
+    (45.0, 37.3),
+    (45.0, 82.0),
+    (-32.0, 82.0),
+)
+"""The area whose cameras take the European index by default, (lon, lat) [°] of a polygon:
+the continent west of 45° E with its islands (Iceland, the Azores, Malta, Cyprus) and Turkey,
+bounded in the south by the Mediterranean's middle, so that the coasts of North Africa and the
+Levant stay outside."""
+
+
+def table_for_places(places: Iterable[tuple[float | None, float | None]]) -> Table:
+    """The breakpoint table of cameras at ``places`` ((lat, lon) [°], None where unknown):
+    ``eu_eaqi`` when at least one has a position and every one that has lies in ``EUROPE``,
+    else ``us_epa``."""
+    from shapely import Polygon, contains_xy
+
+    known = [(lon, lat) for lat, lon in places if lat is not None and lon is not None]
+    if not known:
+        return "us_epa"
+    lon, lat = np.array(known, dtype=np.float64).T
+    return "eu_eaqi" if bool(np.all(contains_xy(Polygon(EUROPE), lon, lat))) else "us_epa"
 
 
 def aqi_of_pm25(pm25: float) -> int:
