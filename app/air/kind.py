@@ -44,8 +44,13 @@ def category_message(category: str | None) -> str | None:
 
 
 def verdict_message(verdict: SkyVerdict) -> str | None:
-    """A frame's message: its category's, or that it is not sure (never a doubted guess)."""
-    return NOT_SURE if verdict.uncertain else category_message(verdict.category)
+    """A frame's message: its category's, or that it is not sure (never a doubted guess),
+    naming the categories it is torn between when its interval spans them."""
+    if not verdict.uncertain:
+        return category_message(verdict.category)
+    if verdict.span:
+        return f"Not sure: the air is {airquality.span_words(verdict.span)}"
+    return NOT_SURE
 
 
 def estimate_out(verdict: SkyVerdict) -> SkyEstimate | None:
@@ -69,6 +74,7 @@ def verdict_out(verdict: Verdict) -> SkyVerdictOut:
         message=verdict_message(verdict),
         calibration_id=verdict.calibration_id,
         uncertain=bool(verdict.uncertain),
+        span=verdict.span,
         estimate=estimate_out(verdict),
         **verdict_common(verdict),
     )

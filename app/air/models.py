@@ -43,6 +43,9 @@ class SkyVerdict(Verdict):
     estimate_high: Mapped[float | None] = mapped_column(Float)
     """Its prediction interval (``airquality.INTERVAL``)."""
     estimate_unit: Mapped[str | None] = mapped_column(String(8))
+    span: Mapped[list[str] | None] = mapped_column(JSON)
+    """[clearest, worst]: the categories an uncertain verdict's interval spans
+    (``airquality.Estimate.span``)."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.sky, "polymorphic_load": "inline"}
 

@@ -516,6 +516,7 @@ def _latest_out(
         frame_level=v.level,
         frame_category=v.category,
         uncertain=v.uncertain,
+        span=v.span if current else None,
         estimate=estimate_out(v),
         reason=v.reason
         if current
@@ -532,9 +533,15 @@ def _ago(age: timedelta) -> str:
 
 def _message(category: str | None, current: bool, v: SkyVerdict) -> str | None:
     """The public message: today's category; when the camera has no current public level
-    because its latest frames are uncertain, that it is not sure, not a guess."""
+    because its latest frames are uncertain, that it is not sure, not a guess, and which
+    categories its latest frame is torn between."""
     if current and category:
         return airquality.message(category)
+    if current and v.uncertain and v.span:
+        return (
+            "No current reading: the camera is not sure whether the air is "
+            f"{airquality.span_words(v.span)}"
+        )
     if current and v.uncertain:
         return "No current reading: the camera cannot judge the air with confidence now"
     return None

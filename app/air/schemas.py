@@ -134,6 +134,11 @@ class AirLatest(Out):
         description="The latest frame was uncertain (reason says why): it left the public "
         "level as it was.",
     )
+    span: list[str] | None = Field(
+        default=None,
+        description="[clearest, worst]: the categories the latest frame's interval spans when "
+        "it is uncertain for that reason and current (the message names them).",
+    )
     estimate: SkyEstimate | None = Field(
         default=None, description="The latest frame's regression estimate, if any."
     )

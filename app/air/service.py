@@ -502,7 +502,7 @@ def grade_verdict(verdict: SkyVerdict, camera: CameraInfo, decoded: Decoded, how
     verdict.level = verdict.category = verdict.calibration_id = verdict.reason = None
     verdict.statistic = verdict.p_value = None
     verdict.estimate = verdict.estimate_low = verdict.estimate_high = None
-    verdict.estimate_unit, verdict.uncertain = None, False
+    verdict.estimate_unit, verdict.uncertain, verdict.span = None, False, None
     if decoded.quality is not None:
         verdict.reason = decoded.quality
     elif cal_row is None:
@@ -542,6 +542,7 @@ def estimated(
     verdict.estimate, verdict.estimate_unit = e.value, regression.unit
     verdict.estimate_low, verdict.estimate_high = e.low, e.high
     verdict.uncertain = e.uncertain is not None
+    verdict.span = list(e.span) if e.span is not None else None
     verdict.reason = f"uncertain: {e.uncertain}"[:200] if e.uncertain is not None else None
     verdict.level = None if e.outside else e.level
     verdict.category = None if e.uncertain is not None else airquality.category(e.level)

@@ -290,7 +290,7 @@ class SkyVerdictOut(VerdictBase):
     )
     message: str | None = Field(
         description='"Today\'s Air Quality is <category>"; when uncertain, that the camera is '
-        "not sure, not the category."
+        "not sure, not the category (naming the categories of span when it has one)."
     )
     calibration_id: str | None = Field(
         default=None,
@@ -303,6 +303,11 @@ class SkyVerdictOut(VerdictBase):
         "calibrated on (no level), or an 80 % interval across categories (the estimate's "
         "level, to weigh with the interval). Either way the camera's public level, its "
         "history and the map do not move.",
+    )
+    span: list[str] | None = Field(
+        default=None,
+        description="[clearest, worst]: the categories an uncertain frame's 80 % interval "
+        'spans ("Not sure: the air is Good or Fair"); null otherwise.',
     )
     estimate: SkyEstimate | None = Field(
         default=None, description="The regression's estimate (null for the T² clusters)."

@@ -180,7 +180,11 @@ def test_a_doubted_level_is_said_but_moves_nothing(
     for v in doubted:
         assert v["level"] == breakpoints.level_of_pm25(v["estimate"]["value"], "eu_eaqi")
         assert v["category"] is None  # the category is what is in doubt
-        assert v["message"].startswith("Not sure")
+        # it names the categories its interval's ends fall in, clearest first
+        ends = [breakpoints.level_of_pm25(v["estimate"][k], "eu_eaqi") for k in ("low", "high")]
+        assert v["span"] == [airquality.category(ends[0]), airquality.category(ends[1])]
+        assert v["message"] == f"Not sure: the air is {airquality.span_words(v['span'])}"
+    assert all(v["span"] is None for _, v in sure)
     expected = airquality.nowcasts(
         [t for t, _ in sure], [float(v["level"]) for _, v in sure], [t for t, _ in verdicts]
     )
@@ -211,6 +215,14 @@ def test_a_doubted_level_is_said_but_moves_nothing(
     late = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), clock.now)
     assert late["verdict"]["uncertain"] is True
     assert late["verdict"]["level"] is not None
+    # the screen has no sure reading to show, and says which categories it is torn between
+    latest = client.get("/air/cameras/m/latest").json()
+    assert (latest["level"], latest["current"]) == (None, True)
+    assert latest["span"] == late["verdict"]["span"]
+    assert latest["message"] == (
+        "No current reading: the camera is not sure whether the air is "
+        + airquality.span_words(latest["span"])
+    )
     shown = client.get("/air/isopleths", params={"window": 3600}).json()["cameras"]
     assert shown == []
 
@@ -241,6 +253,7 @@ def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(
     assert latest["message"] == (
         "No current reading: the camera cannot judge the air with confidence now"
     )
+    assert latest["span"] is None and odd["span"] is None  # outside: no categories offered
     # an uncertain frame changes no smoothed level: it has the camera's, from before it
     reading = client.get("/air/readings", params={"camera_id": "m", "limit": 1}).json()[0]
     assert reading["uncertain"] is True

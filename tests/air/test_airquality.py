@@ -744,7 +744,30 @@ class TestRegression:
         edge = model.estimate([4.5])
         assert edge.uncertain is not None
         assert "interval spans Poor to Fair" in edge.uncertain
+        assert edge.span == ("Fair", "Poor")  # clearest first
         assert edge.outside is False  # inside the calibration: its level stands, doubted
         sure = model.estimate([9.6])
         assert sure.uncertain is None
         assert sure.level == 10
+        assert sure.span is None
+
+    def test_a_frame_far_outside_names_no_span(self) -> None:
+        """Outside the calibration the interval is extrapolation: no categories to offer."""
+        x, y = self.data(200, 4)
+        model, _ = airquality.fit_regression(x, y)
+        e = model.estimate(np.array([0.0, 0.0, 0.0, 25.0, 0.0]))
+        assert e.outside is True
+        assert e.span is None
+
+
+@pytest.mark.parametrize(
+    ("span", "words"),
+    [
+        (("Very Good", "Good"), "Very Good or Good"),
+        (("Fair", "Poor"), "Fair or Poor"),
+        (("Good", "Poor"), "anywhere from Good to Poor"),
+        (("Very Good", "Very Poor"), "anywhere from Very Good to Very Poor"),
+    ],
+)
+def test_the_words_of_a_span(span: tuple[str, str], words: str) -> None:
+    assert airquality.span_words(span) == words

@@ -92,6 +92,16 @@ def message(name: str) -> str:
     return f"Today's Air Quality is {name}"
 
 
+def span_words(span: Sequence[str]) -> str:
+    """How a doubted frame names the categories its interval spans, ``span`` (clearest,
+    worst): "Good or Fair" when they are neighbours, "anywhere from Very Good to Fair"
+    when another lies between them."""
+    clearest, worst = span
+    names = [name for _, name in CATEGORIES]
+    apart = abs(names.index(worst) - names.index(clearest))
+    return f"{clearest} or {worst}" if apart == 1 else f"anywhere from {clearest} to {worst}"
+
+
 @dataclass(frozen=True, slots=True)
 class Cluster:
     levels: tuple[int, ...]
@@ -500,6 +510,9 @@ class Estimate:
     outside: bool = False
     """The frame lies outside the calibration: its level is a guess beyond what was learnt,
     not an estimate with a wide interval."""
+    span: tuple[str, str] | None = None
+    """The clearest and the worst category of the interval when they differ (inside the
+    calibration): what the frame can say instead of a category."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -567,16 +580,12 @@ class Regression:
                 f"outside the calibration: leverage {h:.3g} above the largest of its images "
                 f"({self.max_leverage:.3g})"
             )
-        else:
-            lo_cat = category(level_of(low, self.unit, self.table))
-            hi_cat = category(level_of(high, self.unit, self.table))
-            if lo_cat != hi_cat:
-                uncertain = (
-                    f"the {INTERVAL:.0%} interval spans {hi_cat} to {lo_cat}"
-                    if self.unit != "level"
-                    else f"the {INTERVAL:.0%} interval spans {lo_cat} to {hi_cat}"
-                )
-        return Estimate(level, value, low, high, h, uncertain, outside)
+        worst, clearest = sorted(level_of(v, self.unit, self.table) for v in (low, high))
+        span: tuple[str, str] | None = None
+        if not outside and category(worst) != category(clearest):
+            span = (category(clearest), category(worst))
+            uncertain = f"the {INTERVAL:.0%} interval spans {span[1]} to {span[0]}"
+        return Estimate(level, value, low, high, h, uncertain, outside, span)
 
 
 def fit_regression(
