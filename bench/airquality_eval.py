@@ -172,6 +172,7 @@ def milan_table(root: Path, folds: int, table: str) -> None:
         doubt = np.zeros(len(rows), dtype=bool)
         tested = np.zeros(len(rows), dtype=bool)
         why = [""] * len(rows)
+        span: list[tuple[str, str] | None] = [None] * len(rows)
         for tr, te in split:
             tested[te] = True
             t2[te] = t2_predict(modes[tr], level[tr], modes[te])
@@ -185,6 +186,7 @@ def milan_table(root: Path, folds: int, table: str) -> None:
                 est[i], low[i], high[i] = e.value, e.low, e.high
                 doubt[i] = e.uncertain is not None
                 why[i] = e.uncertain or ""
+                span[i] = e.span
         sel = tested
         tt = [t for t, k in zip(times, sel, strict=True) if k]
         print(f"  {name} ({sel.sum()} frames tested)")
@@ -210,6 +212,15 @@ def milan_table(root: Path, folds: int, table: str) -> None:
             f"(all frames' {np.mean(said[sel] == cat[sel]):.2f}); doubted as outside the "
             f"calibration {outside[sel].mean():.2f}, as an interval across categories "
             f"{(doubt & ~outside)[sel].mean():.2f}"
+        )
+        names = [name for _, name in airquality.CATEGORIES]
+        spans = [(i, span[i]) for i in np.flatnonzero(sel) if span[i] is not None]
+        apart = [names.index(s[1]) - names.index(s[0]) for _, s in spans]
+        holds = [names.index(s[0]) <= names.index(cat[i]) <= names.index(s[1]) for i, s in spans]
+        print(
+            f"    {'regression: doubted, with a span':34s} {len(spans) / sel.sum():.2f} of frames;"
+            f" two neighbouring categories in {np.mean(np.array(apart) == 1):.2f} of them; the"
+            f" span holds the measured category in {np.mean(holds):.2f}"
         )
         print(
             f"    {'regression: smoothed level':34s} ρ = "
