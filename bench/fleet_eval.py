@@ -33,6 +33,7 @@ import csv
 import json
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -232,7 +233,7 @@ def main() -> None:
     print(f"{len(rows)} photos ({counts}), {len(set(groups))} groups after near-duplicate grouping")
 
     now = datetime.now(UTC)
-    table: list[dict] = []
+    table: list[dict[str, Any]] = []
     # + "dirty" (linear models) and "not sure" (KernelModel.doubt)
     confusion = np.zeros((len(LABELS), len(LABELS) + 2), int)
     for seed in range(args.seeds):
