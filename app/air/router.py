@@ -122,14 +122,11 @@ def _as_levels(session: Session, raw: Raw, table: str | None, applies_to: list[s
     if levels is not None:
         return References(levels, [], None)
     if pm25 is not None:
-        chosen = table or air.breakpoints_of_place(session, applies_to)
+        chosen, why = (table, "") if table else air.breakpoints_of_place(session, applies_to)
         mapped = [breakpoints.level_of_pm25(v, chosen) for v in pm25]
         note = f"levels from PM2.5 by the {breakpoints.TABLES[chosen]}"
-        if table is None:
-            note += (
-                ", the table of the graded cameras' place (breakpoints=us_epa or eu_eaqi "
-                "chooses one)"
-            )
+        if why:
+            note += f": {why} (breakpoints=us_epa or eu_eaqi chooses a table)"
         return References(mapped, [note], ("pm25", pm25), chosen)
     assert aqi is not None
     return References(

@@ -740,10 +740,7 @@ def upload_region(
     frames); else the whole image, each upload being taken to be a sky image.
     """
     source = sky_camera(session, camera_id) if camera_id is not None else None
-    graded_q = select(Camera).where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
-    if applies_to:
-        graded_q = graded_q.where(Camera.id.in_(sorted(set(applies_to))))
-    graded = session.scalars(graded_q.order_by(Camera.id)).all()
+    graded = session.scalars(graded_cameras(applies_to).order_by(Camera.id)).all()
     if source is None and applies_to:
         source = one_view(graded)
     region = source.roi if source is not None else None
@@ -765,16 +762,24 @@ def upload_region(
     ]
 
 
-def breakpoints_of_place(session: Session, applies_to: Sequence[str]) -> str:
-    """The breakpoint table of the cameras a calibration grades (``applies_to``; a city-wide
-    one grades every sky camera in service): the European index where they all stand in
-    Europe, else the EPA's (``breakpoints.table_for_places``)."""
-    query = select(Camera.lat, Camera.lon).where(Camera.kind == CameraKind.sky)
-    if applies_to:
-        query = query.where(Camera.id.in_(sorted(set(applies_to))))
-    else:
-        query = query.where(Camera.retired_at.is_(None))
-    return breakpoints.table_for_places((lat, lon) for lat, lon in session.execute(query))
+def graded_cameras(applies_to: Sequence[str]) -> Select[Camera]:
+    """The sky cameras in service a calibration grades: ``applies_to``, or, for a city-wide
+    one, every one."""
+    query = select(Camera).where(Camera.kind == CameraKind.sky, Camera.retired_at.is_(None))
+    return query.where(Camera.id.in_(sorted(set(applies_to)))) if applies_to else query
+
+
+def breakpoints_of_place(session: Session, applies_to: Sequence[str]) -> tuple[str, str]:
+    """The breakpoint table of the cameras a calibration grades (``graded_cameras``), and
+    why: the European index where all those with a position stand in Europe, else the EPA's
+    (``breakpoints.table_for_places``)."""
+    places = [(c.lat, c.lon) for c in session.scalars(graded_cameras(applies_to))]
+    table = breakpoints.table_for_places(places)
+    if all(lat is None or lon is None for lat, lon in places):
+        return table, "no camera it grades has a position"
+    if table == "eu_eaqi":
+        return table, "the cameras it grades stand in Europe"
+    return table, "a camera it grades stands outside Europe"
 
 
 def sky_cameras(session: Session, camera_ids: Sequence[str] | None) -> None:

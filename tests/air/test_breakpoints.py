@@ -178,16 +178,23 @@ def test_pm25_without_a_table_takes_the_one_of_the_cameras_place(
         body: dict[str, Any] = r.json()
         return body
 
+    def said(graded: list[str]) -> str:
+        [note] = [w for w in calibrate(graded)["warnings"] if w.startswith("levels from")]
+        return note
+
     milan = calibrate(["sky0", "sky1"])
     assert sorted(c["level"] for c in milan["clusters"]) == [1, 3, 5, 7, 10]  # the EEA's bands
-    assert any("European Air Quality Index" in w and "place" in w for w in milan["warnings"])
-    assert any("European" in w for w in calibrate(["sky0", "nowhere"])["warnings"])
-    for graded in (["nyc"], ["sky0", "nyc"], ["nowhere"]):
-        epa = calibrate(graded)
-        assert sorted(c["level"] for c in epa["clusters"]) == [3, 6, 7, 8, 10]  # AQI 182 … 17
-        assert any("US EPA AQI" in w for w in epa["warnings"])
+    eu = "European Air Quality Index PM2.5 bands (EEA, 2017): the cameras it grades stand in"
+    assert said(["sky0", "sky1"]).startswith(f"levels from PM2.5 by the {eu} Europe")
+    assert said(["sky0", "nowhere"]).startswith(f"levels from PM2.5 by the {eu} Europe")
+    epa = "levels from PM2.5 by the US EPA AQI breakpoints (EPA-454/B-24-002, 2024): "
+    for graded in (["nyc"], ["sky0", "nyc"]):
+        levels = sorted(c["level"] for c in calibrate(graded)["clusters"])
+        assert levels == [3, 6, 7, 8, 10]  # AQI 182, 124, 79, 68, 17
+        assert said(graded).startswith(f"{epa}a camera it grades stands outside Europe")
+    assert said(["nowhere"]).startswith(f"{epa}no camera it grades has a position")
     # a city-wide calibration grades every sky camera: New York's among them
-    assert any("US EPA AQI" in w for w in calibrate([])["warnings"])
+    assert said([]).startswith(f"{epa}a camera it grades stands outside Europe")
     # the US AQI needs no table, wherever the cameras stand
     assert any("US EPA AQI" in w for w in calibrate(["sky0"], kind="aqi")["warnings"])
 
