@@ -31,7 +31,7 @@ from app.platform.db.models import CameraKind
 from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
 from app.platform.frames import cameras as registry
 from app.platform.frames import deps as frame_deps
-from app.platform.frames import kinds, rate_limit, retention, sources
+from app.platform.frames import jpeg, kinds, rate_limit, retention, sources
 from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
 from app.platform.frames.camera_info import TokenCache
@@ -263,6 +263,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.engine = engine
+    if jpeg.decoder_cap() != settings.max_pixels:
+        log.warning(
+            "OpenCV decodes at most %d pixels, the pixel limit is %d: set VANTAGE_MAX_PIXELS in "
+            "the environment (OpenCV reads it once, at start)",
+            jpeg.decoder_cap(),
+            settings.max_pixels,
+        )
     app.state.sessionmaker = make_sessionmaker(engine)
     read_engine = make_read_engine(settings.effective_database_url, settings.public_work_threads)
     app.state.read_sessionmaker = make_sessionmaker(read_engine or engine)

@@ -619,3 +619,39 @@ def served(handler: type[BaseHTTPRequestHandler]) -> Iterator[str]:
     finally:
         server.shutdown()
         server.server_close()
+
+
+def tiff_bomb(first: tuple[int, int] = (16000, 16000), last: tuple[int, int] = (10, 10)) -> bytes:
+    """A small deflate TIFF whose directory gives ImageWidth/ImageLength twice: ``first``
+    (what libtiff decodes by) and ``last`` (what a reader taking the last copy sees). Every
+    row's strip points at the same few compressed bytes, so 16000×16000 takes ~128 KB."""
+    import struct
+    import zlib
+
+    w, h = first
+    strip = zlib.compress(bytes(w), 9)
+    entries = [
+        (256, 4, 1, w),
+        (257, 4, 1, h),
+        (258, 3, 1, 8),  # BitsPerSample
+        (259, 3, 1, 8),  # Compression: Adobe deflate
+        (262, 3, 1, 1),  # PhotometricInterpretation: black is zero
+        (273, 4, h, 0),  # StripOffsets, one per row
+        (277, 3, 1, 1),  # SamplesPerPixel
+        (278, 4, 1, 1),  # RowsPerStrip
+        (279, 4, h, 0),  # StripByteCounts
+        (256, 4, 1, last[0]),
+        (257, 4, 1, last[1]),
+    ]
+    offsets_at = 8 + 2 + 12 * len(entries) + 4
+    counts_at = offsets_at + 4 * h
+    strip_at = counts_at + 4 * h
+    out = bytearray(b"II*\x00" + struct.pack("<IH", 8, len(entries)))
+    for tag, kind, count, value in entries:
+        value = {273: offsets_at, 279: counts_at}.get(tag, value)
+        fmt = "<HHIHH" if kind == 3 else "<HHII"
+        out += struct.pack(fmt, tag, kind, count, value, *([0] if kind == 3 else []))
+    out += struct.pack("<I", 0)
+    out += struct.pack(f"<{h}I", *([strip_at] * h))
+    out += struct.pack(f"<{h}I", *([len(strip)] * h))
+    return bytes(out + strip)

@@ -166,6 +166,11 @@ class CameraUpdate(CameraFields):
     )
 
 
+MAX_ROI_COORDINATE = 1_000_000
+"""No image the service decodes is wider or taller than this [px] (the pixel limit is far
+lower): a region past it can only be a mistake, and its area would overflow fixed-width ints."""
+
+
 def _roi(roi: list[int] | list[list[int]] | None) -> list[int] | list[list[int]] | None:
     """A region: a rectangle [x, y, w, h] with x, y ≥ 0 and w, h ≥ 1, or a ``_polygon``."""
     if roi is None:
@@ -178,6 +183,8 @@ def _roi(roi: list[int] | list[list[int]] | None) -> list[int] | list[list[int]]
     x, y, w, h = rect
     if x < 0 or y < 0 or w < 1 or h < 1:
         raise ValueError("roi needs x, y ≥ 0 and w, h ≥ 1")
+    if max(x + w, y + h) > MAX_ROI_COORDINATE:
+        raise ValueError(f"roi must lie within {MAX_ROI_COORDINATE} pixels of the origin")
     return roi
 
 
@@ -189,6 +196,8 @@ def _polygon(points: list[list[int]]) -> list[list[int]]:
         raise ValueError("every roi polygon vertex must be [x, y]")
     if any(x < 0 or y < 0 for x, y in points):
         raise ValueError("roi polygon vertices need x, y ≥ 0")
+    if any(max(x, y) > MAX_ROI_COORDINATE for x, y in points):
+        raise ValueError(f"roi polygon vertices must lie within {MAX_ROI_COORDINATE} pixels")
     shape = shapely.Polygon(points)
     if not shape.is_valid or shape.area < 1:
         raise ValueError(

@@ -13,7 +13,7 @@ from fastapi.responses import Response
 from app.cells import vision
 from app.cells.core.imaging import CannyParams, OutlineParams
 from app.cells.schemas import EllipseOut, OutlineOut
-from app.platform.http.deps import PrincipalDep, SettingsDep, image_work
+from app.platform.http.deps import RobotOrAdmin, SettingsDep, image_work
 from app.platform.http.errors import Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body
 from app.platform.http.uploads import read_files
@@ -26,7 +26,8 @@ _FILE_BODY = multipart_body(file="file")
 RoiQuery = Annotated[
     str | None,
     Query(
-        pattern=r"^\d+,\d+,\d+,\d+$", description="x,y,w,h [px]; results stay in full-image pixels."
+        pattern=r"^\d{1,6},\d{1,6},\d{1,6},\d{1,6}$",
+        description="x,y,w,h [px], each below 10⁶; results stay in full-image pixels.",
     ),
 ]
 Shadow = Annotated[
@@ -108,7 +109,7 @@ async def _find(request: Request, settings: Settings, q: OutlineQuery) -> vision
     openapi_extra=_FILE_BODY,
 )
 async def outline(
-    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: PrincipalDep
+    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: RobotOrAdmin
 ) -> OutlineOut:
     """The outline of the part in one image (multipart ``file``): corners counter-clockwise and
     sides, or for curved parts the contour and fitted ellipses, with how well the shape fits
@@ -145,7 +146,7 @@ async def outline(
     openapi_extra=_FILE_BODY,
 )
 async def outline_png(
-    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: PrincipalDep
+    request: Request, settings: SettingsDep, q: OutlineQueryDep, _: RobotOrAdmin
 ) -> Response:
     """The outline drawn for debugging: edges, sides, numbered corners (of the ROI)."""
     result = await _find(request, settings, q)
@@ -161,7 +162,7 @@ async def outline_png(
 async def enhance(
     request: Request,
     settings: SettingsDep,
-    _: PrincipalDep,
+    _: RobotOrAdmin,
     pipeline: Annotated[
         list[Literal["stretch", "equalize", "shadow"]],
         Query(

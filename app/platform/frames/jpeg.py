@@ -6,6 +6,7 @@ The header is read before anything is decoded, so a small file that declares an 
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Literal
 
@@ -138,7 +139,7 @@ def decode_rgb(
     if reduce not in flags:
         raise ValueError(f"reduce must be 1, 2, 4 or 8; got {reduce}")
     arr = np.frombuffer(data, dtype=np.uint8)
-    image = cv2.imdecode(arr, flags[reduce] | cv2.IMREAD_IGNORE_ORIENTATION)
+    image = _imdecode(arr, flags[reduce] | cv2.IMREAD_IGNORE_ORIENTATION, "JPEG")
     if image is None or image.ndim != 3 or image.shape[2] != 3:
         raise CorruptJpegError("JPEG could not be decoded")
     if reduce != 1:  # the reduced modes have no RGB variant
@@ -155,24 +156,68 @@ TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*")
 
 def tiff_size(data: bytes | memoryview) -> tuple[int, int]:
     """(width, height) [px] from a TIFF's first image directory (tags 256 and 257), read
-    before decoding so that the pixel limit holds. Raises CorruptJpegError when absent."""
+    before decoding so that the pixel limit holds. Raises CorruptJpegError when absent.
+
+    TIFF 6.0 (§2) requires a directory's entries in ascending tag order, each tag once. A file
+    that repeats or reorders them is refused: readers disagree on which copy counts (libtiff
+    decodes by the first ImageWidth, a reader taking the last would see another size), and
+    the limit must hold for the size the decoder uses."""
     raw = bytes(data)
     order: Literal["little", "big"] = "little" if raw[:2] == b"II" else "big"
+    found: dict[int, int] = {}
     try:
         ifd = int.from_bytes(raw[4:8], order)
         count = int.from_bytes(raw[ifd : ifd + 2], order)
-        found: dict[int, int] = {}
+        previous = -1
         for k in range(count):
             entry = raw[ifd + 2 + 12 * k : ifd + 14 + 12 * k]
+            if len(entry) < 12:
+                raise CorruptJpegError("TIFF directory runs past the end of the data")
             tag, kind = int.from_bytes(entry[0:2], order), int.from_bytes(entry[2:4], order)
+            if tag <= previous:
+                raise CorruptJpegError(
+                    f"TIFF directory repeats or reorders its tags (tag {tag} after {previous});"
+                    " TIFF 6.0 requires each tag once, in ascending order"
+                )
+            previous = tag
             if tag in (256, 257):  # ImageWidth, ImageLength: SHORT (3) or LONG (4)
                 size = 2 if kind == 3 else 4
                 found[tag] = int.from_bytes(entry[8 : 8 + size], order)
-    except (IndexError, ValueError):
+    except (IndexError, ValueError) as exc:
+        if isinstance(exc, CorruptJpegError):
+            raise
         found = {}
     if 256 not in found or 257 not in found:
         raise CorruptJpegError("TIFF without its image width and length")
     return found[256], found[257]
+
+
+DECODER_CAP_VARIABLE = "OPENCV_IO_MAX_IMAGE_PIXELS"
+"""OpenCV's own limit on the pixels it decodes, read once when OpenCV loads; ``app`` sets it
+from ``VANTAGE_MAX_PIXELS`` before anything imports cv2."""
+
+
+def decoder_cap() -> int:
+    """OpenCV's pixel cap [px] in this process: no image of more pixels is decoded, whatever
+    its format and however its header was read here (the second line behind the header checks).
+    """
+    try:
+        return int(os.environ.get(DECODER_CAP_VARIABLE, str(1 << 30)))
+    except ValueError:
+        return 1 << 30
+
+
+def _imdecode(buf: NDArray[np.uint8], flags: int, kind: str) -> NDArray[np.uint8] | None:
+    """``cv2.imdecode``, OpenCV's pixel cap (``cap_decoder``) reported as TooManyPixelsError."""
+    try:
+        image: NDArray[np.uint8] | None = cv2.imdecode(buf, flags)
+    except cv2.error as exc:
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
+            raise TooManyPixelsError(
+                f"{kind} declares more pixels than the limit of {decoder_cap()}"
+            ) from None
+        raise CorruptJpegError(f"{kind} could not be decoded") from None
+    return image
 
 
 def _check_pixels(kind: str, width: int, height: int, max_pixels: int) -> None:
@@ -202,7 +247,7 @@ def decode_image(data: bytes | memoryview, *, max_pixels: int) -> NDArray[np.uin
         kind = "TIFF"
     else:
         raise NotJpegError("not a JPEG, PNG or TIFF image")
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB)
+    image = _imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR_RGB, kind)
     if image is None:
         raise CorruptJpegError(f"{kind} could not be decoded")
     return np.asarray(image, dtype=np.uint8)
