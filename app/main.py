@@ -23,7 +23,7 @@ from app.air.isopleth_cache import MapCache
 from app.cells import kind as cells_kind
 from app.cells import router as cells
 from app.cells.core import triangulation
-from app.platform import health, outbox
+from app.platform import health, outbox, viewers
 from app.platform import webhooks as platform_webhooks
 from app.platform.auth import admin_token_hash, hash_token
 from app.platform.db import schema
@@ -43,6 +43,7 @@ from app.platform.http.errors import database_unavailable, install_error_handler
 from app.platform.http.head import HeadAsGet
 from app.platform.http.query import CheckedQuery
 from app.platform.http.responses import DATABASE_UNAVAILABLE
+from app.platform.http.security import SecurityHeaders, tile_source
 from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.policy import Policy
@@ -79,12 +80,14 @@ SECURITY_SCHEMES: dict[str, Any] = {
     "bearer": {
         "type": "http",
         "scheme": "bearer",
-        "description": "The admin token, a camera's (vc_…), a robot's (vr_…) or the metrics token.",
+        "description": "The admin token, a camera's (vc_…), a robot's (vr_…), a viewer's "
+        "(vv_…, read-only) or the metrics token.",
     },
     "basic": {
         "type": "http",
         "scheme": "basic",
-        "description": "A camera's id as the user name and its token as the password.",
+        "description": "Cameras only: the camera's id as the user name and its token as the "
+        "password.",
     },
 }
 
@@ -98,10 +101,14 @@ def with_security(app: FastAPI) -> Callable[[], dict[str, Any]]:
     def openapi() -> dict[str, Any]:
         schema = build()  # made once and cached by FastAPI; marked once here
         schema.setdefault("components", {}).setdefault("securitySchemes", SECURITY_SCHEMES)
-        for path in schema.get("paths", {}).values():
+        for name, path in schema.get("paths", {}).items():
+            # HTTP Basic is a camera's, posting its frames; everything else takes Bearer
+            ways: list[dict[str, list[str]]] = [{"bearer": []}]
+            if name.endswith("/frames"):
+                ways.append({"basic": []})
             for operation in path.values():
                 if isinstance(operation, dict) and "401" in operation.get("responses", {}):
-                    operation.setdefault("security", [{"bearer": []}, {"basic": []}])
+                    operation.setdefault("security", ways)
         return schema
 
     return openapi
@@ -311,6 +318,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     if settings.cors_origins:
         app.add_middleware(PublicReadCors, origins=settings.cors_origins)
+    app.add_middleware(
+        SecurityHeaders,
+        docs_paths=[
+            "/docs",
+            "/redoc",
+            app.swagger_ui_oauth2_redirect_url or "",
+        ],  # FastAPIOffline's
+        img_sources=[s for s in (tile_source(settings.map_tiles),) if s],
+        frame_ancestors=settings.frame_ancestors,
+    )
     app.add_middleware(CompressedReads)  # inside HEAD: a HEAD's Content-Length is its GET's
     app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
@@ -320,6 +337,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         solar,
         air,
         cells,
+        viewers,
         pages,
     ):
         app.include_router(module.router)

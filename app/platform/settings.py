@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from functools import lru_cache
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, SecretStr, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 def usable_cpus() -> int:
@@ -69,6 +70,37 @@ class Settings(BaseSettings):
         description="Origins whose pages may read the public GET /air/... endpoints (a "
         "dashboard served elsewhere); [] for none. JSON in the environment: "
         '["https://dashboard.example.org"].',
+    )
+    frame_ancestors: list[str] = Field(
+        default=[],
+        description="Origins that may show the pages in a frame (CSP frame-ancestors), e.g. "
+        'a signage system: ["https://signage.example.org"]; [] for none.',
+    )
+    source_allowed_networks: Annotated[list[str], NoDecode] = Field(
+        default=[],
+        description="Networks (CIDRs, comma-separated) that camera sources may reach although "
+        "the rule refuses them: loopback, link-local, unspecified, multicast and reserved "
+        "addresses; e.g. 127.0.0.0/8 for a relay on the same machine. Private LANs and public "
+        "addresses are allowed without this.",
+    )
+    public_requests_per_minute: int = Field(
+        default=300,
+        ge=0,
+        description="Requests without a token one client (address) may make per minute to the "
+        "public endpoints, per process; more → 429 with Retry-After. 0: no limit.",
+    )
+    public_work_per_minute: int = Field(
+        default=20,
+        ge=0,
+        description="Of those, computations (isopleth maps, aggregates of the readings) one "
+        "client may ask for per minute, per process; a map served from the cache does not "
+        "count. 0: no limit.",
+    )
+    public_work_queue: int = Field(
+        default=8,
+        ge=1,
+        description="Public computations that may wait for a turn per process; one more → 503 "
+        "with Retry-After, at once.",
     )
     isopleth_cache_seconds: float = Field(
         default=30.0,
@@ -254,6 +286,20 @@ class Settings(BaseSettings):
         # one a core: with more, the threads' hand-offs of the GIL cost more than the extra
         # decoding in parallel gains
         return max(2, usable_cpus())
+
+    @field_validator("source_allowed_networks", mode="before")
+    @classmethod
+    def _networks(cls, value: object) -> object:
+        """Comma-separated CIDRs from the environment, or a list; each must parse."""
+        if isinstance(value, str):
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if isinstance(value, list):
+            for v in value:
+                try:
+                    ipaddress.ip_network(str(v), strict=False)
+                except ValueError:
+                    raise ValueError(f"{v!r} is not a network (CIDR, e.g. 127.0.0.0/8)") from None
+        return value
 
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> Settings:

@@ -8,7 +8,6 @@ by ``npm ci`` into ``node_modules`` and served from there (no CDN at run time)."
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +65,7 @@ def _page(request: Request, name: str, status: int = 200, **context: Any) -> HTM
     return templates.TemplateResponse(
         request,
         name,
-        {"config": json.dumps(config), **context},
+        {"config": config, **context},
         status_code=status,
         headers={"Cache-Control": "no-cache"},
     )

@@ -12,7 +12,7 @@ from sqlalchemy import Engine, text
 from app.main import create_app
 from app.platform.auth import ADMIN_TOKEN_FILE, hash_token
 from app.platform.settings import Settings
-from tests.factories import make_jpeg
+from tests.factories import ADMIN_TOKEN, make_jpeg
 
 
 @pytest.fixture
@@ -136,3 +136,117 @@ def test_tokens_are_distinct(client: TestClient, admin: dict[str, str]) -> None:
             ]
         )
     assert len(seen) == 5
+
+
+VIEWER_READS = {
+    ("GET", "/panels"),
+    ("GET", "/panels/{panel_id}"),
+    ("GET", "/panel-states"),
+    ("GET", "/panels/{panel_id}/status"),
+    ("GET", "/panels/{panel_id}/history"),
+    ("GET", "/cleaning/tasks"),
+    ("GET", "/cleaning/tasks/{task_id}"),
+    ("GET", "/fleet/model"),
+    ("GET", "/frames/{frame_id}/region.jpg"),
+    ("GET", "/calibrations"),
+    ("GET", "/calibrations/{calibration_id}"),
+}
+"""What a viewer token may do: the farm and cells boards' reads."""
+OPEN_TO_ALL = {("GET", "/air/alerts")}
+"""Public, but a token given must be valid (the admin sees more)."""
+
+
+def _secured(client: TestClient) -> list[tuple[str, str]]:
+    schema = client.get("/openapi.json").json()
+    return [
+        (m.upper(), p)
+        for p, item in schema["paths"].items()
+        for m, op in item.items()
+        if isinstance(op, dict) and "401" in op["responses"]
+    ]
+
+
+class TestViewers:
+    @pytest.fixture
+    def viewer(self, client: TestClient, admin: dict[str, str]) -> dict[str, str]:
+        r = client.post("/viewers", json={"name": "lobby"}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["token"].startswith("vv_")
+        return dict(r.json())
+
+    def test_the_matrix_every_operation_by_every_caller(
+        self, client: TestClient, tokens: dict[str, str], viewer: dict[str, str]
+    ) -> None:
+        """Every operation that takes a token: 401 without one or with a wrong one; a viewer
+        is refused (403) everything but the boards' reads, which it passes."""
+        operations = _secured(client)
+        assert len(operations) > 50
+        assert VIEWER_READS <= set(operations)
+        for method, path in operations:
+            url = path.replace("{", "").replace("}", "")  # ids that name nothing
+            r = client.request(method, url, headers=bearer("vx_wrong"))
+            assert r.status_code == 401, (method, path, r.status_code)
+            r = client.request(method, url)
+            assert r.status_code == (200 if (method, path) in OPEN_TO_ALL else 401), (method, path)
+            r = client.request(method, url, headers=bearer(viewer["token"]))
+            if (method, path) in VIEWER_READS | OPEN_TO_ALL:
+                assert r.status_code not in (401, 403), (method, path, r.text)
+            else:
+                assert r.status_code == 403, (method, path, r.status_code)
+
+    def test_listed_without_its_secret_and_revoked(
+        self, client: TestClient, admin: dict[str, str], viewer: dict[str, str]
+    ) -> None:
+        listed = client.get("/viewers", headers=admin).json()
+        assert [v["name"] for v in listed] == ["lobby"]
+        assert "token" not in listed[0]
+        assert client.get("/panels", headers=bearer(viewer["token"])).status_code == 200
+        assert client.delete(f"/viewers/{viewer['id']}", headers=admin).status_code == 204
+        assert client.get("/panels", headers=bearer(viewer["token"])).status_code == 401
+        assert client.delete(f"/viewers/{viewer['id']}", headers=admin).status_code == 404
+
+    def test_a_sign_in_code_is_good_once(self, client: TestClient, admin: dict[str, str]) -> None:
+        made = client.post("/signin-codes", json={"name": "kiosk"}, headers=admin).json()
+        assert made["farm"] == f"/farm#code={made['code']}"
+        r = client.post("/signin-codes/redeem", json={"code": made["code"]})
+        assert r.status_code == 201, r.text
+        assert client.get("/panel-states", headers=bearer(r.json()["token"])).status_code == 200
+        again = client.post("/signin-codes/redeem", json={"code": made["code"]})
+        assert again.status_code == 422
+        assert again.json()["detail"] == "the sign-in code is unknown, used or expired"
+        assert [v["name"] for v in client.get("/viewers", headers=admin).json()] == ["kiosk"]
+
+    def test_an_expired_code_is_refused(
+        self, client: TestClient, admin: dict[str, str], engine: Engine
+    ) -> None:
+        made = client.post("/signin-codes", json={"name": "k", "minutes": 1}, headers=admin)
+        with engine.begin() as conn:
+            conn.execute(text("UPDATE signin_codes SET expires_at = '2000-01-01 00:00:00+00:00'"))
+        r = client.post("/signin-codes/redeem", json={"code": made.json()["code"]})
+        assert r.status_code == 422
+        assert client.get("/viewers", headers=admin).json() == []
+
+
+class TestBasic:
+    def test_basic_is_for_cameras_only(self, client: TestClient, tokens: dict[str, str]) -> None:
+        for user in ("admin", "anything", ""):
+            cred = base64.b64encode(f"{user}:{ADMIN_TOKEN}".encode()).decode()
+            r = client.get("/cameras", headers={"Authorization": f"Basic {cred}"})
+            assert r.status_code == 401, user
+        cred = base64.b64encode(f"rob-1:{tokens['robot']}".encode()).decode()
+        assert (
+            client.get("/cleaning/tasks", headers={"Authorization": f"Basic {cred}"}).status_code
+            == 401
+        )
+
+    def test_no_basic_challenge_but_for_a_camera_posting(self, client: TestClient) -> None:
+        for path in ("/cameras", "/panels", "/calibrations"):
+            r = client.get(path)
+            assert r.status_code == 401
+            assert "basic" not in r.headers["www-authenticate"].lower(), path
+        upload = client.post("/cameras/cam-a/frames", content=make_jpeg())
+        assert "Basic" in upload.headers["www-authenticate"]
+        browser = client.post(
+            "/cameras/cam-a/frames", content=make_jpeg(), headers={"Sec-Fetch-Mode": "cors"}
+        )
+        assert "basic" not in browser.headers["www-authenticate"].lower()

@@ -16,6 +16,7 @@ from app.platform.http.deps import (
     Limit,
     Offset,
     PolicyDep,
+    Reader,
     RecordId,
     SessionDep,
     SettingsDep,
@@ -166,7 +167,7 @@ async def calibrate_stereo(
 @router.get("", responses=AUTH_ERRORS)
 def list_calibrations(
     session: SessionDep,
-    _: Admin,
+    _: Reader,
     kind: Annotated[
         Literal["single", "stereo"] | None,
         Query(description="Only cameras (single) or only stereo pairs."),
@@ -180,6 +181,6 @@ def list_calibrations(
 
 
 @router.get("/{calibration_id}", responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_calibration(calibration_id: RecordId, session: SessionDep, _: Admin) -> JSONResponse:
+def get_calibration(calibration_id: RecordId, session: SessionDep, _: Reader) -> JSONResponse:
     """One calibration."""
     return JSONResponse(_out(calibrations.get(session, calibration_id)))

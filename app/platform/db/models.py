@@ -204,3 +204,27 @@ class WebhookSubscription(Base):
     secret: Mapped[str | None] = mapped_column(String(200))
     """Standard Webhooks ``whsec_…``; none: unsigned."""
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime())
+
+
+class ViewerToken(TimestampMixin, Base):
+    """A read-only token: it may open the farm and cells boards and their read endpoints, and
+    nothing else (a kiosk's, a visitor's). Revoked by deleting its row."""
+
+    __tablename__ = "viewer_tokens"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    """SHA-256 of the token (shown once, never stored)."""
+
+
+class SigninCode(Base):
+    """A one-time code that a page exchanges for a new viewer token: a kiosk's link carries the
+    code, never a token, so no long-lived secret lands in an address or a browser's history."""
+
+    __tablename__ = "signin_codes"
+
+    code_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    """The name the viewer token made from it will carry."""
+    expires_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)

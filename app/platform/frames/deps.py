@@ -27,6 +27,7 @@ from app.platform.frames.kinds import KINDS
 from app.platform.http.deps import (
     CameraId,
     Principal,
+    challenge_cameras,
     credentials_of,
     get_sessionmaker,
     other_owner,
@@ -125,6 +126,15 @@ async def fresh_upload_target(request: Request, target: CameraInfo) -> CameraInf
 
 
 async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
+    """The upload's camera (``_upload_target``); a 401 challenges a camera for Basic too."""
+    try:
+        return await _upload_target(camera_id, request)
+    except Unauthorized as exc:
+        challenge_cameras(request, exc)
+        raise
+
+
+async def _upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
     """Authenticate and authorise a frame upload and find its camera, before the body is read.
 
     The camera's own token (Bearer, or Basic with the camera id as user name) or the admin
@@ -136,7 +146,7 @@ async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo
         raise Unauthorized("missing Authorization header")
     token, basic_user = credentials_of(header)
     digest = hash_token(token)
-    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
+    if basic_user is None and hmac.compare_digest(digest, request.app.state.admin_token_hash):
         info = await run_in_threadpool(_camera_by_id, request, camera_id)
         if info is None:
             raise NotFound(f"no camera {camera_id!r}")

@@ -143,7 +143,7 @@ def decode_rgb(
     if image is None or image.ndim != 3 or image.shape[2] != 3:
         raise CorruptJpegError("JPEG could not be decoded")
     if reduce != 1:  # the reduced modes have no RGB variant
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        return header, np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), dtype=np.uint8)
     return header, np.asarray(image, dtype=np.uint8)
 
 
@@ -208,16 +208,16 @@ def decoder_cap() -> int:
 
 
 def _imdecode(buf: NDArray[np.uint8], flags: int, kind: str) -> NDArray[np.uint8] | None:
-    """``cv2.imdecode``, OpenCV's pixel cap (``cap_decoder``) reported as TooManyPixelsError."""
+    """``cv2.imdecode``; OpenCV's pixel cap (``decoder_cap``) reported as TooManyPixelsError."""
     try:
-        image: NDArray[np.uint8] | None = cv2.imdecode(buf, flags)
+        image = cv2.imdecode(buf, flags)
     except cv2.error as exc:
         if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
             raise TooManyPixelsError(
                 f"{kind} declares more pixels than the limit of {decoder_cap()}"
             ) from None
         raise CorruptJpegError(f"{kind} could not be decoded") from None
-    return image
+    return None if image is None else np.asarray(image, dtype=np.uint8)
 
 
 def _check_pixels(kind: str, width: int, height: int, max_pixels: int) -> None:

@@ -33,6 +33,7 @@ from app.platform.http.deps import (
     Limit,
     Offset,
     PolicyDep,
+    Reader,
     RecordId,
     SessionDep,
     SettingsDep,
@@ -460,7 +461,7 @@ RegionQuery = Annotated[
     },
 )
 async def get_frame_region(
-    frame_id: RecordId, session: SessionDep, _: Admin, request: Request, roi: RegionQuery = None
+    frame_id: RecordId, session: SessionDep, _: Reader, request: Request, roi: RegionQuery = None
 ) -> Response:
     """The stored frame with the region its statistics were measured in outlined and the rest
     darkened: where a sky camera's region (clear of overlays, buildings and the sun) or a panel

@@ -19,7 +19,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
-from app.platform.db.models import Camera
+from app.platform.db.models import Camera, ViewerToken
 from app.platform.http.errors import (
     Forbidden,
     Unauthorized,
@@ -81,9 +81,9 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 class Principal:
     """Who is calling."""
 
-    role: Literal["admin", "camera", "robot"]
+    role: Literal["admin", "camera", "robot", "viewer"]
     id: str | None = None
-    """The camera or robot id; None for the admin."""
+    """The camera, robot or viewer token id; None for the admin."""
 
 
 def credentials_of(header: str) -> tuple[str, str | None]:
@@ -109,13 +109,15 @@ def _identify(request: Request, session: Session) -> Principal:
         raise Unauthorized("missing Authorization header")
     token, basic_user = credentials_of(header)
     digest = hash_token(token)
-    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
-        return Principal("admin")
     camera_id = session.scalar(select(Camera.id).where(Camera.token_hash == digest))
     if camera_id is not None:
         if basic_user is not None and basic_user != camera_id:
             raise Unauthorized("the Basic user name is not the camera this token belongs to")
         return Principal("camera", camera_id)
+    if basic_user is not None:  # a browser replays Basic cross-site: only cameras use it
+        raise Unauthorized("HTTP Basic is for cameras (their id and token); use Bearer")
+    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
+        return Principal("admin")
     principal = other_owner(request, session, digest)
     if principal is None:
         raise Unauthorized("unknown token")
@@ -123,8 +125,11 @@ def _identify(request: Request, session: Session) -> Principal:
 
 
 def other_owner(request: Request, session: Session, digest: str) -> Principal | None:
-    """The caller a token (its hash) belongs to among the roles the domains add
+    """The caller a token (its hash) belongs to among viewers and the roles the domains add
     (``app.state.token_owners``: robots), or None."""
+    viewer_id = session.scalar(select(ViewerToken.id).where(ViewerToken.token_hash == digest))
+    if viewer_id is not None:
+        return Principal("viewer", viewer_id)
     for role, owner_of in request.app.state.token_owners:
         owner = owner_of(session, digest)
         if owner is not None:
@@ -138,8 +143,26 @@ def get_principal(request: Request) -> Principal:
     The lookup uses its own short read-only session, so the request's unit of work does not hold
     a transaction open while the request body is read and decoded.
     """
-    with get_sessionmaker(request)() as session:
-        return _identify(request, session)
+    try:
+        with get_sessionmaker(request)() as session:
+            return _identify(request, session)
+    except Unauthorized as exc:
+        challenge_cameras(request, exc)
+        raise
+
+
+def challenge_cameras(request: Request, exc: Unauthorized) -> None:
+    """Add the Basic challenge to ``exc`` where a camera posts frames (some answer only a
+    challenge); a browser (it sends ``Sec-Fetch-Mode``) is never challenged for Basic, which
+    it would then replay to the service from any site."""
+    parts = request.url.path.split("/")
+    if (
+        len(parts) == 4
+        and parts[1] == "cameras"
+        and parts[3] == "frames"
+        and "sec-fetch-mode" not in request.headers
+    ):
+        exc.headers = {"WWW-Authenticate": 'Bearer, Basic realm="vantage cameras"'}
 
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
@@ -189,9 +212,27 @@ def require_robot_or_admin(principal: PrincipalDep) -> Principal:
     return principal
 
 
+def require_reader(principal: PrincipalDep) -> Principal:
+    """The boards' reads: the admin, or a viewer (read-only)."""
+    if principal.role not in ("admin", "viewer"):
+        raise Forbidden(f"this needs an admin or viewer token; a {principal.role} token was given")
+    return principal
+
+
+def require_any_reader(principal: PrincipalDep) -> Principal:
+    """Reads a robot needs too: the admin, a robot or a viewer."""
+    if principal.role not in ("admin", "robot", "viewer"):
+        raise Forbidden(
+            f"this needs an admin, robot or viewer token; a {principal.role} token was given"
+        )
+    return principal
+
+
 Admin = Annotated[Principal, Depends(require_admin)]
 RobotAuth = Annotated[Principal, Depends(require_robot)]
 RobotOrAdmin = Annotated[Principal, Depends(require_robot_or_admin)]
+Reader = Annotated[Principal, Depends(require_reader)]
+AnyReader = Annotated[Principal, Depends(require_any_reader)]
 
 CameraId = Annotated[str, Path(pattern=ID_PATTERN, description="Camera id.")]
 PanelId = Annotated[str, Path(pattern=ID_PATTERN, description="Panel id.")]

@@ -41,7 +41,7 @@ class Unauthorized(VantageError):
     title = "Unauthorized"
 
     def __init__(self, detail: str = "missing or unknown token", **extra: Any):
-        headers = {"WWW-Authenticate": 'Bearer, Basic realm="vantage"'}
+        headers = {"WWW-Authenticate": 'Bearer realm="vantage"'}
         super().__init__(detail, headers=headers, **extra)
 
 

@@ -7,13 +7,13 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Body, Query, Response
 
 from app.platform.http.deps import (
+    AnyReader,
     IdFilter,
     Limit,
     Offset,
     PolicyDep,
     RecordId,
     RobotAuth,
-    RobotOrAdmin,
     SessionDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
@@ -89,7 +89,7 @@ def fail(
 def list_tasks(
     session: SessionDep,
     policy: PolicyDep,
-    _: RobotOrAdmin,
+    _: AnyReader,
     panel_id: IdFilter = None,
     robot_id: IdFilter = None,
     status: Annotated[
@@ -117,6 +117,6 @@ def list_tasks(
 
 
 @router.get("/tasks/{task_id}", response_model=TaskOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_task(task_id: TaskId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> TaskOut:
+def get_task(task_id: TaskId, session: SessionDep, policy: PolicyDep, _: AnyReader) -> TaskOut:
     """One cleaning task."""
     return TaskOut(**task_view(cleaning.get_task(session, task_id), policy.now()))

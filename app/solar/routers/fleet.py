@@ -11,7 +11,14 @@ from sqlalchemy.orm import Session
 from app.platform.db.models import CameraKind
 from app.platform.frames import ingest
 from app.platform.frames.camera_info import CameraInfo
-from app.platform.http.deps import Admin, PolicyDep, SessionDep, SettingsDep, image_work
+from app.platform.http.deps import (
+    Admin,
+    PolicyDep,
+    Reader,
+    SessionDep,
+    SettingsDep,
+    image_work,
+)
 from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
 from app.platform.http.responses import (
     AUTH_ERRORS,
@@ -88,7 +95,7 @@ async def train(
 
 
 @router.get("/model", response_model=FleetModelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def current(session: SessionDep, _: Admin) -> FleetModelOut:
+def current(session: SessionDep, _: Reader) -> FleetModelOut:
     """The fleet model in use (the latest trained)."""
     row = panels.latest_fleet_model(session)
     if row is None:

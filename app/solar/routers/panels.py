@@ -16,8 +16,10 @@ from app.platform.frames.camera_info import CameraInfo
 from app.platform.http.deps import (
     ID_PATTERN,
     Admin,
+    AnyReader,
     PanelId,
     PolicyDep,
+    Reader,
     RobotOrAdmin,
     SessionDep,
     SettingsDep,
@@ -106,7 +108,7 @@ def create_panel(body: PanelCreate, session: SessionDep, policy: PolicyDep, _: A
 def list_panels(
     session: SessionDep,
     policy: PolicyDep,
-    _: Admin,
+    _: Reader,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
     retired: Annotated[
@@ -129,7 +131,7 @@ def list_panels(
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
+def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Reader) -> PanelOut:
     """One panel."""
     return _out(session, policy, lookup.get_panel(session, panel_id))
 
@@ -148,7 +150,7 @@ def update_panel(
 
 
 @router.get("/panel-states", response_model=PanelStateCounts, responses=AUTH_ERRORS)
-def panel_states(session: SessionDep, policy: PolicyDep, _: Admin) -> PanelStateCounts:
+def panel_states(session: SessionDep, policy: PolicyDep, _: Reader) -> PanelStateCounts:
     """The farm at a glance: how many panels in service are in each state now (one query, for
     tens of thousands of panels; ``GET /panels?state=`` lists those of a state)."""
     counts = panels.state_counts(session, policy)
@@ -359,7 +361,7 @@ def panel_history(
     panel_id: PanelId,
     session: SessionDep,
     span: TimeRangeQuery,
-    _: RobotOrAdmin,
+    _: AnyReader,
     bucket: Annotated[Literal["hour", "day"], Query(description="UTC hours or days.")] = "day",
 ) -> list[HistoryBucket]:
     """The panel's verdicts of frames taken in [since, until), summed by UTC hour or day,
@@ -375,7 +377,7 @@ def panel_history(
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
 def panel_status(
-    panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin
+    panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: AnyReader
 ) -> PanelStatus:
     """The panel's state, last verdict, open task and soiling trend."""
     return status_out(panels.panel_status(session, panel_id, policy), policy)
