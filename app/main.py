@@ -203,6 +203,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 threads=settings.pull_threads,
                 timeout=settings.pull_timeout_seconds,
                 max_pixels=settings.max_pixels,
+                allowed_networks=settings.source_allowed_networks,
                 rate_limit=lambda camera_id: frame_deps.within_rate(
                     app.state.sessionmaker,
                     app.state.rate_budgets,

@@ -69,6 +69,9 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
         log_json=True,
         rate_limit_per_minute=0,  # on only where a test is about it
         isopleth_cache_seconds=0,  # likewise: maps are computed afresh for each request
+        public_requests_per_minute=0,  # the anonymous limits too
+        public_work_per_minute=0,
+        source_allowed_networks=["127.0.0.0/8"],  # the cameras these tests serve are local
     )
 
 

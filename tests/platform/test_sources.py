@@ -117,7 +117,8 @@ def test_a_page_instead_of_video_is_a_bad_stream(
     register(puller, admin, {"url": camera_server.url("/page"), "every_seconds": 1})
     source = until(lambda: (s := source_of(puller, admin))["state"] != "connecting" and s)
     assert source["state"] == "bad_stream"
-    assert "text/html" in source["last_error"]
+    assert "not a JPEG snapshot" in source["last_error"]
+    assert "Camera login" not in source["last_error"]  # what it said is not repeated
     assert source["last_error_at"] is not None
     assert frames(puller, admin) == []
 

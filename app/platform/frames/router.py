@@ -250,8 +250,12 @@ def _with_token(session: Session, camera: Camera, token: str) -> CameraCreated:
     response_model=CameraCreated,
     responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
-def create_camera(body: CameraCreate, session: SessionDep, _: Admin) -> CameraCreated:
-    """Register a camera; the response carries its upload token, shown only this once."""
+def create_camera(
+    body: CameraCreate, session: SessionDep, settings: SettingsDep, _: Admin
+) -> CameraCreated:
+    """Register a camera; the response carries its upload token, shown only this once. A
+    ``source`` whose host resolves to an address sources may not reach is refused (422)."""
+    sources.check_address(body.source, settings.source_allowed_networks)
     camera, token = registry.create_camera(session, body)
     return _with_token(session, camera, token)
 
@@ -313,13 +317,19 @@ def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
     },
 )
 def update_camera(
-    camera_id: CameraId, body: CameraUpdate, session: SessionDep, _: Admin, request: Request
+    camera_id: CameraId,
+    body: CameraUpdate,
+    session: SessionDep,
+    settings: SettingsDep,
+    _: Admin,
+    request: Request,
 ) -> CameraOut:
     """Change a camera's name, location, panel or region of interest (JSON merge: fields left
     out keep their value, ``null`` clears one), and its kind while it has stored no frame
     (409 ``camera_has_frames`` after). A region that would not fit the camera's latest frame
     is refused (422). Frames uploaded afterwards are judged with the new values, on every
     server process (each batch of frames checks its cameras again)."""
+    sources.check_address(body.source, settings.source_allowed_networks)
     tokens: TokenCache = request.app.state.camera_tokens
     return _shown(session, registry.update_camera(session, camera_id, body, tokens))
 

@@ -15,12 +15,13 @@ import asyncio
 import contextlib
 import logging
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Any
+from urllib.parse import urlsplit
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -28,10 +29,12 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.platform.db.models import Camera, CameraSource
 from app.platform.frames import ingest
 from app.platform.frames.camera_info import CameraInfo
+from app.platform.frames import addresses
+from app.platform.frames import grab as grab_module
 from app.platform.frames.grab import GrabError, grab
 from app.platform.frames.storage import FrameStore
 from app.platform.frames.writer import GroupCommitWriter
-from app.platform.http.errors import VantageError
+from app.platform.http.errors import Unprocessable, VantageError
 from app.platform.observability import FRAMES_RECEIVED
 from app.platform.policy import Policy
 from app.platform.schemas import SourceIn, SourceOut
@@ -40,6 +43,19 @@ log = logging.getLogger("vantage.sources")
 
 MAX_BACKOFF = timedelta(minutes=5)
 """The longest wait before a failing source is tried again."""
+
+
+def check_address(source: SourceIn | None, allowed: Sequence[str]) -> None:
+    """Refuse (422 naming the rule) a source whose host resolves to an address sources may
+    not reach, or to none (``addresses``). Blocking (DNS): routes call it from a thread."""
+    if source is None:
+        return
+    parts = urlsplit(source.url)
+    port = parts.port or grab_module.DEFAULT_PORTS.get(parts.scheme.lower(), 80)
+    try:
+        addresses.resolve(parts.hostname or "", port, addresses.networks(allowed))
+    except addresses.AddressRefused as exc:
+        raise Unprocessable(str(exc), code="source_address_refused") from None
 
 
 def set_source(session: Session, camera_id: str, source: SourceIn | None, now: datetime) -> None:
@@ -63,7 +79,7 @@ def source_out(row: CameraSource | None) -> SourceOut | None:
     if row is None:
         return None
     return SourceOut(
-        url=row.url,
+        url=grab_module.masked(row.url),
         every_seconds=row.every_seconds,
         username=row.username,
         has_password=row.password is not None,
@@ -178,10 +194,13 @@ class Puller:
         timeout: float,
         max_pixels: int,
         rate_limit: Callable[[str], bool] | None = None,
+        allowed_networks: Sequence[str] = (),
         tick: float = 0.5,
     ) -> None:
         """``rate_limit(camera_id)``: whether the camera may store one more frame this minute
-        (the budget its posted frames spend too); None: no limit."""
+        (the budget its posted frames spend too); None: no limit. ``allowed_networks``: CIDRs
+        sources may reach although the address rule refuses them (``addresses``)."""
+        self.allowed = addresses.networks(allowed_networks)
         self.sessions, self.writer, self.store, self.policy = sessions, writer, store, policy
         self.rate_limit = rate_limit
         self.owner = uuid.uuid4().hex
@@ -241,6 +260,7 @@ class Puller:
                     username=lease.username,
                     password=lease.password,
                     timeout=self.timeout,
+                    allowed=self.allowed,
                 ),
             )
             frame = await self._store(lease, data)
