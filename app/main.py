@@ -39,6 +39,7 @@ from app.platform.frames.storage import StoreUnavailable, frame_store
 from app.platform.frames.writer import GroupCommitWriter
 from app.platform.http.compression import CompressedReads
 from app.platform.http.cors import PublicReadCors
+from app.platform.http.crowds import AnonymousLimit, Crowds
 from app.platform.http.errors import database_unavailable, install_error_handlers
 from app.platform.http.head import HeadAsGet
 from app.platform.http.query import CheckedQuery
@@ -136,7 +137,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # the orphan sweep below shares the bound.
         patience = settings.frame_store_timeout_seconds
         deadline = asyncio.get_running_loop().time() + patience
-        made = partial(settings.data_dir.mkdir, parents=True, exist_ok=True)
+        made = partial(settings.data_dir.mkdir, mode=0o700, parents=True, exist_ok=True)
         if not await _done_by(deadline, made):
             log.error(
                 "data directory %s not answering after %g s: serving meanwhile",
@@ -305,6 +306,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.frame_store, seconds=settings.frame_store_timeout_seconds
     )
     app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
+    app.state.crowds = Crowds(
+        requests_per_minute=settings.public_requests_per_minute,
+        work_per_minute=settings.public_work_per_minute,
+        queue=settings.public_work_queue,
+    )
     secret = settings.alert_webhook_secret
     app.state.db_metrics = [solar_metrics.collect]
     app.state.webhook_key = (
@@ -331,6 +337,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.add_middleware(CompressedReads)  # inside HEAD: a HEAD's Content-Length is its GET's
     app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
+    app.add_middleware(AnonymousLimit, crowds=app.state.crowds)
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
     for module in (
         cameras,  # first: the frame upload is matched first

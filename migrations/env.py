@@ -12,6 +12,7 @@ import app.cells.models  # noqa: F401
 import app.platform.db.models  # noqa: F401  every table on Base.metadata
 import app.solar.models  # noqa: F401
 from app.platform.db.base import Base
+from app.platform.db.session import private_sqlite_file
 from app.platform.settings import get_settings
 
 config = context.config
@@ -26,7 +27,8 @@ def _url() -> str:
     if url:
         return str(url)
     settings = get_settings()
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+    private_sqlite_file(settings.effective_database_url)
     return settings.effective_database_url
 
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -128,3 +129,46 @@ def test_huge_roi_values_are_refused(client: TestClient, admin: dict[str, str]) 
     )
     assert r.status_code == 422
     assert client.get("/cameras", headers=admin).json() == []
+
+
+def test_the_data_directory_is_private(tmp_path: Path) -> None:
+    """A first start makes the data directory 0700 and the database, token and frame files
+    0600, whatever the umask."""
+    data = tmp_path / "fresh"
+    env = {**os.environ, "VANTAGE_DATA_DIR": str(data)}
+    for name in ("VANTAGE_DATABASE_URL", "VANTAGE_ADMIN_TOKEN"):
+        env.pop(name, None)
+    script = textwrap.dedent(
+        """
+        import os
+        os.umask(0o022)
+        from alembic import command
+        from alembic.config import Config
+        command.upgrade(Config("alembic.ini"), "head")
+        from fastapi.testclient import TestClient
+        from app.main import create_app
+        from app.platform.settings import Settings
+        from tests.factories import make_jpeg
+        with TestClient(create_app(Settings())) as c:
+            token = open(os.environ["VANTAGE_DATA_DIR"] + "/admin_token").read().strip()
+            h = {"Authorization": "Bearer " + token}
+            cam = c.post("/cameras", json={"id": "c", "kind": "rig"}, headers=h).json()
+            r = c.post("/cameras/c/frames", content=make_jpeg(),
+                       headers={"Authorization": "Bearer " + cam["token"],
+                                "Content-Type": "image/jpeg"})
+            assert r.status_code == 201, r.text
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert data.stat().st_mode & 0o777 == 0o700
+    files = [p for p in data.rglob("*") if p.is_file()]
+    assert {p.name for p in files} >= {"vantage.db", "admin_token"}
+    assert any(p.suffix == ".pack" for p in files), [p.name for p in files]  # the frame
+    for p in files:
+        assert p.stat().st_mode & 0o077 == 0, (p, oct(p.stat().st_mode))
+    for p in data.rglob("*"):
+        if p.is_dir():
+            assert p.stat().st_mode & 0o077 == 0, (p, oct(p.stat().st_mode))

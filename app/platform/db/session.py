@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event, make_url
@@ -20,6 +23,19 @@ PG_TCP_USER_TIMEOUT_MS = 15_000
 """How long sent data may go unacknowledged before the connection is dropped."""
 
 
+def private_sqlite_file(url: str) -> None:
+    """Create a SQLite database file (and its folder) readable by this user only, 0600 (0700)
+    when it does not exist yet: SQLite would make it 0644, and it holds every token's hash
+    and the sources' credentials. Its WAL and shared-memory files take the file's mode."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() != "sqlite" or parsed.database in (None, "", ":memory:"):
+        return
+    path = Path(parsed.database)
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with contextlib.suppress(FileExistsError):
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+
+
 def make_engine(
     url: str,
     *,
@@ -30,6 +46,7 @@ def make_engine(
     """An engine tuned for the backend: WAL and a busy timeout on SQLite, a pool on PostgreSQL
     of ``pool_size`` connections kept and ``max_overflow`` more under load, whose statements
     may take ``statement_timeout_s`` at most (0: no bound)."""
+    private_sqlite_file(url)
     engine = _engine(url, pool_size, max_overflow, statement_timeout_s)
     send_pending_first(engine)  # app.platform.db.rows.deferred_inserts
     return engine

@@ -24,6 +24,7 @@ from app.platform.frames import rate_limit
 from app.platform.frames.camera_info import CameraInfo, TokenCache
 from app.platform.frames.cameras import FrameKey
 from app.platform.frames.kinds import KINDS
+from app.platform.http.crowds import Crowds
 from app.platform.http.deps import (
     CameraId,
     Principal,
@@ -128,10 +129,14 @@ async def fresh_upload_target(request: Request, target: CameraInfo) -> CameraInf
 async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
     """The upload's camera (``_upload_target``); a 401 challenges a camera for Basic too."""
     try:
-        return await _upload_target(camera_id, request)
+        target = await _upload_target(camera_id, request)
     except Unauthorized as exc:
         challenge_cameras(request, exc)
         raise
+    if target.token_hash is not None:  # its uploads skip the anonymous limits (``crowds``)
+        crowds: Crowds = request.app.state.crowds
+        crowds.trust(target.token_hash)
+    return target
 
 
 async def _upload_target(camera_id: CameraId, request: Request) -> CameraInfo:

@@ -27,10 +27,9 @@ from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.db.models import Camera, CameraSource
-from app.platform.frames import ingest
-from app.platform.frames.camera_info import CameraInfo
-from app.platform.frames import addresses
+from app.platform.frames import addresses, ingest
 from app.platform.frames import grab as grab_module
+from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.grab import GrabError, grab
 from app.platform.frames.storage import FrameStore
 from app.platform.frames.writer import GroupCommitWriter

@@ -9,6 +9,7 @@ else refers to a stored frame.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import hashlib
@@ -128,6 +129,20 @@ FREE_SPACE_MARGIN = 64 * 2**20
 
 PACK_BUCKET = "%Y-%m-%dT%H"
 """Packs are grouped by the hour (UTC) their frames were received in: ``packs/<hour>/``."""
+
+
+def private_dirs(path: Path) -> None:
+    """``path`` and any missing folder above it, each made 0700 (``os.makedirs`` gives the
+    mode to the last folder only)."""
+    missing = []
+    while not path.exists():
+        missing.append(path)
+        path = path.parent
+    for folder in reversed(missing):
+        with contextlib.suppress(FileExistsError):
+            folder.mkdir(mode=0o700)
+
+
 _LOCATOR = re.compile(r"(packs/[0-9T-]+/[0-9a-z-]+\.pack)@(\d+)\+(\d+)")
 
 
@@ -308,9 +323,10 @@ class DiskFrameStore:
 
     def _open_pack(self, bucket: str) -> _Pack:
         directory = f"{self.root}/packs/{bucket}"
-        os.makedirs(directory, exist_ok=True)
+        private_dirs(Path(directory))
         name = f"{time.time_ns()}-{os.getpid()}-{os.urandom(4).hex()}.pack"
-        fd = os.open(f"{directory}/{name}", os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC
+        fd = os.open(f"{directory}/{name}", flags, 0o600)  # frames are this user's only
         # held while the pack is open: the start-up sweep leaves locked packs alone
         # (``idle_packs``); the kernel drops it when the process dies, even by kill -9. On a
         # file system without locks (NFSv3 without lockd) writing goes on, and the sweep,

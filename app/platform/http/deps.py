@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
 from app.platform.db.models import Camera, ViewerToken
+from app.platform.http.crowds import Crowds
 from app.platform.http.errors import (
     Forbidden,
     Unauthorized,
@@ -145,7 +146,11 @@ def get_principal(request: Request) -> Principal:
     """
     try:
         with get_sessionmaker(request)() as session:
-            return _identify(request, session)
+            principal = _identify(request, session)
+        token, _ = credentials_of(request.headers["authorization"])
+        crowds: Crowds = request.app.state.crowds
+        crowds.trust(hash_token(token))
+        return principal
     except Unauthorized as exc:
         challenge_cameras(request, exc)
         raise
@@ -324,7 +329,12 @@ async def public_work(request: Request, fn: Callable[..., T], *args: Any, **kwar
     40 at once (bench/public_load.py)."""
     state = request.app.state
     capacity = state.settings.public_work_threads
-    return await _limited(request, "public_limiter", capacity, _read, state, fn, args, kwargs)
+    crowds: Crowds = state.crowds
+    crowds.enter_work(request)  # 429 past a client's share, 503 when the queue is full
+    try:
+        return await _limited(request, "public_limiter", capacity, _read, state, fn, args, kwargs)
+    finally:
+        crowds.leave_work()
 
 
 def _read(state: Any, fn: Callable[..., T], args: Any, kwargs: Any) -> T:
