@@ -280,7 +280,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             settings.max_pixels,
         )
     app.state.sessionmaker = make_sessionmaker(engine)
-    read_engine = make_read_engine(settings.effective_database_url, settings.public_work_threads)
+    # a connection per public lane's thread: the computations', and the cheap reads' (which
+    # would otherwise wait for a map's session)
+    read_engine = make_read_engine(
+        settings.effective_database_url, 2 * settings.public_work_threads
+    )
     app.state.read_sessionmaker = make_sessionmaker(read_engine or engine)
     # frame uploads decode in the writer's own threads, apart from the shared pool: with the
     # disk store about as many as there are cores (more only contend for them and the GIL)

@@ -59,6 +59,7 @@ from app.platform.http.deps import (
     UtcTime,
     get_principal,
     image_work,
+    public_read,
     public_work,
 )
 from app.platform.http.errors import Conflict, NotFound, Unprocessable, UnsupportedMediaType
@@ -465,7 +466,7 @@ async def latest_of_every_camera(
     """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
     gives it (a dashboard's list of the city's cameras in one request, not one per camera);
     with ``camera_id``, those cameras (a district's)."""
-    rows = await public_work(
+    rows = await public_read(
         request, partial(air.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id)
     )
     now = policy.now()

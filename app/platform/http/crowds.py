@@ -10,12 +10,19 @@ Retry-After. The computations themselves run one at a time (``public_work``) and
 ``VANTAGE_PUBLIC_WORK_QUEUE`` wait for their turn: one more is answered 503 with Retry-After
 at once, instead of waiting tens of seconds behind the others. nginx's ``limit_req`` is the
 first line in front of several processes (deploy/nginx.conf); these hold for one process
-served alone. The client is the connection's peer: behind a proxy, uvicorn's
-``--forwarded-allow-ips`` makes it the proxy's ``X-Forwarded-For``.
+served alone.
+
+A refusal is answered at once, ten times a minute per client; a client that keeps asking
+regardless (it ignores Retry-After) has its further refusals held for ``TARPIT_SECONDS``
+first, a wait that costs the process no CPU. Answered at once, a flood in a tight loop came
+straight back: 50 such clients drew ~900 refusals a second and the cameras' uploads fell
+from 132 to 19 a second (bench/crowds.py). The client is the connection's peer: behind a
+proxy, uvicorn's ``--forwarded-allow-ips`` makes it the proxy's ``X-Forwarded-For``.
 """
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import math
 import threading
@@ -31,6 +38,9 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from app.platform.auth import hash_token
 from app.platform.http.errors import ServiceUnavailable, TooManyRequests, problem
 
+TARPIT_SECONDS = 1.0
+"""How long a client's refusals past ``FAST_REFUSALS`` a minute wait before they are sent."""
+FAST_REFUSALS = RateLimitItemPerMinute(10)
 TRUST_SECONDS = 600.0
 """How long an accepted token's requests skip the anonymous limits before it is checked again."""
 MAX_TRUSTED = 100_000
@@ -96,6 +106,12 @@ class Crowds:
         reset = self.limiter.get_window_stats(item, *identifiers).reset_time
         return max(1, math.ceil(reset - time.time()))
 
+    def refusal_delay(self, scope: Scope) -> float:
+        """Seconds to hold this client's refusal before sending it: 0 for its first ten a
+        minute, ``TARPIT_SECONDS`` after."""
+        fast = self.limiter.hit(FAST_REFUSALS, "refused", client_of(scope))
+        return 0.0 if fast else TARPIT_SECONDS
+
     def request_refusal(self, scope: Scope) -> int | None:
         """Seconds to wait when this anonymous request is one too many, else None (counted)."""
         if self.requests is None or scope["path"] in EXEMPT or not self.anonymous(scope):
@@ -145,6 +161,7 @@ class AnonymousLimit:
         if scope["type"] == "http":
             wait = self.crowds.request_refusal(scope)
             if wait is not None:
+                await asyncio.sleep(self.crowds.refusal_delay(scope))
                 response = problem(
                     429,
                     "Too many requests",

@@ -23,6 +23,8 @@ from app.platform.db.models import Camera, ViewerToken
 from app.platform.http.crowds import Crowds
 from app.platform.http.errors import (
     Forbidden,
+    ServiceUnavailable,
+    TooManyRequests,
     Unauthorized,
     Unprocessable,
 )
@@ -319,6 +321,16 @@ async def image_work(request: Request, fn: Callable[..., T], *args: Any, **kwarg
     return await _limited(request, "image_limiter", capacity, fn, *args, **kwargs)
 
 
+async def public_read(request: Request, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    """``fn(session, *args, **kwargs)`` as ``public_work`` runs it (a read-only session of its
+    own, in a worker thread), in a lane of its own: cheap public reads that every dashboard
+    polls (the latest reading of every camera) never wait behind the maps and aggregates,
+    nor count as computations against a client's share."""
+    state = request.app.state
+    capacity = state.settings.public_work_threads
+    return await _limited(request, "public_read_limiter", capacity, _read, state, fn, args, kwargs)
+
+
 async def public_work(request: Request, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
     """``fn(session, *args, **kwargs)`` in a worker thread with a read-only session of its
     own, at most ``public_work_threads`` (1) at once in this process: the public maps and
@@ -330,7 +342,11 @@ async def public_work(request: Request, fn: Callable[..., T], *args: Any, **kwar
     state = request.app.state
     capacity = state.settings.public_work_threads
     crowds: Crowds = state.crowds
-    crowds.enter_work(request)  # 429 past a client's share, 503 when the queue is full
+    try:
+        crowds.enter_work(request)  # 429 past a client's share, 503 when the queue is full
+    except (TooManyRequests, ServiceUnavailable):
+        await anyio.sleep(crowds.refusal_delay(request.scope))
+        raise
     try:
         return await _limited(request, "public_limiter", capacity, _read, state, fn, args, kwargs)
     finally:
