@@ -6,7 +6,12 @@ from __future__ import annotations
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import Verdict
-from app.platform.frames.kinds import KindHandler, Prepared, verdict_common
+from app.platform.frames.kinds import (
+    KindHandler,
+    Prepared,
+    reduced_to_statistics,
+    verdict_common,
+)
 from app.platform.frames.verdicts import stats_columns
 from app.platform.policy import Policy
 from app.platform.schemas import RigVerdictOut
@@ -25,4 +30,6 @@ def verdict_out(verdict: Verdict) -> RigVerdictOut:
     return RigVerdictOut(**verdict_common(verdict))
 
 
-HANDLER = KindHandler(conclude=conclude, verdict_out=verdict_out)
+# a rig frame keeps its statistics only: a large one is decoded reduced (measuring decodes the
+# stored frame again, at full size)
+HANDLER = KindHandler(conclude=conclude, verdict_out=verdict_out, reduction=reduced_to_statistics)

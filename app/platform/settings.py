@@ -45,7 +45,13 @@ class Settings(BaseSettings):
         "token may too.",
     )
     max_body_bytes: int = Field(default=10 * 1024 * 1024, gt=0, description="Request body cap [B].")
-    max_pixels: int = Field(default=40_000_000, gt=0, description="Frame size cap [px].")
+    max_pixels: int = Field(
+        default=50_000_000,
+        gt=0,
+        description="Image size cap [px]: larger images are refused before they are decoded "
+        "(a 48 MP phone photo is 48 000 000). Set it in the environment: OpenCV reads it once, "
+        "at start, as its own cap.",
+    )
     frame_retention_days: float = Field(
         default=30.0, gt=0, description="Keep frames this long [d]."
     )

@@ -7,6 +7,7 @@ The header is read before anything is decoded, so a small file that declares an 
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from typing import Literal
 
@@ -41,12 +42,15 @@ class TooManyPixelsError(JpegError):
 @dataclass(frozen=True, slots=True)
 class JpegHeader:
     width: int
-    """[px]"""
+    """[px], of the upright image: the EXIF orientation applied (as decoded here)."""
     height: int
-    """[px]"""
+    """[px], likewise."""
     components: int
-    """1 (greyscale) or 3 (colour)."""
+    """1 (greyscale), 3 (colour) or 4 (CMYK, as some cameras and editors write)."""
     progressive: bool
+    orientation: int = 1
+    """EXIF orientation (1–8; 1 when absent or unreadable): how the stored pixels turn to
+    the upright image. 5–8 swap width and height."""
 
     @property
     def pixels(self) -> int:
@@ -68,6 +72,7 @@ def read_header(data: bytes | memoryview) -> JpegHeader:
     if n < 4 or bytes(buf[:2]) != SOI:
         raise NotJpegError("not a JPEG: the data does not start with the SOI marker FF D8")
     i = 2
+    orientation = 1
     while True:
         # skip to the next marker, allowing fill bytes (FF FF ...)
         if i >= n or buf[i] != 0xFF:
@@ -95,20 +100,120 @@ def read_header(data: bytes | memoryview) -> JpegHeader:
             components = buf[i + 7]
             if width == 0 or height == 0:
                 raise CorruptJpegError(f"JPEG declares an empty image ({width}×{height})")
-            if components not in (1, 3):
-                raise CorruptJpegError(f"JPEG has {components} colour components; expected 1 or 3")
-            return JpegHeader(width, height, components, progressive=marker in (0xC2, 0xC6))
+            if components not in (1, 3, 4):
+                raise CorruptJpegError(
+                    f"JPEG has {components} colour components; expected 1, 3 or 4"
+                )
+            if orientation >= 5:  # a quarter turn: the upright image is height × width
+                width, height = height, width
+            progressive = marker in (0xC2, 0xC6)
+            return JpegHeader(width, height, components, progressive, orientation)
+        if marker == 0xE1 and orientation == 1:  # APP1: EXIF comes before the frame header
+            orientation = exif_orientation(bytes(buf[i + 2 : i + length]))
         i += length
 
 
-def has_end_marker(data: bytes | memoryview) -> bool:
-    """Whether the data ends with EOI (trailing zero padding allowed): a cut-off upload does not.
+def exif_orientation(app1: bytes) -> int:
+    """The Orientation tag (0x0112) of an APP1 segment's EXIF IFD0, 1–8; 1 when the segment is
+    not EXIF, has no such tag, or says something outside 1–8 (EXIF 2.32 §4.6.4, TIFF 6.0)."""
+    if not app1.startswith(b"Exif\x00\x00") or len(app1) < 14:
+        return 1
+    tiff = app1[6:]
+    if tiff[:4] == b"II*\x00":
+        order: Literal["little", "big"] = "little"
+    elif tiff[:4] == b"MM\x00*":
+        order = "big"
+    else:
+        return 1
+    ifd = int.from_bytes(tiff[4:8], order)
+    if ifd + 2 > len(tiff):
+        return 1
+    for k in range(int.from_bytes(tiff[ifd : ifd + 2], order)):
+        entry = tiff[ifd + 2 + 12 * k : ifd + 14 + 12 * k]
+        if len(entry) < 12:
+            return 1
+        if int.from_bytes(entry[0:2], order) == 0x0112:
+            value = int.from_bytes(entry[8:10], order)  # SHORT, left-justified
+            return value if 1 <= value <= 8 else 1
+    return 1
 
-    libjpeg decodes a truncated file into a grey-padded image with only a warning, so truncation
-    has to be detected from the bytes themselves.
-    """
-    tail = bytes(data[-4096:]).rstrip(b"\x00")
-    return tail.endswith(EOI)
+
+# in entropy-coded data a marker is FF (after any fill FFs) followed by neither 00 (a stuffed
+# FF) nor D0–D7 (restart markers, which sit inside the data)
+_NEXT_MARKER = re.compile(rb"\xff+([^\x00\xd0-\xd7\xff])")
+
+
+def image_end(data: bytes | memoryview) -> int:
+    """The offset just past the image's end-of-image marker, found by walking the file's
+    segments and scans (ITU T.81 §B.2); bytes after it (a phone's trailer, a motion photo's
+    video) are not the image's. Raises CorruptJpegError when the data end first: a file cut
+    short, or scan data that stop before the image is complete.
+
+    libjpeg decodes a truncated file into a grey-padded image with only a warning, so the
+    end is found from the structure, not from the file's last bytes."""
+    raw = bytes(data)
+    n = len(raw)
+    i = 2
+    while i < n:
+        if raw[i] != 0xFF:
+            raise CorruptJpegError(f"broken JPEG marker chain at byte {i}")
+        while i < n and raw[i] == 0xFF:
+            i += 1
+        if i >= n:
+            break
+        marker = raw[i]
+        i += 1
+        if marker == 0xD9:
+            return i
+        if marker in _STANDALONE:
+            continue
+        if i + 2 > n:
+            break
+        length = (raw[i] << 8) | raw[i + 1]
+        if length < 2 or i + length > n:
+            break
+        i += length
+        if marker == 0xDA:  # a scan: its entropy-coded data run to the next marker
+            found = _NEXT_MARKER.search(raw, i)
+            if found is None:
+                break
+            i = found.start(1) - 1
+    raise CorruptJpegError(
+        "JPEG is truncated: its data end before the end-of-image marker (a cut-off upload)"
+    )
+
+
+def has_end_marker(data: bytes | memoryview) -> bool:
+    """Whether the image is complete (``image_end`` finds its end-of-image marker); data
+    after it are allowed."""
+    try:
+        image_end(data)
+    except CorruptJpegError:
+        return False
+    return True
+
+
+def upright(image: NDArray[np.uint8], orientation: int) -> NDArray[np.uint8]:
+    """The stored pixels (H, W, C) turned to the upright image by their EXIF orientation
+    (1: as stored; 2 mirrored; 3 turned 180°; 4 flipped; 5 transposed; 6 turned 90°
+    clockwise; 7 transversed; 8 turned 90° anticlockwise), as a viewer shows the photo."""
+    if orientation == 2:
+        out = image[:, ::-1]
+    elif orientation == 3:
+        out = image[::-1, ::-1]
+    elif orientation == 4:
+        out = image[::-1]
+    elif orientation == 5:
+        out = image.transpose(1, 0, 2)
+    elif orientation == 6:
+        out = image.transpose(1, 0, 2)[:, ::-1]
+    elif orientation == 7:
+        out = image.transpose(1, 0, 2)[::-1, ::-1]
+    elif orientation == 8:
+        out = image.transpose(1, 0, 2)[::-1]
+    else:
+        return image
+    return np.ascontiguousarray(out)
 
 
 def decode_rgb(
@@ -121,6 +226,10 @@ def decode_rgb(
     data : JPEG bytes.
     max_pixels : refuse images that declare more pixels than this [px].
     reduce : 1, 2, 4 or 8; decode at 1/reduce of the size through libjpeg's DCT scaling.
+
+    The image is returned upright (its EXIF orientation applied, ``upright``), and the header
+    gives the upright size: every pixel coordinate the service answers is in that image. Data
+    after the end-of-image marker are ignored; a file that ends before it is refused.
     """
     header = read_header(data)
     if header.pixels > max_pixels:
@@ -128,8 +237,7 @@ def decode_rgb(
             f"JPEG declares {header.width}×{header.height} = {header.pixels} pixels; "
             f"the limit is {max_pixels}"
         )
-    if not has_end_marker(data):
-        raise CorruptJpegError("JPEG is truncated: no end-of-image marker")
+    image_end(data)
     flags = {
         1: cv2.IMREAD_COLOR_RGB,
         2: cv2.IMREAD_REDUCED_COLOR_2,
@@ -143,8 +251,8 @@ def decode_rgb(
     if image is None or image.ndim != 3 or image.shape[2] != 3:
         raise CorruptJpegError("JPEG could not be decoded")
     if reduce != 1:  # the reduced modes have no RGB variant
-        return header, np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), dtype=np.uint8)
-    return header, np.asarray(image, dtype=np.uint8)
+        image = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+    return header, upright(np.asarray(image, dtype=np.uint8), header.orientation)
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

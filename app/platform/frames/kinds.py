@@ -75,6 +75,20 @@ def _full_size(header: JpegHeader) -> int:
     return 1
 
 
+STATISTICS_PIXELS = 12_000_000
+"""What channel statistics need at most [px]: a frame larger is decoded reduced to this."""
+
+
+def reduced_to_statistics(header: JpegHeader) -> int:
+    """The smallest DCT reduction (1, 2, 4, 8) that brings the frame to ``STATISTICS_PIXELS``
+    or fewer: a 48 MP phone photo is decoded at 12 MP (1/4 of the memory and the time) for
+    statistics that a 2×2 block average does not change (its modes are histogram peaks)."""
+    for r in (1, 2, 4):
+        if header.pixels <= STATISTICS_PIXELS * r * r:
+            return r
+    return 8
+
+
 def _as_stored(session: Session, camera: Camera, info: CameraInfo) -> CameraInfo:
     return info
 
