@@ -152,6 +152,28 @@ VIEWER_READS = {
     ("GET", "/calibrations/{calibration_id}"),
 }
 """What a viewer token may do: the farm and cells boards' reads."""
+ROBOT_MAY = {
+    ("GET", "/panels/{panel_id}/baseline"),
+    ("GET", "/panels/{panel_id}/history"),
+    ("GET", "/panels/{panel_id}/status"),
+    ("GET", "/panels/{panel_id}/trigger"),
+    ("POST", "/cleaning/claim"),
+    ("POST", "/cleaning/tasks/{task_id}/claim"),
+    ("POST", "/cleaning/tasks/{task_id}/complete"),
+    ("POST", "/cleaning/tasks/{task_id}/fail"),
+    ("GET", "/cleaning/tasks"),
+    ("GET", "/cleaning/tasks/{task_id}"),
+    ("POST", "/vision/outline"),
+    ("POST", "/vision/outline.png"),
+    ("POST", "/vision/enhance"),
+    ("GET", "/rigs"),
+    ("GET", "/rigs/{rig_id}"),
+    ("POST", "/rigs/{rig_id}/triangulate"),
+    ("POST", "/rigs/{rig_id}/laser/dot"),
+    ("POST", "/rigs/{rig_id}/laser/grid"),
+    ("POST", "/shapes/match"),
+}
+"""What a robot token may do: its cleaning tasks, its panels' state, the cells' measuring."""
 OPEN_TO_ALL = {("GET", "/air/alerts")}
 """Public, but a token given must be valid (the admin sees more)."""
 
@@ -178,7 +200,9 @@ class TestViewers:
         self, client: TestClient, tokens: dict[str, str], viewer: dict[str, str]
     ) -> None:
         """Every operation that takes a token: 401 without one or with a wrong one; a viewer
-        is refused (403) everything but the boards' reads, which it passes."""
+        is refused (403) everything but the boards' reads, a robot everything but its tasks,
+        panels and the cells' measuring, a camera everything here (its own frames' upload
+        names its own id); each passes what it may."""
         operations = _secured(client)
         assert len(operations) > 50
         assert VIEWER_READS <= set(operations)
@@ -188,11 +212,17 @@ class TestViewers:
             assert r.status_code == 401, (method, path, r.status_code)
             r = client.request(method, url)
             assert r.status_code == (200 if (method, path) in OPEN_TO_ALL else 401), (method, path)
-            r = client.request(method, url, headers=bearer(viewer["token"]))
-            if (method, path) in VIEWER_READS | OPEN_TO_ALL:
-                assert r.status_code not in (401, 403), (method, path, r.text)
-            else:
-                assert r.status_code == 403, (method, path, r.status_code)
+            for role, token, may in (
+                ("viewer", viewer["token"], VIEWER_READS),
+                ("robot", tokens["robot"], ROBOT_MAY),
+                ("camera", tokens["camera"], set()),  # only its own frames: none named here
+            ):
+                r = client.request(method, url, headers=bearer(token))
+                if (method, path) in may | OPEN_TO_ALL:
+                    assert r.status_code not in (401, 403), (role, method, path, r.text)
+                    assert r.status_code < 500, (role, method, path, r.text)
+                else:
+                    assert r.status_code == 403, (role, method, path, r.status_code)
 
     def test_listed_without_its_secret_and_revoked(
         self, client: TestClient, admin: dict[str, str], viewer: dict[str, str]

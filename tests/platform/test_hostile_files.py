@@ -172,3 +172,12 @@ def test_the_data_directory_is_private(tmp_path: Path) -> None:
     for p in data.rglob("*"):
         if p.is_dir():
             assert p.stat().st_mode & 0o077 == 0, (p, oct(p.stat().st_mode))
+
+
+def test_an_upload_that_is_not_multipart_is_a_415(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    for headers in ({}, {"Content-Type": "application/json"}):
+        r = client.post("/vision/outline", content=b"{}", headers={**admin, **headers})
+        assert r.status_code == 415, (headers, r.text)
+        assert r.json()["code"] == "not_multipart"

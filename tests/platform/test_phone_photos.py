@@ -202,6 +202,21 @@ class TestOutline:
         assert r.status_code == 200, r.text
         assert corner_error(np.array(r.json()["corners"]), PRISM_OUTLINE) <= 2.0
 
+    @pytest.mark.parametrize("kind", ["trailer", "video", "progressive", "cmyk"])
+    def test_kinds_of_file(self, client: TestClient, admin: dict[str, str], kind: str) -> None:
+        scene = prism_scene()
+        if kind == "cmyk":
+            out = io.BytesIO()
+            Image.fromarray(scene).convert("CMYK").save(out, format="JPEG", quality=95)
+            data = out.getvalue()
+        else:
+            flags = [cv2.IMWRITE_JPEG_QUALITY, 95, cv2.IMWRITE_JPEG_PROGRESSIVE, 1]
+            plain = cv2.imencode(".jpg", scene, flags if kind == "progressive" else flags[:2])
+            data = plain[1].tobytes() + {"trailer": TRAILER, "video": VIDEO}.get(kind, b"")
+        r = client.post("/vision/outline", files={"file": ("p.jpg", data)}, headers=admin)
+        assert r.status_code == 200, (kind, r.text)
+        assert corner_error(np.array(r.json()["corners"]), PRISM_OUTLINE) <= 2.0
+
     def test_a_cut_photo_is_refused(self, client: TestClient, admin: dict[str, str]) -> None:
         data = cv2.imencode(".jpg", prism_scene())[1].tobytes()
         r = client.post(

@@ -150,6 +150,13 @@ async def read_form(
     route reads, files or text), any other field is refused (422): an option sent as a form
     field instead of in the query (``-F significance=0.01``) was silently left at its default,
     a misspelt field (``dot_file``) silently dropped."""
+    media_type = request.headers.get("content-type", "")
+    if not media_type.lower().startswith("multipart/form-data"):
+        raise UnsupportedMediaType(
+            "the body must be multipart/form-data (curl -F file=@photo.jpg); it came as "
+            f"{media_type.split(';')[0] or 'no Content-Type'}",
+            code="not_multipart",
+        )
     body = await read_capped(request, limit)
     parser = MultiPartParser(
         request.headers, _once(body), max_files=max_files, max_fields=10_000, max_part_size=limit
