@@ -135,6 +135,10 @@ class Server:
             **(env or {}),
         }
         env["VANTAGE_LOG_LEVEL"] = "WARNING"
+        # the benches' clients are one address asking for everything: no per-client limits
+        # unless a bench sets them (bench/crowds.py)
+        env.setdefault("VANTAGE_PUBLIC_REQUESTS_PER_MINUTE", "0")
+        env.setdefault("VANTAGE_PUBLIC_WORK_PER_MINUTE", "0")
         if not rate_limit:  # one camera posts hundreds of frames a second in bench/ingest.py
             env["VANTAGE_RATE_LIMIT_PER_MINUTE"] = "0"
         if backend == "postgresql":

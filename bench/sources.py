@@ -51,7 +51,11 @@ def run(kind: str, urls: list[str], seconds: float, port: int) -> tuple[float, i
     the sources' states at the end."""
     admin = {"Authorization": f"Bearer {ADMIN}", "Content-Type": "application/json"}
     with tempfile.TemporaryDirectory() as tmp:
-        server = Server("sqlite", port, Path(tmp), env={"VANTAGE_PULL_THREADS": "16"})
+        env = {
+            "VANTAGE_PULL_THREADS": "16",
+            "VANTAGE_SOURCE_ALLOWED_NETWORKS": "127.0.0.0/8",  # the cameras served here
+        }
+        server = Server("sqlite", port, Path(tmp), env=env)
         try:
             for k, url in enumerate(urls):
                 body = {

@@ -33,6 +33,9 @@ def server_env(database_url: str, data_dir: Path, **extra: str) -> dict[str, str
         "VANTAGE_ADMIN_TOKEN": ADMIN_TOKEN,
         "VANTAGE_LOG_LEVEL": "WARNING",
         "VANTAGE_RATE_LIMIT_PER_MINUTE": "0",
+        "VANTAGE_PUBLIC_REQUESTS_PER_MINUTE": "0",  # one client (this one) asks for everything
+        "VANTAGE_PUBLIC_WORK_PER_MINUTE": "0",
+        "VANTAGE_SOURCE_ALLOWED_NETWORKS": "127.0.0.0/8",  # the cameras these tests serve
         **extra,
     }
 
