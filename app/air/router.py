@@ -860,6 +860,9 @@ Layer = Annotated[
 ANONYMOUS_RESOLUTION = 256
 """The finest map an anonymous caller may ask for: the grid is what a map's CPU grows with
 (kriging at 512 cells a side took ~7.6 s, at 256 a quarter of that); a token lifts it to 512."""
+ANONYMOUS_WINDOW = 86_400
+"""The longest window of readings an anonymous map may gather [s] (a day; a past moment is
+``at``): the readings' query grows with it; a token lifts it to 30 days."""
 
 
 def _map_query(
@@ -872,8 +875,9 @@ def _map_query(
     at: At = None,
     layer: Layer = "levels",
 ) -> MapQuery:
-    """The map's parameters. For an anonymous caller, the resolution bounded
-    (``ANONYMOUS_RESOLUTION``, 422 past it) and the parameters rounded so that nearby
+    """The map's parameters. For an anonymous caller, the resolution and window bounded
+    (``ANONYMOUS_RESOLUTION``, ``ANONYMOUS_WINDOW``; 422 past them; max_distance, which costs
+    little, keeps its own bound) and the parameters rounded so that nearby
     requests share the cache: the bbox outward to 0.01°, ``at`` down to the minute, the
     window to the minute, max_distance to 100 m, the resolution to a multiple of 16. A
     token given must be valid (401)."""
@@ -885,6 +889,10 @@ def _map_query(
         if resolution > ANONYMOUS_RESOLUTION:
             raise Unprocessable(
                 f"resolution: at most {ANONYMOUS_RESOLUTION} without a token; got {resolution}"
+            )
+        if window > ANONYMOUS_WINDOW:
+            raise Unprocessable(
+                f"window: at most {ANONYMOUS_WINDOW} s without a token; got {window}"
             )
         if box is not None:
             box = (

@@ -103,6 +103,12 @@ def test_anonymous_maps_are_bounded_and_share_the_cache(
         r = c.get("/air/isopleths", params={"resolution": 512})
         assert r.status_code == 422
         assert "at most 256 without a token" in r.json()["detail"]
+        week = c.get("/air/isopleths", params={"window": 7 * 86400})
+        assert week.status_code == 422
+        assert "window: at most 86400 s without a token" in week.json()["detail"]
+        assert (
+            c.get("/air/isopleths", params={"window": 7 * 86400}, headers=admin).status_code == 200
+        )
         assert c.get("/air/isopleths", params={"resolution": 512}, headers=admin).status_code == 200
         a = c.get("/air/isopleths", params={"bbox": "9.10001,45.40002,9.29998,45.50003"})
         b = c.get("/air/isopleths", params={"bbox": "9.10004,45.40001,9.29999,45.50001"})
