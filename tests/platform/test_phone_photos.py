@@ -273,3 +273,21 @@ def test_a_48_mp_photo_decodes_within_its_memory_budget() -> None:
     )
     assert size == [6000, 8000, 2]
     assert peak < 2.1 * STATISTICS_PIXELS * 3, peak
+
+
+def test_a_calibration_from_photos_held_in_portrait(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """Boards rendered through K_RENDER, each stored turned with its EXIF orientation (6 and
+    8 alternately): the corners are found in the upright pictures, so the calibration gives
+    back that K, its principal point where the upright image has it."""
+    from tests.factories import K_RENDER, rendered_views, upload
+
+    views = []
+    for i, data in enumerate(rendered_views(5)):
+        upright = cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), 1), cv2.COLOR_BGR2RGB)
+        views.append((f"v{i}.jpg", with_orientation(upright, 6 if i % 2 else 8)))
+    status, c = upload(client, admin, views)
+    assert status == 201, c
+    np.testing.assert_allclose(c["K"], K_RENDER, rtol=0.002, atol=0.5)
+    assert c["rms_px"] < 0.2
