@@ -135,6 +135,21 @@ def release_all(session: Session, robot_id: str, policy: Policy) -> int:
     return len(held)
 
 
+def holds_task_on(session: Session, robot_id: str, panel_id: str, now: datetime) -> bool:
+    """Whether the robot holds a task on the panel now (claimed, its lease running)."""
+    held = session.scalar(
+        select(CleaningTask.id)
+        .where(
+            CleaningTask.robot_id == robot_id,
+            CleaningTask.panel_id == panel_id,
+            CleaningTask.status == TaskStatus.claimed,
+            CleaningTask.lease_expires_at > now,
+        )
+        .limit(1)
+    )
+    return held is not None
+
+
 def get_task(session: Session, task_id: str) -> CleaningTask:
     task = session.get(CleaningTask, task_id)
     if task is None:

@@ -35,6 +35,8 @@ class Panel(TimestampMixin, Base):
     """Latitude [°], WGS 84."""
     lon: Mapped[float | None] = mapped_column(Float)
     """Longitude [°], WGS 84."""
+    location: Mapped[str | None] = mapped_column(String(200), default=None)
+    """Where the panel is in words a robot or its crew can use ("row 3, string B, 7th")."""
     baseline_id: Mapped[str | None] = mapped_column(
         ForeignKey("baselines.id", use_alter=True), default=None
     )

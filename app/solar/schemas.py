@@ -9,12 +9,22 @@ from pydantic import Field
 
 from app.platform.schemas import Id, Lat, Lon, Out, PanelVerdictOut, Schema
 
+Location = Annotated[
+    str,
+    Field(
+        max_length=200,
+        description="Where the panel is in words a robot or its crew can use.",
+        examples=["row 3, string B, 7th from the east"],
+    ),
+]
+
 
 class PanelCreate(Schema):
     id: Id
     name: Annotated[str, Field(max_length=200)] | None = None
     lat: Lat | None = None
     lon: Lon | None = None
+    location: Location | None = None
 
 
 class PanelUpdate(Schema):
@@ -24,6 +34,7 @@ class PanelUpdate(Schema):
     name: Annotated[str, Field(max_length=200)] | None = None
     lat: Lat | None = None
     lon: Lon | None = None
+    location: Location | None = None
 
 
 PanelStateName = Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
@@ -34,6 +45,7 @@ class PanelOut(Out):
     name: str | None
     lat: float | None
     lon: float | None
+    location: str | None = None
     created_at: datetime
     retired_at: datetime | None = Field(
         None, description="When the panel was retired (DELETE); null while in service."
@@ -41,6 +53,15 @@ class PanelOut(Out):
     state: PanelStateName = Field(
         description="Its state now, as ``GET /panels/{id}/status`` reads it (a retired panel's "
         "is history)."
+    )
+    last_clean: bool | None = Field(
+        None, description="The latest usable verdict said clean (false: dirty); null before one."
+    )
+    dirty_streak: int = Field(
+        0, description="Usable verdicts in a row that said dirty, toward the cleaning trigger."
+    )
+    streak_needed: int = Field(
+        3, description="How many in a row open a cleaning task (the farm's debounce)."
     )
 
 
@@ -131,10 +152,23 @@ class TaskOut(Out):
     fail_reason: str | None
 
 
+class PanelPlace(Out):
+    """Where a task's panel is, for the robot that holds it."""
+
+    id: str
+    name: str | None
+    lat: float | None
+    lon: float | None
+    location: str | None
+
+
 class ClaimOut(Out):
     task_id: str
     panel_id: str
     lease_expires_at: datetime
+    panel: PanelPlace | None = Field(
+        None, description="The panel's name and place (lat, lon and the operator's words)."
+    )
 
 
 class FailIn(Schema):
@@ -167,6 +201,9 @@ class PanelStatus(Out):
     open_task: TaskOut | None
     ineffective: bool = Field(description="The last cleaning did not make the panel clean.")
     dirty_streak: int
+    streak_needed: int = Field(
+        3, description="Dirty verdicts in a row that open a cleaning task (the debounce)."
+    )
     retired_at: datetime | None = Field(
         None, description="When the panel was retired; its state is then history."
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Body, Query, Response
+from sqlalchemy.orm import Session
 
 from app.platform.http.deps import (
     AnyReader,
@@ -17,9 +18,10 @@ from app.platform.http.deps import (
     SessionDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
-from app.solar import cleaning
+from app.solar import cleaning, lookup
+from app.solar.models import CleaningTask
 from app.solar.panels import task_view
-from app.solar.schemas import ClaimOut, FailIn, TaskOut
+from app.solar.schemas import ClaimOut, FailIn, PanelPlace, TaskOut
 
 router = APIRouter(prefix="/cleaning", tags=["cleaning"])
 
@@ -37,8 +39,7 @@ def claim_next(session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> Clai
     task = cleaning.claim_next(session, robot.id, policy)
     if task is None:
         return Response(status_code=204)
-    assert task.lease_expires_at is not None
-    return ClaimOut(task_id=task.id, panel_id=task.panel_id, lease_expires_at=task.lease_expires_at)
+    return _claimed(session, task)
 
 
 @router.post(
@@ -50,8 +51,19 @@ def claim(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: RobotA
     """Claim this task (or renew one's own lease on it); 409 when another robot holds it."""
     assert robot.id is not None
     task = cleaning.claim(session, task_id, robot.id, policy)
+    return _claimed(session, task)
+
+
+def _claimed(session: Session, task: CleaningTask) -> ClaimOut:
+    """A claimed task with where its panel is: the robot learns it with the claim."""
     assert task.lease_expires_at is not None
-    return ClaimOut(task_id=task.id, panel_id=task.panel_id, lease_expires_at=task.lease_expires_at)
+    panel = lookup.get_panel(session, task.panel_id)
+    return ClaimOut(
+        task_id=task.id,
+        panel_id=task.panel_id,
+        lease_expires_at=task.lease_expires_at,
+        panel=PanelPlace.model_validate(panel),
+    )
 
 
 @router.post(

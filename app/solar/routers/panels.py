@@ -26,7 +26,7 @@ from app.platform.http.deps import (
     TimeRangeQuery,
     image_work,
 )
-from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
+from app.platform.http.errors import Forbidden, NotFound, Unprocessable, UnsupportedMediaType
 from app.platform.http.responses import (
     AUTH_ERRORS,
     BODY_ERRORS,
@@ -39,7 +39,7 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
 from app.platform.policy import Policy
-from app.solar import history, lookup, panels, registry, training
+from app.solar import cleaning, history, lookup, panels, registry, training
 from app.solar.core.panel_state import PanelState
 from app.solar.kind import verdict_out
 from app.solar.models import Baseline, Panel
@@ -87,9 +87,13 @@ def _out(
         name=panel.name,
         lat=panel.lat,
         lon=panel.lon,
+        location=panel.location,
         created_at=panel.created_at,
         retired_at=panel.retired_at,
         state=state if state is not None else panels.state_now(session, panel, policy),
+        last_clean=panel.last_clean,
+        dirty_streak=panel.dirty_streak,
+        streak_needed=policy.debounce,
     )
 
 
@@ -131,8 +135,14 @@ def list_panels(
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Reader) -> PanelOut:
-    """One panel."""
+def get_panel(
+    panel_id: PanelId, session: SessionDep, policy: PolicyDep, caller: AnyReader
+) -> PanelOut:
+    """One panel. A robot may read the panel of a task it holds (claimed, lease running)."""
+    if caller.role == "robot" and not cleaning.holds_task_on(
+        session, caller.id or "", panel_id, policy.now()
+    ):
+        raise Forbidden("a robot may read only the panel of a cleaning task it holds")
     return _out(session, policy, lookup.get_panel(session, panel_id))
 
 
@@ -337,6 +347,7 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         open_task=TaskOut(**panels.task_view(status.task, now)) if status.task else None,
         ineffective=status.panel.ineffective,
         dirty_streak=status.panel.dirty_streak,
+        streak_needed=policy.debounce,
         retired_at=status.panel.retired_at,
         baseline_id=status.panel.baseline_id,
         trend=TrendOut.model_validate(status.trend),
