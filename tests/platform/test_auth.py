@@ -174,6 +174,13 @@ ROBOT_MAY = {
     ("POST", "/shapes/match"),
 }
 """What a robot token may do: its cleaning tasks, its panels' state, the cells' measuring."""
+ROBOTS_ONLY = {
+    ("POST", "/cleaning/claim"),
+    ("POST", "/cleaning/tasks/{task_id}/claim"),
+    ("POST", "/cleaning/tasks/{task_id}/complete"),
+    ("POST", "/cleaning/tasks/{task_id}/fail"),
+}
+"""What the admin may not do: a robot's own work on its tasks."""
 OPEN_TO_ALL = {("GET", "/air/alerts")}
 """Public, but a token given must be valid (the admin sees more)."""
 
@@ -202,7 +209,8 @@ class TestViewers:
         """Every operation that takes a token: 401 without one or with a wrong one; a viewer
         is refused (403) everything but the boards' reads, a robot everything but its tasks,
         panels and the cells' measuring, a camera everything here (its own frames' upload
-        names its own id); each passes what it may."""
+        names its own id); each passes what it may, the admin everything but a robot's own work
+        on its tasks, never with a 5xx."""
         operations = _secured(client)
         assert len(operations) > 50
         assert VIEWER_READS <= set(operations)
@@ -212,6 +220,12 @@ class TestViewers:
             assert r.status_code == 401, (method, path, r.status_code)
             r = client.request(method, url)
             assert r.status_code == (200 if (method, path) in OPEN_TO_ALL else 401), (method, path)
+            r = client.request(method, url, headers=bearer(ADMIN_TOKEN))
+            if (method, path) in ROBOTS_ONLY:
+                assert r.status_code == 403, ("admin", method, path, r.text)
+            else:
+                assert r.status_code not in (401, 403), ("admin", method, path, r.text)
+            assert r.status_code < 500, ("admin", method, path, r.text)
             for role, token, may in (
                 ("viewer", viewer["token"], VIEWER_READS),
                 ("robot", tokens["robot"], ROBOT_MAY),
