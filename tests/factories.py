@@ -655,3 +655,21 @@ def tiff_bomb(first: tuple[int, int] = (16000, 16000), last: tuple[int, int] = (
     out += struct.pack(f"<{h}I", *([strip_at] * h))
     out += struct.pack(f"<{h}I", *([len(strip)] * h))
     return bytes(out + strip)
+
+
+SAND = np.array([190.0, 180.0, 160.0])
+
+
+def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
+    """The fleet model from 8 clean photos and 8 half covered in sand (seeded)."""
+    rng = np.random.default_rng(5)
+    files, labels = [], []
+    for i in range(8):
+        c = CLEAN_RGB + rng.normal(0, 6, 3)
+        d = 0.5 * c + 0.5 * SAND
+        files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
+        files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
+        labels += ["clean", "dirty"]
+    r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+    assert r.status_code == 201, r.text
+    return r

@@ -18,7 +18,7 @@ from app.platform.frames.cameras import check_in_service
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.schemas import PanelVerdictOut
-from app.solar import panels
+from app.solar import labels, panels
 from app.solar.core import fleet
 from app.solar.models import Baseline, Panel, PanelVerdict, Robot
 
@@ -77,9 +77,10 @@ def verdict_out(verdict: Verdict) -> PanelVerdictOut:
 
 
 def _baseline_frames(session: Session) -> Iterator[str]:
-    """The frames baselines were trained from."""
+    """The frames baselines were trained from, and those the farm labelled (to learn from)."""
     for ids in session.scalars(select(Baseline.frame_ids)):
         yield from ids or []
+    yield from labels.labelled_frames(session)
 
 
 HANDLER = KindHandler(

@@ -187,3 +187,18 @@ class PanelVerdict(Verdict):
     a baseline cannot be trained from those."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}
+
+
+class FrameLabel(Base):
+    """What a panel frame truly shows, as the farm said it: an operator labelling a frame the
+    fleet model doubted, or a robot's cleaning (the frames just before it dirty, just after it
+    clean). Labelled frames are kept past retention: they are what the model can learn from."""
+
+    __tablename__ = "frame_labels"
+
+    frame_id: Mapped[str] = mapped_column(ForeignKey("frames.id"), primary_key=True)
+    label: Mapped[str] = mapped_column(String(16))
+    """clean, dust, bird_drop or snow."""
+    source: Mapped[str] = mapped_column(String(16))
+    """operator (through the API or the farm board) or robot (a cleaning's before and after)."""
+    labelled_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)

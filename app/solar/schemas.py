@@ -280,3 +280,38 @@ class HistoryBucket(Out):
     t2_max: float | None
     p_value_min: float | None = Field(description="Smallest p-value (eq. 5.20's F).")
     p_dirty_mean: float | None = Field(description="Mean p_dirty of those judged by the fleet.")
+
+
+FleetLabel = Literal["clean", "dust", "bird_drop", "snow"]
+
+
+class DoubtOut(Out):
+    """A frame the fleet model would not judge: neither clean nor dirty with confidence, or
+    unlike every photo it learnt from."""
+
+    frame_id: str
+    camera_id: str
+    panel_id: str | None
+    captured_at: datetime
+    p_dirty: float | None = Field(
+        description="The model's probability of dirty, for what it is worth."
+    )
+    reason: str | None = Field(description="Why the model doubted it.")
+    label: FleetLabel | None = Field(description="The farm's label, once given.")
+    image: str = Field(description="The frame's region, to look at (GET, admin or viewer).")
+
+
+class LabelIn(Schema):
+    label: FleetLabel
+
+
+class LabelOut(Out):
+    frame_id: str
+    label: str
+    source: str = Field(description="operator or robot.")
+    labelled_at: datetime
+
+
+class LabelCounts(Out):
+    counts: dict[str, int] = Field(description="Frames the farm labelled, by label.")
+    total: int

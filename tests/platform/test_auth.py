@@ -147,6 +147,8 @@ VIEWER_READS = {
     ("GET", "/cleaning/tasks"),
     ("GET", "/cleaning/tasks/{task_id}"),
     ("GET", "/fleet/model"),
+    ("GET", "/fleet/doubts"),
+    ("GET", "/fleet/labels"),
     ("GET", "/frames/{frame_id}/region.jpg"),
     ("GET", "/calibrations"),
     ("GET", "/calibrations/{calibration_id}"),

@@ -16,6 +16,7 @@ from scipy import stats
 from tests.factories import (
     CLEAN_RGB,
     DUST,
+    SAND,
     TASK_FACTS,
     Clock,
     bearer,
@@ -26,6 +27,7 @@ from tests.factories import (
     store_farm,
     table_counts,
     train,
+    train_fleet,
 )
 
 
@@ -848,24 +850,6 @@ class TestEvaluate:
         assert (out["hotelling"]["df1"], out["hotelling"]["df2"]) == (3, 14)
         assert out["dirty_called_clean"] == 0.0
         assert out["n_clean"] == 12
-
-
-SAND = np.array([190.0, 180.0, 160.0])
-
-
-def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
-    """The fleet model from 8 clean photos and 8 half covered in sand (seeded)."""
-    rng = np.random.default_rng(5)
-    files, labels = [], []
-    for i in range(8):
-        c = CLEAN_RGB + rng.normal(0, 6, 3)
-        d = 0.5 * c + 0.5 * SAND
-        files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
-        files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
-        labels += ["clean", "dirty"]
-    r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
-    assert r.status_code == 201, r.text
-    return r
 
 
 class TestFleetModel:

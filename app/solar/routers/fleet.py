@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from functools import partial
+from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import CameraKind
@@ -13,8 +14,11 @@ from app.platform.frames import ingest
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.http.deps import (
     Admin,
+    Limit,
+    Offset,
     PolicyDep,
     Reader,
+    RecordId,
     SessionDep,
     SettingsDep,
     image_work,
@@ -29,8 +33,8 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_form
 from app.platform.policy import Policy
-from app.solar import panels, training
-from app.solar.schemas import FleetModelOut
+from app.solar import labels, panels, training
+from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
 
@@ -101,3 +105,57 @@ def current(session: SessionDep, _: Reader) -> FleetModelOut:
     if row is None:
         raise NotFound("no fleet model has been trained")
     return FleetModelOut.model_validate(row)
+
+
+@router.get("/doubts", response_model=list[DoubtOut], responses=AUTH_ERRORS)
+def doubts(
+    session: SessionDep,
+    _: Reader,
+    unlabelled: Annotated[
+        bool, Query(description="Only frames the farm has not labelled yet (the default).")
+    ] = True,
+    limit: Limit = 50,
+    offset: Offset = 0,
+) -> list[DoubtOut]:
+    """The frames the fleet model doubted, newest first, for an operator to label: each with
+    its image (the frame's region) and the model's reason."""
+    rows = labels.doubted(session, unlabelled=unlabelled, limit=limit, offset=offset)
+    return [
+        DoubtOut(
+            frame_id=d.frame_id,
+            camera_id=d.camera_id,
+            panel_id=d.panel_id,
+            captured_at=d.captured_at,
+            p_dirty=d.p_dirty,
+            reason=d.reason,
+            label=d.label,
+            image=f"/frames/{d.frame_id}/region.jpg",
+        )
+        for d in rows
+    ]
+
+
+@router.put(
+    "/labels/{frame_id}", response_model=LabelOut, responses={**AUTH_ERRORS, **UNPROCESSABLE}
+)
+def put_label(
+    frame_id: RecordId, body: LabelIn, session: SessionDep, policy: PolicyDep, _: Admin
+) -> LabelOut:
+    """What a panel frame truly shows (clean, dust, bird_drop, snow), as the operator says;
+    replaces any label it had. The frame is kept past retention, to learn from."""
+    row = labels.set_label(session, frame_id, body.label, source="operator", now=policy.now())
+    return LabelOut.model_validate(row)
+
+
+@router.delete("/labels/{frame_id}", status_code=204, responses={**AUTH_ERRORS, **NOT_FOUND})
+def delete_label(frame_id: RecordId, session: SessionDep, _: Admin) -> Response:
+    """Take a frame's label back."""
+    labels.remove_label(session, frame_id)
+    return Response(status_code=204)
+
+
+@router.get("/labels", response_model=LabelCounts, responses=AUTH_ERRORS)
+def label_counts(session: SessionDep, _: Reader) -> LabelCounts:
+    """How many frames the farm has labelled, by label."""
+    counts = labels.counts(session)
+    return LabelCounts(counts=counts, total=sum(counts.values()))

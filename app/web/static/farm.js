@@ -57,12 +57,56 @@
     return `Fleet model of ${new Date(m.created_at).toLocaleDateString()}: ${photos} photos${of}${score}.`;
   }
 
+  // The frames the fleet model would not judge, to label: what the farm teaches the model.
+  // A viewer sees them; only the admin's labels are taken (a viewer is told so).
+  const LABELS = ["clean", "dust", "bird_drop", "snow"];
+
+  async function doubts() {
+    const [list, given] = await Promise.all([json("/fleet/doubts?limit=12"), json("/fleet/labels")]);
+    $("labels").textContent = given.total
+      ? `The farm has labelled ${given.total} frames: ${LABELS.map((l) => `${l.replace("_", " ")} ${given.counts[l]}`).join(", ")}.`
+      : "The farm has labelled no frames yet.";
+    const box = $("doubts");
+    box.replaceChildren();
+    if (!list.length) {
+      const p = document.createElement("p");
+      p.textContent = "None: the model judged every frame it was given.";
+      box.append(p);
+    }
+    for (const d of list) {
+      const fig = document.createElement("figure");
+      fig.className = "doubt";
+      fig.dataset.frame = d.frame_id;
+      const img = document.createElement("img");
+      img.alt = `frame ${d.frame_id}`;
+      const cap = document.createElement("figcaption");
+      cap.textContent = `${d.panel_id || d.camera_id}, ${new Date(d.captured_at).toLocaleString()}: ${d.reason || "doubted"}`;
+      fig.append(img, cap);
+      for (const label of LABELS) {
+        const b = document.createElement("button");
+        b.type = "button";
+        b.textContent = label.replace("_", " ");
+        b.onclick = async () => {
+          const r = await Auth.api(`/fleet/labels/${encodeURIComponent(d.frame_id)}`, {
+            method: "PUT", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ label }),
+          });
+          if (r.ok) return doubts();
+          cap.textContent = r.status === 403 ? "Only the admin's labels are taken (this token reads only)." : `Not labelled: HTTP ${r.status}`;
+        };
+        fig.append(b);
+      }
+      box.append(fig);
+      Auth.api(d.image).then(async (r) => { if (r.ok) img.src = URL.createObjectURL(await r.blob()); });
+    }
+  }
+
   async function load() {
     const [panels, counts, tasks, model] = await Promise.all([
       json("/panels?limit=1000"),
       json("/panel-states"),
       json("/cleaning/tasks?limit=500"),
       fleet(),
+      doubts(),
     ]);
     $("fleet").textContent = model;
     $("counts").textContent = Object.entries(counts.states).map(([k, v]) => `${NAMES[k] || k}: ${v}`).join(" · ") + ` (of ${counts.total})`;

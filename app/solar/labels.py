@@ -1,0 +1,116 @@
+"""The farm teaches the fleet model: the frames it doubted, listed for an operator, and the
+labels the farm gives frames (``FrameLabel``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.platform.db.models import Camera, CameraKind, Frame
+from app.platform.http.errors import NotFound, Unprocessable
+from app.solar.models import FrameLabel, PanelVerdict
+from app.solar.training import FLEET_LABELS
+
+
+@dataclass(frozen=True, slots=True)
+class Doubted:
+    """A frame the fleet model would not judge, and the farm's label for it if any."""
+
+    frame_id: str
+    camera_id: str
+    panel_id: str | None
+    captured_at: datetime
+    p_dirty: float | None
+    reason: str | None
+    label: str | None
+
+
+def doubted(session: Session, *, unlabelled: bool, limit: int, offset: int) -> list[Doubted]:
+    """Frames the fleet model doubted (it answered neither clean nor dirty, and saw no snow),
+    newest first; with ``unlabelled``, only those the farm has not labelled yet."""
+    query = (
+        select(Frame, PanelVerdict, FrameLabel.label)
+        .join(PanelVerdict, PanelVerdict.frame_id == Frame.id)
+        .outerjoin(FrameLabel, FrameLabel.frame_id == Frame.id)
+        .where(
+            PanelVerdict.method == "fleet",
+            PanelVerdict.clean.is_(None),
+            PanelVerdict.condition.is_(None),
+            Frame.stored_path.is_not(None),
+        )
+        .order_by(Frame.captured_at.desc(), Frame.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
+    if unlabelled:
+        query = query.where(FrameLabel.frame_id.is_(None))
+    return [
+        Doubted(
+            frame.id,
+            frame.camera_id,
+            verdict.panel_id,
+            frame.captured_at,
+            verdict.p_dirty,
+            verdict.reason,
+            label,
+        )
+        for frame, verdict, label in session.execute(query)
+    ]
+
+
+def set_label(
+    session: Session, frame_id: str, label: str, *, source: str, now: datetime
+) -> FrameLabel:
+    """Label a panel camera's stored frame (replacing any label it had). 422 naming the frame
+    when there is no such frame, it is not a panel camera's, or its image is no longer kept
+    (nothing to learn from); 422 naming the label outside the set."""
+    if label not in FLEET_LABELS:
+        raise Unprocessable(
+            f"label {label!r} is not one of {', '.join(FLEET_LABELS)}", code="bad_label"
+        )
+    row = session.execute(
+        select(Frame, Camera.kind)
+        .join(Camera, Camera.id == Frame.camera_id)
+        .where(Frame.id == frame_id)
+    ).first()
+    if row is None:
+        raise Unprocessable(f"there is no frame {frame_id!r} to label", code="unknown_frame")
+    frame, kind = row
+    if kind != CameraKind.panel:
+        raise Unprocessable(
+            f"frame {frame_id!r} is a {kind.value} camera's, not a panel's", code="not_a_panel"
+        )
+    if frame.stored_path is None:
+        raise Unprocessable(
+            f"frame {frame_id!r} was not kept: there is no image to learn from",
+            code="frame_not_kept",
+        )
+    found = session.get(FrameLabel, frame_id)
+    if found is None:
+        found = FrameLabel(frame_id=frame_id)
+        session.add(found)
+    found.label, found.source, found.labelled_at = label, source, now
+    session.flush()
+    return found
+
+
+def remove_label(session: Session, frame_id: str) -> None:
+    found = session.get(FrameLabel, frame_id)
+    if found is None:
+        raise NotFound(f"frame {frame_id!r} has no label")
+    session.delete(found)
+
+
+def counts(session: Session) -> dict[str, int]:
+    """How many frames the farm has labelled, by label (every label, zeros included)."""
+    rows = session.execute(select(FrameLabel.label, func.count()).group_by(FrameLabel.label))
+    found = {label: int(n) for label, n in rows}
+    return {label: found.get(label, 0) for label in FLEET_LABELS}
+
+
+def labelled_frames(session: Session) -> list[str]:
+    """Every labelled frame's id: retention keeps their images."""
+    return list(session.scalars(select(FrameLabel.frame_id)))

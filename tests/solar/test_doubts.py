@@ -1,0 +1,98 @@
+"""The farm teaches the fleet model: the frames it doubted are listed for an operator, who
+labels them (clean, dust, bird_drop, snow); labelled frames are kept past retention."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.solar.kind import HANDLER
+from tests.factories import CLEAN_RGB, SAND, Clock, bearer, panel_jpeg, sky_jpeg, train_fleet
+
+
+@pytest.fixture
+def doubted(client: TestClient, admin: dict[str, str], clock: Clock) -> dict[str, Any]:
+    """A fleet model, and three frames of a view unlike its photos (a small crop): doubted."""
+    assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
+    train_fleet(client, admin)
+    cam = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
+    token = client.post("/cameras", json=cam, headers=admin).json()["token"]
+    frames = []
+    for k in range(3):
+        clock.advance(minutes=10)
+        dusty = panel_jpeg(0.5 * CLEAN_RGB + 0.5 * SAND, seed=k)
+        r = client.post(
+            "/cameras/c2/frames",
+            content=dusty,
+            headers={**bearer(token), "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        assert r.json()["verdict"]["clean"] is None
+        frames.append(r.json()["frame_id"])
+    viewer = client.post("/viewers", json={"name": "board"}, headers=admin).json()["token"]
+    return {"frames": frames, "viewer": bearer(viewer), "camera": bearer(token)}
+
+
+def test_doubted_frames_are_listed_newest_first(
+    client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
+) -> None:
+    listed = client.get("/fleet/doubts", headers=doubted["viewer"])
+    assert listed.status_code == 200, listed.text
+    rows = listed.json()
+    assert [d["frame_id"] for d in rows] == doubted["frames"][::-1]
+    assert all(d["reason"].startswith("unlike every photo") for d in rows)
+    assert all(d["label"] is None for d in rows)
+    image = client.get(rows[0]["image"], headers=doubted["viewer"])
+    assert image.status_code == 200
+    assert image.headers["content-type"] == "image/jpeg"
+    assert client.get("/fleet/doubts", headers=doubted["camera"]).status_code == 403
+
+
+def test_an_operator_labels_them(
+    client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
+) -> None:
+    first, second, _ = doubted["frames"]
+    r = client.put(f"/fleet/labels/{first}", json={"label": "dust"}, headers=admin)
+    assert r.status_code == 200, r.text
+    assert (r.json()["label"], r.json()["source"]) == ("dust", "operator")
+    client.put(f"/fleet/labels/{second}", json={"label": "clean"}, headers=admin)
+    client.put(f"/fleet/labels/{second}", json={"label": "bird_drop"}, headers=admin)  # replaced
+    left = client.get("/fleet/doubts", headers=admin).json()
+    assert [d["frame_id"] for d in left] == [doubted["frames"][2]]
+    every = client.get("/fleet/doubts", params={"unlabelled": False}, headers=admin).json()
+    assert {d["frame_id"]: d["label"] for d in every}[first] == "dust"
+    counts = client.get("/fleet/labels", headers=doubted["viewer"]).json()
+    assert counts == {"counts": {"clean": 0, "dust": 1, "bird_drop": 1, "snow": 0}, "total": 2}
+    # what the farm labelled is kept past retention: training data
+    with client.app.state.sessionmaker() as session:
+        assert {first, second} <= set(HANDLER.kept_frames(session))
+    assert client.delete(f"/fleet/labels/{first}", headers=admin).status_code == 204
+    assert client.delete(f"/fleet/labels/{first}", headers=admin).status_code == 404
+
+
+def test_bad_labels_are_refused_and_change_nothing(
+    client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
+) -> None:
+    first = doubted["frames"][0]
+    viewer = client.put(f"/fleet/labels/{first}", json={"label": "dust"}, headers=doubted["viewer"])
+    assert viewer.status_code == 403
+    shiny = client.put(f"/fleet/labels/{first}", json={"label": "shiny"}, headers=admin)
+    assert shiny.status_code == 422
+    assert "label" in shiny.json()["detail"]
+    missing = client.put("/fleet/labels/no-such-frame", json={"label": "dust"}, headers=admin)
+    assert missing.status_code == 422
+    assert "no-such-frame" in missing.json()["detail"]
+    sky = client.post("/cameras", json={"id": "s1", "kind": "sky"}, headers=admin).json()
+    up = client.post(
+        "/cameras/s1/frames",
+        content=sky_jpeg(5),
+        headers={**bearer(sky["token"]), "Content-Type": "image/jpeg"},
+    )
+    other = client.put(
+        f"/fleet/labels/{up.json()['frame_id']}", json={"label": "clean"}, headers=admin
+    )
+    assert other.status_code == 422
+    assert "sky camera's, not a panel's" in other.json()["detail"]
+    assert client.get("/fleet/labels", headers=admin).json()["total"] == 0
