@@ -660,8 +660,8 @@ def tiff_bomb(first: tuple[int, int] = (16000, 16000), last: tuple[int, int] = (
 SAND = np.array([190.0, 180.0, 160.0])
 
 
-def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
-    """The fleet model from 8 clean photos and 8 half covered in sand (seeded)."""
+def fleet_photos() -> tuple[list[Any], list[str]]:
+    """8 clean photos and 8 half covered in sand (seeded), as form parts, and their labels."""
     rng = np.random.default_rng(5)
     files, labels = [], []
     for i in range(8):
@@ -669,7 +669,13 @@ def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
         d = 0.5 * c + 0.5 * SAND
         files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
         files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
-        labels += ["clean", "dirty"]
+        labels += ["clean", "dust"]
+    return files, labels
+
+
+def train_fleet(client: TestClient, admin: dict[str, str]) -> Any:
+    """The fleet model from ``fleet_photos``."""
+    files, labels = fleet_photos()
     r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
     assert r.status_code == 201, r.text
     return r

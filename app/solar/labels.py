@@ -3,6 +3,7 @@ labels the farm gives frames (``FrameLabel``)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -10,6 +11,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import Camera, CameraKind, Frame
+from app.platform.frames.camera_info import CameraInfo, parse_region
 from app.platform.http.errors import NotFound, Unprocessable
 from app.solar.models import FrameLabel, PanelVerdict
 from app.solar.training import FLEET_LABELS
@@ -114,3 +116,44 @@ def counts(session: Session) -> dict[str, int]:
 def labelled_frames(session: Session) -> list[str]:
     """Every labelled frame's id: retention keeps their images."""
     return list(session.scalars(select(FrameLabel.frame_id)))
+
+
+@dataclass(frozen=True, slots=True)
+class Stored:
+    """A labelled stored frame to learn from: where its image is and how it was measured."""
+
+    frame_id: str
+    stored_path: str
+    camera: CameraInfo
+    label: str
+    group: str
+    """Its panel (or camera): the folds keep a panel's frames together."""
+
+
+def stored_to_learn(session: Session, frame_ids: Sequence[str]) -> list[Stored]:
+    """The labelled panel frames ``frame_ids``, in that order, each with the region its
+    camera measured it in. 422 naming those that are unknown, unlabelled or no longer kept."""
+    rows = session.execute(
+        select(Frame, PanelVerdict, FrameLabel.label)
+        .join(PanelVerdict, PanelVerdict.frame_id == Frame.id)
+        .join(FrameLabel, FrameLabel.frame_id == Frame.id)
+        .where(Frame.id.in_(frame_ids), Frame.stored_path.is_not(None))
+    ).all()
+    found = {frame.id: (frame, verdict, label) for frame, verdict, label in rows}
+    missing = [f for f in frame_ids if f not in found]
+    if missing:
+        raise Unprocessable(
+            f"frame(s) {', '.join(missing[:10])} are not labelled panel frames whose image is "
+            "kept: label them first (PUT /fleet/labels/{frame_id})",
+            code="unlabelled_frames",
+        )
+    out = []
+    for frame_id in frame_ids:
+        frame, verdict, label = found[frame_id]
+        roi, polygon = parse_region(verdict.roi)
+        camera = CameraInfo(
+            frame.camera_id, CameraKind.panel, verdict.panel_id, roi, False, polygon
+        )
+        group = verdict.panel_id or frame.camera_id
+        out.append(Stored(frame_id, str(frame.stored_path), camera, label, group))
+    return out

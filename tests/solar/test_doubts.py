@@ -9,7 +9,16 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.solar.kind import HANDLER
-from tests.factories import CLEAN_RGB, SAND, Clock, bearer, panel_jpeg, sky_jpeg, train_fleet
+from tests.factories import (
+    CLEAN_RGB,
+    SAND,
+    Clock,
+    bearer,
+    fleet_photos,
+    panel_jpeg,
+    sky_jpeg,
+    train_fleet,
+)
 
 
 @pytest.fixture
@@ -96,3 +105,27 @@ def test_bad_labels_are_refused_and_change_nothing(
     assert other.status_code == 422
     assert "sky camera's, not a panel's" in other.json()["detail"]
     assert client.get("/fleet/labels", headers=admin).json()["total"] == 0
+
+
+def test_the_model_learns_from_the_farms_labels(
+    client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
+) -> None:
+    """The doubted frames, labelled dust, join the uploaded photos: the model counts them,
+    each measured in its camera's region; unlabelled frames are refused by name."""
+    before = client.get("/fleet/model", headers=admin).json()
+    for frame in doubted["frames"]:
+        client.put(f"/fleet/labels/{frame}", json={"label": "dust"}, headers=admin)
+    files, labels = fleet_photos()
+    data = {"labels": labels, "frame_ids": doubted["frames"]}
+    r = client.post("/fleet/model", files=files, data=data, headers=admin)
+    assert r.status_code == 201, r.text
+    assert r.json()["n_dirty"] == before["n_dirty"] + 3
+    assert r.json()["n_clean"] == before["n_clean"]
+    # on their own, three frames of one panel are too few to learn from: said, not a 500
+    alone = client.post("/fleet/model", json={"frame_ids": doubted["frames"]}, headers=admin)
+    assert alone.status_code == 422, alone.text
+    client.delete(f"/fleet/labels/{doubted['frames'][0]}", headers=admin)
+    unlabelled = client.post("/fleet/model", files=files, data=data, headers=admin)
+    assert unlabelled.status_code == 422
+    assert doubted["frames"][0] in unlabelled.json()["detail"]
+    assert client.get("/fleet/model", headers=admin).json()["n_dirty"] == before["n_dirty"] + 3

@@ -7,6 +7,8 @@ from typing import Annotated
 
 import numpy as np
 from fastapi import APIRouter, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from pydantic import Field
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import CameraKind
@@ -31,9 +33,11 @@ from app.platform.http.responses import (
     UNPROCESSABLE,
     multipart_body,
 )
-from app.platform.http.uploads import content_type, read_form
+from app.platform.http.uploads import content_type, read_form, read_json
 from app.platform.policy import Policy
-from app.solar import labels, panels, training
+from app.platform.schemas import Schema
+from app.solar import labels as labels_service
+from app.solar import panels, training
 from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
@@ -46,12 +50,23 @@ def _train(
     files: list[tuple[str | None, bytes]],
     labels: list[str],
     groups: list[str] | None,
+    stored: list[tuple[labels_service.Stored, bytes]],
     max_pixels: int,
     policy: Policy,
 ) -> FleetModelOut:
+    """The model from the uploaded photos and the farm's labelled stored frames (each measured
+    in its camera's region, grouped by its panel). Mixed with stored frames, uploaded photos
+    without groups are each a group of their own."""
     camera = CameraInfo(id="upload", kind=CameraKind.panel, panel_id=None, roi=None)
     decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
-    features = np.array([d.features for d in decoded], dtype=np.float64)
+    rows = [d.features for d in decoded]
+    for s, data in stored:
+        rows.append(ingest.analyse(data, camera=s.camera, max_pixels=max_pixels).features)
+    features = np.array(rows, dtype=np.float64)
+    labels = [*labels, *(s.label for s, _ in stored)]
+    if stored:
+        named = groups or [f"upload-{i}" for i in range(len(files))]
+        groups = [*named, *(s.group for s, _ in stored)]
     row = training.fit_fleet(features, labels, now=policy.now(), groups=groups)
     session.add(row)
     session.flush()
@@ -71,6 +86,8 @@ async def train(
     """Train the fleet model from labelled photos of many panels: ≥ 5 clean and ≥ 5 needing
     cleaning (dust or bird_drop); snow photos teach it snow (a snow-covered panel is reported
     as such and opens no brushing task), bird_drop photos droppings from dust (≥ 3 each).
+    The farm's labelled frames join them: repeated ``frame_ids`` in the form, or JSON
+    ``{"frame_ids": [...]}`` alone (``PUT /fleet/labels/{frame_id}`` labels them).
 
     Multipart: repeated ``files`` and, in the same order, ``labels`` (clean, dust, bird_drop,
     snow; dirty is read as dust), and optionally ``groups``: each photo's panel (or any name
@@ -79,23 +96,61 @@ async def train(
     they speak of panels the model never saw; at least 5 groups of clean photos and 5 of
     photos needing cleaning.
     """
-    if content_type(request) != "multipart/form-data":
-        raise UnsupportedMediaType("send multipart/form-data with files and labels")
-    form = await read_form(
-        request, settings.max_upload_bytes, max_files=5000, parts=("files", "labels", "groups")
-    )
-    files, labels = form.files_of("files"), form.fields.get("labels", [])
+    kind = content_type(request)
+    groups: list[str] | None = None
+    if kind == "application/json":
+        body = await read_json(request, FromFrames, settings.max_body_bytes)
+        files, labels, frame_ids = [], [], body.frame_ids
+    elif kind == "multipart/form-data":
+        form = await read_form(
+            request,
+            settings.max_upload_bytes,
+            max_files=5000,
+            parts=("files", "labels", "groups", "frame_ids"),
+        )
+        files, labels = form.files_of("files"), form.fields.get("labels", [])
+        frame_ids = form.fields.get("frame_ids", [])
+        groups = form.groups_of(len(files))
+    else:
+        raise UnsupportedMediaType(
+            "send multipart/form-data (files and labels, frame_ids) or application/json (frame_ids)"
+        )
     if len(files) != len(labels):
         raise Unprocessable(f"{len(files)} files but {len(labels)} labels; give one label each")
-    groups = form.groups_of(len(files))
     bad = sorted({label for label in labels if label not in LABELS})
     if bad:
         raise Unprocessable(
             f"labels must be {', '.join(LABELS)}; got {', '.join(bad)}", code="unknown_label"
         )
+    stored = await _stored(request, session, frame_ids)
     return await image_work(
-        request, partial(_train, session, files, labels, groups, settings.max_pixels, policy)
+        request,
+        partial(_train, session, files, labels, groups, stored, settings.max_pixels, policy),
     )
+
+
+class FromFrames(Schema):
+    frame_ids: Annotated[
+        list[Annotated[str, Field(max_length=36)]], Field(min_length=1, max_length=5000)
+    ]
+
+
+async def _stored(
+    request: Request, session: Session, frame_ids: list[str]
+) -> list[tuple[labels_service.Stored, bytes]]:
+    """The labelled stored frames and their bytes, read from the frame store."""
+    if not frame_ids:
+        return []
+    if len(set(frame_ids)) != len(frame_ids):
+        raise Unprocessable("frame_ids names a frame twice", code="duplicate_frames")
+    found = await run_in_threadpool(labels_service.stored_to_learn, session, frame_ids)
+    out = []
+    for s in found:
+        data = await request.app.state.bounded_store.read(s.stored_path)
+        if data is None:
+            raise Unprocessable(f"the image of frame {s.frame_id!r} is no longer kept")
+        out.append((s, data))
+    return out
 
 
 @router.get("/model", response_model=FleetModelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
@@ -119,7 +174,7 @@ def doubts(
 ) -> list[DoubtOut]:
     """The frames the fleet model doubted, newest first, for an operator to label: each with
     its image (the frame's region) and the model's reason."""
-    rows = labels.doubted(session, unlabelled=unlabelled, limit=limit, offset=offset)
+    rows = labels_service.doubted(session, unlabelled=unlabelled, limit=limit, offset=offset)
     return [
         DoubtOut(
             frame_id=d.frame_id,
@@ -143,19 +198,21 @@ def put_label(
 ) -> LabelOut:
     """What a panel frame truly shows (clean, dust, bird_drop, snow), as the operator says;
     replaces any label it had. The frame is kept past retention, to learn from."""
-    row = labels.set_label(session, frame_id, body.label, source="operator", now=policy.now())
+    row = labels_service.set_label(
+        session, frame_id, body.label, source="operator", now=policy.now()
+    )
     return LabelOut.model_validate(row)
 
 
 @router.delete("/labels/{frame_id}", status_code=204, responses={**AUTH_ERRORS, **NOT_FOUND})
 def delete_label(frame_id: RecordId, session: SessionDep, _: Admin) -> Response:
     """Take a frame's label back."""
-    labels.remove_label(session, frame_id)
+    labels_service.remove_label(session, frame_id)
     return Response(status_code=204)
 
 
 @router.get("/labels", response_model=LabelCounts, responses=AUTH_ERRORS)
 def label_counts(session: SessionDep, _: Reader) -> LabelCounts:
     """How many frames the farm has labelled, by label."""
-    counts = labels.counts(session)
+    counts = labels_service.counts(session)
     return LabelCounts(counts=counts, total=sum(counts.values()))
