@@ -14,7 +14,9 @@ from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames.camera_info import CameraInfo, parse_region
 from app.platform.http.errors import NotFound, Unprocessable
 from app.solar.models import FrameLabel, PanelVerdict
-from app.solar.training import FLEET_LABELS
+
+LABELS = ("clean", "dust", "bird_drop", "snow")
+"""What the farm may say a panel frame shows (the fleet model's labels)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,10 +71,8 @@ def set_label(
     """Label a panel camera's stored frame (replacing any label it had). 422 naming the frame
     when there is no such frame, it is not a panel camera's, or its image is no longer kept
     (nothing to learn from); 422 naming the label outside the set."""
-    if label not in FLEET_LABELS:
-        raise Unprocessable(
-            f"label {label!r} is not one of {', '.join(FLEET_LABELS)}", code="bad_label"
-        )
+    if label not in LABELS:
+        raise Unprocessable(f"label {label!r} is not one of {', '.join(LABELS)}", code="bad_label")
     row = session.execute(
         select(Frame, Camera.kind)
         .join(Camera, Camera.id == Frame.camera_id)
@@ -110,7 +110,7 @@ def counts(session: Session) -> dict[str, int]:
     """How many frames the farm has labelled, by label (every label, zeros included)."""
     rows = session.execute(select(FrameLabel.label, func.count()).group_by(FrameLabel.label))
     found = {label: int(n) for label, n in rows}
-    return {label: found.get(label, 0) for label in FLEET_LABELS}
+    return {label: found.get(label, 0) for label in LABELS}
 
 
 def labelled_frames(session: Session) -> list[str]:
@@ -157,3 +157,32 @@ def stored_to_learn(session: Session, frame_ids: Sequence[str]) -> list[Stored]:
         group = verdict.panel_id or frame.camera_id
         out.append(Stored(frame_id, str(frame.stored_path), camera, label, group))
     return out
+
+
+def learn_from_cleaning(
+    session: Session, panel_id: str, completed_at: datetime, after: Frame, now: datetime
+) -> None:
+    """A robot's cleaning confirmed by ``after`` (the frame that found the panel clean): it is
+    labelled clean, and the panel's last frame judged dirty before the cleaning dust. Frames
+    without a kept image, and those an operator labelled, are left as they are."""
+    before = session.scalar(
+        select(Frame)
+        .join(PanelVerdict, PanelVerdict.frame_id == Frame.id)
+        .where(
+            PanelVerdict.panel_id == panel_id,
+            PanelVerdict.clean.is_(False),
+            Frame.captured_at < completed_at,
+        )
+        .order_by(Frame.captured_at.desc())
+        .limit(1)
+    )
+    for frame, label in ((before, "dust"), (after, "clean")):
+        if frame is None or frame.stored_path is None:
+            continue
+        found = session.get(FrameLabel, frame.id)
+        if found is not None and found.source == "operator":
+            continue
+        if found is None:
+            found = FrameLabel(frame_id=frame.id)
+            session.add(found)
+        found.label, found.source, found.labelled_at = label, "robot", now

@@ -21,7 +21,7 @@ from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
 from app.platform.memo import ById
 from app.platform.policy import Policy
-from app.solar import events
+from app.solar import events, labels
 from app.solar.cleaning import shown_as
 from app.solar.core import power
 from app.solar.core.fleet import Head, KernelModel, LogisticModel
@@ -406,9 +406,13 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     verdict.late = verdict.clean is not None and is_late(panel, task, frame.captured_at)
     if verdict.clean is not None and not verdict.late:
         panel.last_judged_at = frame.captured_at
+        held = task
         task = apply_verdict(
             session, panel, task, verdict.clean, now, policy, fleet_available=fleet_available
         )
+        if held is not None and held.outcome == "effective" and held.completed_at is not None:
+            # the robot's cleaning teaches the fleet model: before it dirty, after it clean
+            labels.learn_from_cleaning(session, panel.id, held.completed_at, frame, now)
     after = facts(panel, task, now, fleet_available=fleet_available)
     verdict.state = state_of(after, debounce=policy.debounce).value
     return verdict

@@ -28,7 +28,7 @@ from app.platform.frames.camera_info import (
 from app.platform.frames.cameras import check_in_service
 from app.platform.frames.kinds import Decoded
 from app.platform.http.errors import Unprocessable
-from app.solar import events
+from app.solar import events, labels
 from app.solar.core import power
 from app.solar.core.fleet import ALL_FEATURES
 from app.solar.models import Baseline, FleetModel, PanelVerdict
@@ -246,7 +246,7 @@ def reach(
 FLEET_FOLDS = 5
 """Folds of the fleet model's choices and of its reported accuracy."""
 
-FLEET_LABELS = ("clean", "dust", "bird_drop", "snow")
+FLEET_LABELS = labels.LABELS
 """What a fleet photo may be labelled; ``dirty`` is read as dust."""
 
 

@@ -7,16 +7,22 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 
 from app.solar.kind import HANDLER
+from app.solar.models import FrameLabel
 from tests.factories import (
     CLEAN_RGB,
+    DUST,
     SAND,
     Clock,
     bearer,
+    clean_set,
     fleet_photos,
     panel_jpeg,
+    post_frame,
     sky_jpeg,
+    train,
     train_fleet,
 )
 
@@ -129,3 +135,33 @@ def test_the_model_learns_from_the_farms_labels(
     assert unlabelled.status_code == 422
     assert doubted["frames"][0] in unlabelled.json()["detail"]
     assert client.get("/fleet/model", headers=admin).json()["n_dirty"] == before["n_dirty"] + 3
+
+
+def test_a_robots_cleaning_labels_the_frames_around_it(
+    client: TestClient, admin: dict[str, str], clock: Clock
+) -> None:
+    """p1 judged dirty three times, cleaned by its robot, then seen clean: the last dirty
+    frame before the cleaning is labelled dust, the frame that confirmed it clean, both by
+    the robot; an operator's label is not overwritten."""
+    assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
+    cam = client.post(
+        "/cameras", json={"id": "c1", "kind": "panel", "panel_id": "p1"}, headers=admin
+    ).json()
+    robot = bearer(client.post("/robots", json={"id": "r1"}, headers=admin).json()["token"])
+    farm = {"camera": cam["token"], "clock": clock}
+    assert train(client, admin, clean_set(10)).status_code == 201
+    dirty = []
+    for k in range(3):
+        post_frame(client, farm, CLEAN_RGB + DUST, seed=k)
+        dirty.append(client.get("/cameras/c1/frames", headers=admin).json()[0]["frame_id"])
+    task = client.post("/cleaning/claim", headers=robot).json()["task_id"]
+    clock.advance(minutes=5)
+    assert client.post(f"/cleaning/tasks/{task}/complete", headers=robot).status_code == 200
+    post_frame(client, farm, CLEAN_RGB, seed=9)
+    after = client.get("/cameras/c1/frames", headers=admin).json()[0]["frame_id"]
+    assert client.get(f"/cleaning/tasks/{task}", headers=admin).json()["outcome"] == "effective"
+    every = client.get("/fleet/labels", headers=admin).json()
+    assert every == {"counts": {"clean": 1, "dust": 1, "bird_drop": 0, "snow": 0}, "total": 2}
+    with client.app.state.sessionmaker() as session:
+        got = {r.frame_id: (r.label, r.source) for r in session.scalars(select(FrameLabel))}
+    assert got == {dirty[-1]: ("dust", "robot"), after: ("clean", "robot")}
