@@ -47,6 +47,9 @@ class Panel(TimestampMixin, Base):
     """The last usable verdict, or None before the first."""
     ineffective: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     """The last cleaning did not make the panel clean."""
+    last_doubted_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    """When the latest frame the fleet model doubted was captured: the panel's latest word is
+    doubt while it is after ``last_judged_at``."""
     last_judged_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
     """When the latest frame whose verdict drove the state machine was captured: a frame taken
     before it (a camera's backlog uploaded late) is judged but does not drive it."""

@@ -389,6 +389,9 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
             said = "snow-covered: no brushing until it melts"
         elif (doubt := model.doubt(decoded.features)) is not None:
             said, verdict.condition = doubt, None  # the panel's state and task stay as they are
+            latest = panel.last_doubted_at
+            if latest is None or frame.captured_at > latest:
+                panel.last_doubted_at = frame.captured_at
         else:
             verdict.clean = p_dirty < model.threshold
         why = f"judged by the fleet model: {unfit.detail}" if unfit is not None else None

@@ -63,6 +63,11 @@ class PanelOut(Out):
     streak_needed: int = Field(
         3, description="How many in a row open a cleaning task (the farm's debounce)."
     )
+    doubted: bool = Field(
+        False,
+        description="The latest frame of the panel was one the fleet model would not judge "
+        "(GET /fleet/doubts lists it, to be labelled).",
+    )
 
 
 class PanelStateCounts(Out):

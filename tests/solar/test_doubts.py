@@ -165,3 +165,11 @@ def test_a_robots_cleaning_labels_the_frames_around_it(
     with client.app.state.sessionmaker() as session:
         got = {r.frame_id: (r.label, r.source) for r in session.scalars(select(FrameLabel))}
     assert got == {dirty[-1]: ("dust", "robot"), after: ("clean", "robot")}
+
+
+def test_a_panel_whose_latest_frame_was_doubted_says_so(
+    client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
+) -> None:
+    [p1] = client.get("/panels", headers=admin).json()
+    assert p1["doubted"] is True
+    assert client.get("/panels/p1", headers=admin).json()["doubted"] is True

@@ -40,6 +40,7 @@ def test_the_streak_toward_the_trigger_is_shown(
         2,
         3,
     )
+    assert p1["doubted"] is False  # its latest word is a verdict, not a doubt
     status = client.get("/panels/p1/status", headers=admin).json()
     assert (status["dirty_streak"], status["streak_needed"]) == (2, 3)
 

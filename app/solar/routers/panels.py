@@ -94,6 +94,8 @@ def _out(
         last_clean=panel.last_clean,
         dirty_streak=panel.dirty_streak,
         streak_needed=policy.debounce,
+        doubted=panel.last_doubted_at is not None
+        and (panel.last_judged_at is None or panel.last_doubted_at > panel.last_judged_at),
     )
 
 

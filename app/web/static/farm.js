@@ -120,7 +120,8 @@
       // the cameras' latest word: a clean panel whose last frames said dirty shows how near
       // the trigger it is ("dirty 2/3"), not just "clean"
       const streak = p.dirty_streak > 0 && ["clean", "unknown"].includes(p.state) ? ` · dirty ${p.dirty_streak}/${p.streak_needed}` : "";
-      tile.textContent = `${p.name || p.id} — ${NAMES[p.state] || p.state}${streak}`;
+      const doubt = p.doubted ? " · latest frame doubted" : "";
+      tile.textContent = `${p.name || p.id} — ${NAMES[p.state] || p.state}${streak}${doubt}`;
       tile.onclick = () => detail(p);
       grid.append(tile);
     }
