@@ -140,6 +140,10 @@ class FleetModel(Base):
     n_dirty: Mapped[int] = mapped_column(Integer)
     """Photos needing cleaning: dust and droppings."""
     cv_balanced_accuracy: Mapped[float | None] = mapped_column(Float)
+    cv_low: Mapped[float | None] = mapped_column(Float, default=None)
+    """The 95 % interval of ``cv_balanced_accuracy`` over its folds (Student's t): low end."""
+    cv_high: Mapped[float | None] = mapped_column(Float, default=None)
+    """Its high end."""
     kernel: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """A kernel model (``core.fleet.KernelModel``): support, dual, intercept, gamma, platt;
     none for the linear models of before (``coef``, ``intercept``)."""

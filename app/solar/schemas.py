@@ -266,6 +266,12 @@ class FleetModelOut(Out):
         "choice of C and γ made again inside each (nested); on panels it never saw when "
         "trained with groups."
     )
+    cv_low: float | None = Field(
+        default=None,
+        description="The 95 % interval of cv_balanced_accuracy over its 5 folds (Student's t), "
+        "low end: what panels it never saw may get. Null for models trained before.",
+    )
+    cv_high: float | None = Field(default=None, description="Its high end.")
     n_groups: int | None = Field(
         default=None,
         description="Groups (panels) the folds kept together; null when trained without "

@@ -277,6 +277,18 @@ def fleet_search(k: int, grouped: bool = False, folds: int = FLEET_FOLDS) -> Any
     )
 
 
+def fold_interval(scores: NDArray[np.float64], level: float = 0.95) -> tuple[float, float]:
+    """The ``level`` interval of the mean of ``scores`` (one per fold), Student's t on their
+    spread, clipped to [0, 1]: how far the figure could be from what unseen panels get, with
+    as few folds as there are."""
+    from scipy import stats
+
+    k = len(scores)
+    mean = float(np.mean(scores))
+    half = float(stats.t.ppf(0.5 + level / 2, k - 1) * np.std(scores, ddof=1) / np.sqrt(k))
+    return max(0.0, mean - half), min(1.0, mean + half)
+
+
 def check_fleet_groups(groups: NDArray[np.str_], dirty: NDArray[np.bool_]) -> None:
     """Refuse groups too few to fold: each of clean and needs cleaning in at least
     ``FLEET_FOLDS`` groups (photos of snow aside), so that every fold can test both."""
@@ -339,6 +351,7 @@ def fit_fleet(
     cv = cross_val_score(
         inner, x, dirty, groups=gx, cv=outer, scoring="balanced_accuracy", params=fit_groups
     )
+    low, high = fold_interval(cv)
     search.fit(x, dirty, **fit_groups)
     best = search.best_estimator_
     folds = fleet_folds(0, grouped)
@@ -384,5 +397,7 @@ def fit_fleet(
         n_snow=counts["snow"],
         n_bird_drop=counts["bird_drop"],
         cv_balanced_accuracy=float(np.mean(cv)),
+        cv_low=low,
+        cv_high=high,
         n_groups=None if g is None else len(set(g.tolist())),
     )

@@ -126,6 +126,8 @@ def test_the_model_learns_from_the_farms_labels(
     r = client.post("/fleet/model", files=files, data=data, headers=admin)
     assert r.status_code == 201, r.text
     assert r.json()["n_dirty"] == before["n_dirty"] + 3
+    model = r.json()
+    assert model["cv_low"] <= model["cv_balanced_accuracy"] <= model["cv_high"] <= 1.0
     assert r.json()["n_clean"] == before["n_clean"]
     # on their own, three frames of one panel are too few to learn from: said, not a 500
     alone = client.post("/fleet/model", json={"frame_ids": doubted["frames"]}, headers=admin)

@@ -19,7 +19,7 @@ from app.solar.core.fleet import (
     lbp_histogram,
     reduce,
 )
-from app.solar.training import fit_fleet, reach
+from app.solar.training import fit_fleet, fold_interval, reach
 from tests.factories import panel
 
 
@@ -309,3 +309,12 @@ class TestGroups:
         merged = [("one" if g in clean[:18] else g) for g in groups]  # 3 clean panels → 1
         with pytest.raises(Unprocessable, match="the photos clean come from 4 groups"):
             fit_fleet(x, labels, now=datetime(2026, 6, 1, tzinfo=UTC), groups=merged)
+
+
+def test_the_fold_interval_is_students() -> None:
+    """Known answer: scores 0.8, 0.85, 0.9, 0.95, 1.0 have mean 0.9, s = 0.0790569 and
+    t(0.975, 4) = 2.776445 (tables), so ±0.0981623; clipped at 1."""
+    low, high = fold_interval(np.array([0.8, 0.9, 1.0, 0.85, 0.95]))
+    assert low == pytest.approx(0.9 - 0.0981623, abs=1e-6)
+    assert high == pytest.approx(0.9 + 0.0981623, abs=1e-6)
+    assert fold_interval(np.array([1.0, 1.0, 0.9, 1.0, 1.0]))[1] == 1.0

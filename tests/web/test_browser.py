@@ -277,7 +277,9 @@ def test_the_farm_board_says_how_the_fleet_model_did(
         assert p.page.locator("#detail").is_hidden()  # no panel chosen: no empty detail
         text = p.page.locator("#fleet").inner_text()
         assert "8 clean, 8 needing cleaning photos of 8 panels" in text, text
-        assert "balanced accuracy 1.00 on panels it never saw" in text, text
+        assert "balanced accuracy 1.00 (95 % interval 1.00–1.00) on panels it never saw" in text, (
+            text
+        )
         data = {"labels": labels}
         assert http.post("/fleet/model", files=files, data=data, headers=admin).status_code == 201
         p.page.reload()

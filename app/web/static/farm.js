@@ -53,7 +53,8 @@
     const photos = [`${m.n_clean} clean`, `${m.n_dirty} needing cleaning`, ...(m.n_snow ? [`${m.n_snow} under snow`] : [])].join(", ");
     const of = m.n_groups ? ` of ${m.n_groups} panels` : "";
     const where = m.n_groups ? "on panels it never saw" : "on photos it did not learn from (high if several show one panel: train with groups)";
-    const score = m.cv_balanced_accuracy == null ? "" : `; balanced accuracy ${m.cv_balanced_accuracy.toFixed(2)} ${where}`;
+    const range = m.cv_low == null ? "" : ` (95 % interval ${m.cv_low.toFixed(2)}–${m.cv_high.toFixed(2)})`;
+    const score = m.cv_balanced_accuracy == null ? "" : `; balanced accuracy ${m.cv_balanced_accuracy.toFixed(2)}${range} ${where}`;
     return `Fleet model of ${new Date(m.created_at).toLocaleDateString()}: ${photos} photos${of}${score}.`;
   }
 
