@@ -10,7 +10,9 @@
   const state = { method: "idw", layer: "levels", hours: 0, fitted: false };
 
   const map = L.map("map", { zoomControl: true }).setView([45.46, 9.19], 11);
-  L.tileLayer(cfg.tiles, { attribution: cfg.attribution, maxZoom: 19 }).addTo(map);
+  // the page sends no referrer (Referrer-Policy: no-referrer); tile servers such as
+  // OpenStreetMap's ask for one, so the tiles alone send the site's origin, never the path
+  L.tileLayer(cfg.tiles, { attribution: cfg.attribution, maxZoom: 19, referrerPolicy: "strict-origin" }).addTo(map);
   const ramp = ["#fde725", "#7ad151", "#22a884", "#2a788e", "#414487", "#440154", "#2d0a3e", "#1a0529"];
   const bands = L.geoJSON(null, {
     style: (f) => {
