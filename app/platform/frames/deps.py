@@ -24,12 +24,12 @@ from app.platform.frames import rate_limit
 from app.platform.frames.camera_info import CameraInfo, TokenCache
 from app.platform.frames.cameras import FrameKey
 from app.platform.frames.kinds import KINDS
+from app.platform.http.credentials import credentials_of
 from app.platform.http.crowds import Crowds
 from app.platform.http.deps import (
     CameraId,
     Principal,
     challenge_cameras,
-    credentials_of,
     get_sessionmaker,
     other_owner,
 )

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 from urllib.parse import quote, urlsplit, urlunsplit
 
-from app.platform.frames.addresses import AddressRefused, IPNetwork, check, resolve
+from app.platform.frames.addresses import AddressRefused, IPNetwork, check, resolve_url
 
 # FFmpeg's options for OpenCV, read when a capture opens (the environment may set its own):
 # RTSP over TCP (interleaved), as UDP's packets are dropped by NATs and firewalls between a
@@ -62,8 +62,6 @@ def with_credentials(url: str, username: str | None, password: str | None) -> st
     auth = quote(username, safe="") + (":" + quote(password, safe="") if password else "")
     return urlunsplit(parts._replace(netloc=f"{auth}@{parts.netloc}"))
 
-
-DEFAULT_PORTS = {"http": 80, "https": 443, "rtsp": 554}
 
 QUERY_SECRETS = frozenset(
     {
@@ -111,14 +109,11 @@ def grab(
     """One frame of the source as JPEG bytes. Raises GrabError: ``unreachable`` (an address
     the rule refuses, no answer, refused, timed out, an HTTP error or a redirect) or
     ``bad_stream`` (an answer that is not a JPEG, an MJPEG stream or a decodable video)."""
-    parts = urlsplit(url)
-    scheme = parts.scheme.lower()
-    host = parts.hostname or ""
     try:
-        found = resolve(host, parts.port or DEFAULT_PORTS.get(scheme, 80), allowed)
+        found = resolve_url(url, allowed)
     except AddressRefused as exc:
         raise GrabError("unreachable", str(exc)) from None
-    if scheme in ("http", "https"):
+    if urlsplit(url).scheme.lower() in ("http", "https"):
         return _http(url, username, password, timeout, allowed)
     pinned = _with_address(url, found[0])  # FFmpeg connects to the address checked
     return _video(url, with_credentials(pinned, username, password), timeout)

@@ -184,16 +184,6 @@ def image_end(data: bytes | memoryview) -> int:
     )
 
 
-def has_end_marker(data: bytes | memoryview) -> bool:
-    """Whether the image is complete (``image_end`` finds its end-of-image marker); data
-    after it are allowed."""
-    try:
-        image_end(data)
-    except CorruptJpegError:
-        return False
-    return True
-
-
 def upright(image: NDArray[np.uint8], orientation: int) -> NDArray[np.uint8]:
     """The stored pixels (H, W, C) turned to the upright image by their EXIF orientation
     (1: as stored; 2 mirrored; 3 turned 180°; 4 flipped; 5 transposed; 6 turned 90°

@@ -21,16 +21,14 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from functools import partial
 from typing import Any
-from urllib.parse import urlsplit
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.db.models import Camera, CameraSource
 from app.platform.frames import addresses, ingest
-from app.platform.frames import grab as grab_module
 from app.platform.frames.camera_info import CameraInfo
-from app.platform.frames.grab import GrabError, grab
+from app.platform.frames.grab import GrabError, grab, masked
 from app.platform.frames.storage import FrameStore
 from app.platform.frames.writer import GroupCommitWriter
 from app.platform.http.errors import Unprocessable, VantageError
@@ -49,10 +47,8 @@ def check_address(source: SourceIn | None, allowed: Sequence[str]) -> None:
     not reach, or to none (``addresses``). Blocking (DNS): routes call it from a thread."""
     if source is None:
         return
-    parts = urlsplit(source.url)
-    port = parts.port or grab_module.DEFAULT_PORTS.get(parts.scheme.lower(), 80)
     try:
-        addresses.resolve(parts.hostname or "", port, addresses.networks(allowed))
+        addresses.resolve_url(source.url, addresses.networks(allowed))
     except addresses.AddressRefused as exc:
         raise Unprocessable(str(exc), code="source_address_refused") from None
 
@@ -78,7 +74,7 @@ def source_out(row: CameraSource | None) -> SourceOut | None:
     if row is None:
         return None
     return SourceOut(
-        url=grab_module.masked(row.url),
+        url=masked(row.url),
         every_seconds=row.every_seconds,
         username=row.username,
         has_password=row.password is not None,

@@ -23,7 +23,6 @@ proxy, uvicorn's ``--forwarded-allow-ips`` makes it the proxy's ``X-Forwarded-Fo
 from __future__ import annotations
 
 import asyncio
-import base64
 import math
 import threading
 import time
@@ -36,7 +35,13 @@ from starlette.requests import Request
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.platform.auth import hash_token
-from app.platform.http.errors import ServiceUnavailable, TooManyRequests, problem
+from app.platform.http.credentials import credentials_of
+from app.platform.http.errors import (
+    ServiceUnavailable,
+    TooManyRequests,
+    Unauthorized,
+    problem,
+)
 
 TARPIT_SECONDS = 1.0
 """How long a client's refusals past ``FAST_REFUSALS`` a minute wait before they are sent."""
@@ -55,17 +60,14 @@ def client_of(scope: Scope) -> str:
 
 
 def _token(scope: Scope) -> str | None:
-    """The token an Authorization header carries (Bearer, or a Basic password), unchecked."""
+    """The token an Authorization header carries, unchecked; None without one or when it is
+    malformed (the request counts as anonymous, and its route says why)."""
     for name, value in scope.get("headers", []):
         if name == b"authorization":
-            scheme, _, rest = value.decode("latin-1").strip().partition(" ")
-            if scheme.lower() == "bearer":
-                return rest.strip() or None
-            if scheme.lower() == "basic":
-                try:
-                    return base64.b64decode(rest.strip()).decode().partition(":")[2] or None
-                except (ValueError, UnicodeDecodeError):
-                    return None
+            try:
+                return credentials_of(value.decode("latin-1"))[0]
+            except Unauthorized:
+                return None
     return None
 
 
@@ -81,6 +83,12 @@ class Crowds:
         self._lock = threading.Lock()
         self._trusted: OrderedDict[str, float] = OrderedDict()
         """Hashes of tokens the service accepted lately → until when they count as known."""
+
+    @property
+    def waiting(self) -> int:
+        """Public computations running or waiting now."""
+        with self._lock:
+            return self._waiting
 
     def trust(self, digest: str) -> None:
         """A token (its hash) the service just accepted: its requests skip the anonymous

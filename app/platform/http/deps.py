@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import base64
-import binascii
 import hmac
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
@@ -20,6 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
 from app.platform.db.models import Camera, ViewerToken
+from app.platform.http.credentials import credentials_of
 from app.platform.http.crowds import Crowds
 from app.platform.http.errors import (
     Forbidden,
@@ -89,29 +88,20 @@ class Principal:
     """The camera, robot or viewer token id; None for the admin."""
 
 
-def credentials_of(header: str) -> tuple[str, str | None]:
-    """(token, Basic user name or None) from an Authorization header."""
-    scheme, _, value = header.strip().partition(" ")
-    value = value.strip()
-    if scheme.lower() == "bearer" and value:
-        return value, None
-    if scheme.lower() == "basic" and value:
-        try:
-            user, sep, password = base64.b64decode(value, validate=True).decode().partition(":")
-        except (binascii.Error, UnicodeDecodeError):
-            raise Unauthorized("malformed Basic credentials") from None
-        if sep and password:
-            return password, user
-        raise Unauthorized("malformed Basic credentials")
-    raise Unauthorized("expected 'Authorization: Bearer <token>' or Basic credentials")
-
-
 def _identify(request: Request, session: Session) -> Principal:
+    """The caller, its token then known to the anonymous limits (``crowds``)."""
     header = request.headers.get("authorization")
     if not header:
         raise Unauthorized("missing Authorization header")
     token, basic_user = credentials_of(header)
     digest = hash_token(token)
+    principal = _owner(request, session, digest, basic_user)
+    crowds: Crowds = request.app.state.crowds
+    crowds.trust(digest)
+    return principal
+
+
+def _owner(request: Request, session: Session, digest: str, basic_user: str | None) -> Principal:
     camera_id = session.scalar(select(Camera.id).where(Camera.token_hash == digest))
     if camera_id is not None:
         if basic_user is not None and basic_user != camera_id:
@@ -148,11 +138,7 @@ def get_principal(request: Request) -> Principal:
     """
     try:
         with get_sessionmaker(request)() as session:
-            principal = _identify(request, session)
-        token, _ = credentials_of(request.headers["authorization"])
-        crowds: Crowds = request.app.state.crowds
-        crowds.trust(hash_token(token))
-        return principal
+            return _identify(request, session)
     except Unauthorized as exc:
         challenge_cameras(request, exc)
         raise
