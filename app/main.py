@@ -16,15 +16,14 @@ from fastapi import FastAPI
 from fastapi_offline import FastAPIOffline
 
 from app import __version__
-from app.air import alerts as webhooks
 from app.air import kind as air_kind
 from app.air import router as air
-from app.air.isopleth_cache import MapCache
+from app.air.services import webhook as alert_webhook
+from app.air.services.map_cache import MapCache
 from app.cells import kind as cells_kind
 from app.cells import router as cells
 from app.cells.core import triangulation
-from app.platform import health, outbox, viewers
-from app.platform import webhooks as platform_webhooks
+from app.platform import health, outbox, viewers, webhooks
 from app.platform.auth import admin_token_hash, hash_token
 from app.platform.db import schema
 from app.platform.db.models import CameraKind
@@ -180,7 +179,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         notifier = None
         if settings.alert_webhook_url:
             notifier = asyncio.create_task(
-                webhooks.run(
+                alert_webhook.run(
                     app.state.sessionmaker,
                     settings.alert_webhook_url,
                     app.state.policy,
@@ -318,7 +317,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     secret = settings.alert_webhook_secret
     app.state.db_metrics = [solar_metrics.collect]
     app.state.webhook_key = (
-        None if secret is None else platform_webhooks.signing_key(secret.get_secret_value())
+        None if secret is None else webhooks.signing_key(secret.get_secret_value())
     )
 
     install_error_handlers(app)

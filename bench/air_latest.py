@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.air import service as air  # noqa: E402
+from app.air.services import readings as sky_readings  # noqa: E402
 from bench.air_trends import city_parser, scratch_city  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
 
@@ -32,10 +32,12 @@ def main() -> None:
         one_by_one: list[float] = []
         every: list[float] = []
         for _ in range(args.rounds):  # alternating, so that both see the machine alike
-            one_by_one += timed(lambda: [air.latest(session, cid) for cid in ids], 1)
-            every += timed(lambda: air.latest_of_every(session, limit=len(ids), offset=0), 1)
-        singles = [air.latest(session, cid) for cid in ids]  # the same answers
-        bulk = air.latest_of_every(session, limit=len(ids), offset=0)
+            one_by_one += timed(lambda: [sky_readings.latest_of(session, cid) for cid in ids], 1)
+            every += timed(
+                lambda: sky_readings.latest_of_every(session, limit=len(ids), offset=0), 1
+            )
+        singles = [sky_readings.latest_of(session, cid) for cid in ids]  # the same answers
+        bulk = sky_readings.latest_of_every(session, limit=len(ids), offset=0)
         assert [found for _, found in singles] == [found for _, found in bulk]
     print(
         f"{args.backend}: {len(readings):,} readings of {len(ids)} cameras; ms for every camera"

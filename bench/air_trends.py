@@ -1,5 +1,5 @@
-"""Hourly and daily air-quality means over a city's month: ``air.aggregate`` (the database sums
-15-minute slots) against reading the same readings one row each (``air.readings``, which the
+"""Hourly and daily air-quality means over a city's month: ``readings.aggregate`` (the database sums
+15-minute slots) against reading the same readings one row each (``readings.readings``, which the
 aggregates were computed from before, capped at the newest 100,000).
 
 Readings are written straight to the tables of a scratch database: ``--cameras`` cameras, one
@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.air import service as air  # noqa: E402
+from app.air.services import readings as sky_readings  # noqa: E402
 from tests.factories import migrate, store  # noqa: E402
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
@@ -121,7 +121,7 @@ def trends(engine: Engine, n: int, rounds: int) -> None:
         for r in range(rounds):
             for zone, bucket in (("UTC", "daily"), ("Asia/Kolkata", "daily"), ("UTC", "hourly")):
                 t = time.perf_counter()
-                out = air.aggregate(
+                out = sky_readings.aggregate(
                     session,
                     camera_id=None,
                     since=None,
@@ -136,14 +136,14 @@ def trends(engine: Engine, n: int, rounds: int) -> None:
                 )
             for limit in (100_000, n):
                 t = time.perf_counter()
-                rows = air.readings(
+                rows = sky_readings.readings(
                     session, camera_id=None, since=None, until=None, limit=limit, offset=0
                 )
                 dt = time.perf_counter() - t
                 print(f"| {r + 1} | readings, newest {limit} rows | | {len(rows)} | {dt:.2f} |")
                 del rows
             t = time.perf_counter()
-            out = air.aggregate(
+            out = sky_readings.aggregate(
                 session,
                 camera_id="sky-0007",
                 since=None,

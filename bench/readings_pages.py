@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.air import service as air  # noqa: E402
+from app.air.services import readings as sky_readings  # noqa: E402
 from app.platform.frames.cameras import FrameKey  # noqa: E402
 from bench.air_trends import Reading, analyze, city_parser, scratch_city  # noqa: E402
 
@@ -55,10 +55,10 @@ def pages(engine: Engine, readings: list[Reading], args: argparse.Namespace) -> 
 
         def page(**kw: Any) -> Callable[[], Any]:
             base = {"camera_id": None, "since": None, "until": None, "limit": 100, "offset": 0}
-            return lambda: air.readings(session, **{**base, **kw})
+            return lambda: sky_readings.readings(session, **{**base, **kw})
 
         depth = min(100_000, n // 2)
-        deep = air.readings(
+        deep = sky_readings.readings(
             session, camera_id=None, since=None, until=None, limit=1, offset=depth - 1
         )[0]
         cases = {

@@ -10,9 +10,9 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.air import service
 from app.air.core import airquality
 from app.air.models import AirAlert, AirCalibration, SkyVerdict
+from app.air.services import grading
 from app.platform.db.models import Verdict
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.frames.quality import SKY_LIMITS
@@ -88,7 +88,7 @@ def _kept_frames(session: Session) -> Iterator[str]:
 
 
 HANDLER = KindHandler(
-    conclude=service.classify_frame,
+    conclude=grading.classify_frame,
     verdict_out=verdict_out,
     limits=SKY_LIMITS,
     features=_features,

@@ -17,9 +17,9 @@ from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.concurrency import run_in_threadpool
 
-from app.air import airmap
-from app.air import service as air
 from app.air.core import airquality, isopleths
+from app.air.services import cameras
+from app.air.services.map_picture import COLOURS
 from app.platform.http.deps import get_sessionmaker
 from app.platform.http.errors import NotFound
 
@@ -55,7 +55,7 @@ def mount_static(app: FastAPI) -> None:
 def _categories() -> list[dict[str, Any]]:
     """The categories best first, with their levels and colours (as the PNG map draws them)."""
     return [
-        {"name": name, "lo": lo, "hi": hi, "colour": airmap.COLOURS[name]}
+        {"name": name, "lo": lo, "hi": hi, "colour": COLOURS[name]}
         for name, lo, hi in reversed(isopleths.BANDS)
     ]
 
@@ -93,7 +93,7 @@ async def display(request: Request, camera_id: str) -> HTMLResponse:
     def find() -> str | None:
         with get_sessionmaker(request)() as session:
             try:
-                camera = air.sky_camera(session, camera_id)
+                camera = cameras.sky_camera(session, camera_id)
             except NotFound:
                 return None
             return camera.name or camera.id

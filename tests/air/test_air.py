@@ -16,10 +16,10 @@ from fastapi.testclient import TestClient
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 from shapely.geometry import shape
 
-from app.air import airmap
 from app.air.core import airquality, isopleths
-from app.air.isopleth_cache import MapCache
-from app.air.service import Station
+from app.air.services import map_picture
+from app.air.services.map_cache import MapCache
+from app.air.services.maps import Station
 from tests.factories import calibrate, make_jpeg, post, post_bytes, sky_jpeg
 
 
@@ -732,7 +732,7 @@ def test_the_png_map_is_a_labelled_map_at_one_scale_in_metres(
         np.array([s.level for s in stations]),
         bbox=(x0, y0, x1, y1),
     )
-    fig = airmap.figure(islands, stations, datetime.fromisoformat(fc["at"]))
+    fig = map_picture.figure(islands, stations, datetime.fromisoformat(fc["at"]))
     w, h = fig.get_size_inches() * fig.dpi
     assert png.shape[:2] == (round(h), round(w))
     [ax] = fig.axes
@@ -780,7 +780,7 @@ def test_two_cities_are_two_islands_of_one_map(
         np.array([s.level for s in stations]),
         resolution=16,
     )
-    fig = airmap.figure(islands, stations, datetime.fromisoformat(fc["at"]))
+    fig = map_picture.figure(islands, stations, datetime.fromisoformat(fc["at"]))
     assert len(fig.axes) == 2
     assert {t.get_text() for t in fig.axes[1].texts} == {"Colosseo (10)"}
     png = client.get("/air/isopleths.png", params={"resolution": 16})
@@ -800,7 +800,7 @@ def test_an_empty_map_says_why(
     assert far["empty_reason"] == (
         "no cell of the bbox lies within max_distance (5000 m) of a camera with a reading"
     )
-    fig = airmap.figure([], [], datetime(2026, 6, 1, tzinfo=UTC), empty_reason="nothing here")
+    fig = map_picture.figure([], [], datetime(2026, 6, 1, tzinfo=UTC), empty_reason="nothing here")
     assert [t.get_text() for t in fig.axes[0].texts] == ["No map: nothing here"]
     assert client.get("/air/isopleths.png", params={"bbox": "100,10,101,11"}).status_code == 200
 

@@ -376,9 +376,9 @@ def test_uploaded_images_left_out_a_day_at_a_time(
 def test_a_regression_stored_before_the_choice_of_table_grades_by_the_epa_s() -> None:
     """A regression kept without ``breakpoints`` was made when the EPA table was the only
     one: 30 µg/m³ is AQI 89, level 7 (by the European bands it would be 4)."""
-    from app.air import service
     from app.air.core import airquality
     from app.air.models import AirCalibration
+    from app.air.services import calibration
 
     k = len(airquality.SKY_FEATURES)
     stored = {
@@ -390,7 +390,7 @@ def test_a_regression_stored_before_the_choice_of_table_grades_by_the_epa_s() ->
         "intercept": float(np.log1p(30.0)),
     }
     row = AirCalibration(id="before-tables", regression=stored)
-    regression = service.as_regression(row)
+    regression = calibration.as_regression(row)
     assert regression is not None
     assert regression.table == "us_epa"
     assert regression.level(np.zeros(k)) == 7 == breakpoints.level_of_pm25(30.0)
@@ -434,8 +434,8 @@ def test_a_regression_made_before_features_were_added_grades_by_its_own(
     """A calibration fitted when the skyline's edges were not yet measured keeps grading the
     camera's new frames, by the features it was fitted on: the same estimate as its
     regression on those features of the frame."""
-    from app.air import service
     from app.air.models import AirCalibration
+    from app.air.services import calibration
 
     n = len(airquality.SKY_FEATURES) - len(airquality.SKYLINE_BANDS)
     cal = calibrate_as_earlier(client, admin, station, monkeypatch, airquality.SKY_FEATURES[:n])
@@ -444,7 +444,7 @@ def test_a_regression_made_before_features_were_added_grades_by_its_own(
     assert v["calibration_id"] == cal["id"]
     assert v["estimate"] is not None, v["reason"]
     with Session(engine) as session:
-        earlier = service.as_regression(session.get_one(AirCalibration, cal["id"]))
+        earlier = calibration.as_regression(session.get_one(AirCalibration, cal["id"]))
     assert earlier is not None
     assert earlier.columns == tuple(range(n))
     # the frame's features as the camera measures them: its region, the strip below

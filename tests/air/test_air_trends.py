@@ -147,7 +147,7 @@ def test_an_unknown_time_zone_is_422(client: TestClient, zone: str) -> None:
 
 def test_offsets_are_fixed_in_the_answer() -> None:
     """A bucket's start carries the offset it had then (checked on the helper's output)."""
-    from app.air.service import _bucket
+    from app.air.services.readings import _bucket
 
     rome = ZoneInfo("Europe/Rome")
     start, end = _bucket(datetime(2026, 10, 25, 2, 0), timedelta(hours=1), "hourly", rome)
@@ -162,7 +162,7 @@ def test_offsets_are_fixed_in_the_answer() -> None:
 def test_the_range_is_cut_where_the_clocks_change() -> None:
     """Rome puts its clocks back at 01:00 UTC on 25 October 2026 and forward at 01:00 UTC on
     28 March 2027 (the EU's rule): the pieces change offset there, to the second."""
-    from app.air.service import _offset_spans
+    from app.air.services.readings import _offset_spans
 
     spans = _offset_spans(
         ZoneInfo("Europe/Rome"),

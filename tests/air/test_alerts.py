@@ -21,8 +21,8 @@ from pydantic import ValidationError
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.air import alerts
 from app.air.models import AirAlert
+from app.air.services import webhook as alert_webhook
 from app.platform import webhooks
 from app.platform.db.models import Camera
 from app.platform.db.session import make_engine, make_sessionmaker
@@ -73,7 +73,7 @@ def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Ses
 
     seed_alerts(engine, 1)
     with served(Moved) as base:
-        assert alerts.sweep(sessions, f"{base}/hook", at(T0)) == 0
+        assert alert_webhook.sweep(sessions, f"{base}/hook", at(T0)) == 0
     assert seen == [("POST", "/hook")]
     delivered, attempts, error = state(engine)["a0"]
     assert (delivered, attempts) == (False, 1)
@@ -127,7 +127,7 @@ def test_an_answer_that_is_not_http_fails_that_alert_only(
     seed_alerts(engine, 3)
     listener, url = raw_receiver(answer)
     try:
-        assert alerts.sweep(sessions, url, at(T0)) == 2
+        assert alert_webhook.sweep(sessions, url, at(T0)) == 2
         after = state(engine)
         assert {k: v[:2] for k, v in after.items()} == {
             "a0": (True, 1),
@@ -136,7 +136,7 @@ def test_an_answer_that_is_not_http_fails_that_alert_only(
         }
         assert "BadStatusLine" in str(after["a1"][2])
         # the next sweep, once a1's backoff has passed, tries a1 alone
-        assert alerts.sweep(sessions, url, at(T0 + timedelta(seconds=3))) == 0
+        assert alert_webhook.sweep(sessions, url, at(T0 + timedelta(seconds=3))) == 0
     finally:
         listener.close()
     assert posted == ["a0", "a1", "a2", "a1"]
@@ -170,7 +170,9 @@ def test_a_receiver_sending_its_answer_a_byte_at_a_time_fails_at_the_deadline(
     seed_alerts(engine, 2)
     result: list[int] = []
     url = f"http://127.0.0.1:{listener.getsockname()[1]}/hook"
-    sweeping = threading.Thread(target=lambda: result.append(alerts.sweep(sessions, url, at(T0))))
+    sweeping = threading.Thread(
+        target=lambda: result.append(alert_webhook.sweep(sessions, url, at(T0)))
+    )
     try:
         sweeping.start()
         sweeping.join(timeout=15)
@@ -204,7 +206,7 @@ def test_retries_back_off_up_to_ten_minutes_apart_for_the_retry_period(
             due = s.get(AirAlert, "a0")
             assert due is not None
             now = max(now, due.next_attempt_at or now)
-        alerts.sweep(sessions, url, at(now), retry_for=timedelta(hours=3))
+        alert_webhook.sweep(sessions, url, at(now), retry_for=timedelta(hours=3))
         times.append(now)
     gaps = [(b - a).total_seconds() for a, b in zip(times, times[1:], strict=False)]
     assert gaps[:9] == [2, 4, 8, 16, 32, 64, 128, 256, 512]
@@ -213,16 +215,16 @@ def test_retries_back_off_up_to_ten_minutes_apart_for_the_retry_period(
     with Session(engine) as s:
         alert = s.get(AirAlert, "a0")
         assert alert is not None
-        assert alerts.delivery(alert, T0 + timedelta(hours=2), retry_for=timedelta(hours=3)) == (
-            "pending"
-        )
-        assert alerts.delivery(alert, T0 + timedelta(hours=4), retry_for=timedelta(hours=3)) == (
-            "gave_up"
-        )
-        assert alerts.delivery(alert, T0, retry_for=None) == "no_webhook"
+        assert alert_webhook.delivery(
+            alert, T0 + timedelta(hours=2), retry_for=timedelta(hours=3)
+        ) == ("pending")
+        assert alert_webhook.delivery(
+            alert, T0 + timedelta(hours=4), retry_for=timedelta(hours=3)
+        ) == ("gave_up")
+        assert alert_webhook.delivery(alert, T0, retry_for=None) == "no_webhook"
     # past the retry period the sweep leaves it alone
     late = T0 + timedelta(hours=3, seconds=1)
-    alerts.sweep(sessions, url, at(late), retry_for=timedelta(hours=3))
+    alert_webhook.sweep(sessions, url, at(late), retry_for=timedelta(hours=3))
     assert state(engine)["a0"][1] == len(times)
 
 
@@ -249,7 +251,7 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
     seed_alerts(engine, 3)
     monkeypatch.setattr(webhooks, "post", post)
     with pytest.raises(SystemExit):
-        alerts.sweep(sessions, "http://hook", at(T0))
+        alert_webhook.sweep(sessions, "http://hook", at(T0))
     assert {k: v[:2] for k, v in state(engine).items()} == {
         "a0": (True, 1),
         "a1": (False, 1),
@@ -258,9 +260,12 @@ def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
     monkeypatch.undo()
     receiver, got = recorder()
     with served(receiver) as url:
-        assert alerts.sweep(sessions, url, at(T0 + alerts.CLAIM - timedelta(seconds=1))) == 1
+        assert (
+            alert_webhook.sweep(sessions, url, at(T0 + alert_webhook.CLAIM - timedelta(seconds=1)))
+            == 1
+        )
         assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2"]  # a1 still claimed
-        assert alerts.sweep(sessions, url, at(T0 + alerts.CLAIM)) == 1
+        assert alert_webhook.sweep(sessions, url, at(T0 + alert_webhook.CLAIM)) == 1
     assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2", "a1"]
     assert {k: v[:2] for k, v in state(engine).items()} == {
         "a0": (True, 1),
@@ -314,7 +319,7 @@ def test_alerts_are_signed_and_say_where_and_when(
     key = webhooks.signing_key(secret)
     with served(receiver_class) as base:
         for t, delivered in ((now, 0), (now + timedelta(seconds=3), 1)):  # 500, then 204
-            sent = alerts.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
+            sent = alert_webhook.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
             assert sent == delivered
     receiver = standardwebhooks.Webhook(secret)
     for body, headers in got:
@@ -344,7 +349,7 @@ def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Sessio
     receiver_class, got = recorder()
     seed_alerts(engine, 1)
     with served(receiver_class) as base:
-        assert alerts.sweep(sessions, f"{base}/hook", at(T0)) == 1
+        assert alert_webhook.sweep(sessions, f"{base}/hook", at(T0)) == 1
     headers = got[0][1]
     assert headers["webhook-id"] == "a0"
     assert "webhook-signature" not in headers
@@ -371,7 +376,7 @@ def test_a_receiver_slow_to_answer_holds_no_database_connection(
 
     monkeypatch.setattr(webhooks, "post", post)
     with ThreadPoolExecutor(2) as pool:
-        sweep = pool.submit(alerts.sweep, sessions, "http://hook", at(T0))
+        sweep = pool.submit(alert_webhook.sweep, sessions, "http://hook", at(T0))
         try:
             assert posting.wait(wait)
             assert pool.submit(alerts_pending).result(timeout=wait) == 1
@@ -402,7 +407,7 @@ def test_an_alert_posted_late_in_a_long_sweep_is_not_due_for_another_process(
             due_elsewhere.append(alert.next_attempt_at <= clock[0])
 
     monkeypatch.setattr(webhooks, "post", post)
-    assert alerts.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
+    assert alert_webhook.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
     assert due_elsewhere == [False, False, False]
 
 

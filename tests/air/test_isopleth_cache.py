@@ -5,7 +5,7 @@ from __future__ import annotations
 import gzip
 import re
 
-from app.air.isopleth_cache import MapCache
+from app.air.services.map_cache import MapCache
 
 
 def test_kept_for_its_period_then_computed_again() -> None:

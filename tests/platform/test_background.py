@@ -15,8 +15,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.air import alerts
 from app.air.models import AirAlert
+from app.air.services import webhook as alert_webhook
 from app.main import create_app
 from app.platform import webhooks
 from app.platform.background import in_thread
@@ -71,7 +71,7 @@ def test_shutdown_waits_for_a_webhook_sweep_holding_a_connection(
         events.append("sweep done")
         return 0
 
-    monkeypatch.setattr(alerts, "sweep", slow_sweep)
+    monkeypatch.setattr(alert_webhook, "sweep", slow_sweep)
     app = create_app(settings.model_copy(update={"alert_webhook_url": "http://127.0.0.1:9/x"}))
     engine = app.state.engine
     dispose = engine.dispose
@@ -129,7 +129,7 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
     try:
         sessions = make_sessionmaker(app_engine)
         policy = Policy(clock=lambda: t0 + timedelta(minutes=1))
-        assert alerts.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
+        assert alert_webhook.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
     finally:
         app_engine.dispose()
     assert posted == ["a0"]

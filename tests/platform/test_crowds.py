@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app.air import service as air
+from app.air.services import maps
 from app.main import create_app
 from app.platform.settings import Settings
 from tests.factories import empty_tables
@@ -68,14 +68,14 @@ def test_a_full_work_queue_answers_503_at_once(
     """Two places (one running, one waiting) taken by held maps: the third is a 503 with
     Retry-After while they are still held."""
     release, entered = threading.Event(), threading.Event()
-    real = air.stations
+    real = maps.stations
 
     def held(*args: Any, **kwargs: Any) -> Any:
         entered.set()
         assert release.wait(PATIENCE)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(air, "stations", held)
+    monkeypatch.setattr(maps, "stations", held)
     with (
         limited_client(settings, engine, public_work_queue=2) as c,
         ThreadPoolExecutor(2) as pool,

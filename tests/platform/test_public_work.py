@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from app.air import service as air
+from app.air.services import maps, readings
 from tests.factories import make_jpeg, store
 
 PATIENCE = 30.0
@@ -70,7 +70,8 @@ def test_one_at_a_time_and_cheap_reads_do_not_wait(
 ) -> None:
     assert client.get("/air/isopleths").headers["cache-control"] == "public, max-age=0"
     gate = Gate()
-    monkeypatch.setattr(air, path, gate.wrap(getattr(air, path)))
+    service = readings if path == "aggregate" else maps
+    monkeypatch.setattr(service, path, gate.wrap(getattr(service, path)))
     url = "/air/readings" if path == "aggregate" else "/air/isopleths"
     with ThreadPoolExecutor(len(params) + 1) as pool:
         heavy = [pool.submit(client.get, url, params=p) for p in params]
@@ -93,7 +94,7 @@ def test_a_long_public_read_holds_back_no_upload(
     cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
     store(engine, [("sky-1", datetime(2026, 5, 1, tzinfo=UTC), 5)])
     gate = Gate()
-    monkeypatch.setattr(air, "aggregate", gate.wrap(air.aggregate))
+    monkeypatch.setattr(readings, "aggregate", gate.wrap(readings.aggregate))
     with ThreadPoolExecutor(2) as pool:
         reading = pool.submit(client.get, "/air/readings", params={"aggregate": "daily"})
         assert gate.entered.wait(PATIENCE)

@@ -265,3 +265,25 @@ async def read_json(request: Request, model: type[M], limit: int) -> M:
 
 def content_type(request: Request) -> str:
     return request.headers.get("content-type", "").split(";")[0].strip().lower()
+
+
+async def images_or_frames(
+    request: Request,
+    frames: type[M],
+    *,
+    upload_limit: int,
+    body_limit: int,
+    max_files: int,
+    parts: Collection[str],
+    expected: str,
+) -> Form | M:
+    """What a model is trained from: uploaded images (a multipart form of ``parts``, at most
+    ``upload_limit`` bytes and ``max_files`` files) or stored frames named in a JSON body
+    (``frames``, at most ``body_limit`` bytes). Any other body: 415 naming what is
+    ``expected``. One reading for every "train from images or stored frames" route."""
+    kind = content_type(request)
+    if kind == "multipart/form-data":
+        return await read_form(request, upload_limit, max_files=max_files, parts=parts)
+    if kind == "application/json":
+        return await read_json(request, frames, body_limit)
+    raise UnsupportedMediaType(f"send {expected}")

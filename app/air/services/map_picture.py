@@ -23,7 +23,7 @@ from matplotlib.patheffects import withStroke
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from app.air.core import airquality, isopleths
-from app.air.service import Station
+from app.air.services.maps import Station
 
 COLOURS = {
     "Very Poor": "#d7191c",

@@ -1,0 +1,318 @@
+"""The city's map: each camera's level in a window, interpolated into category bands
+(``core.isopleths``), as a GeoJSON document."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any, Literal
+
+import numpy as np
+from sqlalchemy import (
+    func,
+    or_,
+    select,
+)
+from sqlalchemy.orm import Session
+
+from app.air.core import airquality, isopleths
+from app.air.models import SkyVerdict
+from app.air.services.cameras import TRUSTED
+from app.platform.db.models import Camera, CameraKind, Frame
+from app.platform.http.errors import (
+    Unprocessable,
+)
+from app.platform.policy import Policy
+
+
+@dataclass(frozen=True, slots=True)
+class Station:
+    camera_id: str
+    lon: float
+    lat: float
+    level: float
+    captured_at: datetime
+    name: str | None = None
+
+
+def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]:
+    """Sky cameras in service at ``until`` with a level taken in [``since``, ``until``] but no
+    place (no ``lat``/``lon``): graded, yet not on the map."""
+    graded = (
+        select(Frame.camera_id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(
+            Frame.camera_id == Camera.id,
+            Frame.captured_at >= since,
+            Frame.captured_at <= until,
+            TRUSTED,
+        )
+    )
+    return list(
+        session.scalars(
+            select(Camera.id)
+            .where(
+                Camera.kind == CameraKind.sky,
+                or_(Camera.lat.is_(None), Camera.lon.is_(None)),
+                or_(Camera.retired_at.is_(None), Camera.retired_at > until),
+                graded.exists(),
+            )
+            .order_by(Camera.id)
+        )
+    )
+
+
+def stations(session: Session, *, since: datetime, until: datetime) -> list[Station]:
+    """Each located sky camera in service at ``until``: the smoothed (else graded) level of its
+    latest reading taken in [``since``, ``until``] that has either (as smoothed when it was
+    taken).
+
+    A night frame has no grade but keeps the camera's smoothed level while NowCast has a
+    graded reading in the 3 hours before it: the camera's public level, which /latest and
+    the alerts give. Taking graded readings alone, the map lost a camera an hour (its window)
+    after dusk while /latest still gave its level."""
+    has_level = or_(TRUSTED, SkyVerdict.smoothed_level.is_not(None))
+    newest = (
+        select(Frame.camera_id, func.max(Frame.captured_at).label("t"))
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(Frame.captured_at >= since, Frame.captured_at <= until, has_level)
+        .group_by(Frame.camera_id)
+        .subquery()
+    )
+    rows = session.execute(
+        select(
+            Camera.id,
+            Camera.name,
+            Camera.lon,
+            Camera.lat,
+            SkyVerdict.smoothed_level,
+            SkyVerdict.level,
+            Frame.captured_at,
+        )
+        .join(Frame, Frame.camera_id == Camera.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .join(newest, (newest.c.camera_id == Frame.camera_id) & (newest.c.t == Frame.captured_at))
+        .where(
+            Camera.lat.is_not(None),
+            Camera.lon.is_not(None),
+            # a camera taken down no longer paints the map, but did before it was
+            or_(Camera.retired_at.is_(None), Camera.retired_at > until),
+            has_level,
+        )
+    ).all()
+    seen: dict[str, Station] = {}
+    for cid, name, lon, lat, smooth, level, t in rows:
+        value = smooth if smooth is not None else level
+        if lon is None or lat is None or value is None:
+            continue
+        seen[cid] = Station(cid, float(lon), float(lat), float(value), t, name)
+    return sorted(seen.values(), key=lambda s: s.camera_id)
+
+
+@dataclass(frozen=True)
+class MapQuery:
+    """What a map is of: the query parameters both renderings take (and their cache key)."""
+
+    bbox: tuple[float, float, float, float] | None
+    window: int
+    method: Literal["idw", "kriging", "rbf"]
+    resolution: int
+    max_distance: float
+    at: datetime | None
+    """The time the map is of; None: now."""
+    layer: Literal["levels", "uncertainty"] = "levels"
+
+
+@dataclass(frozen=True)
+class MapData:
+    """What a map is drawn from: the cameras' levels in the window [since, at] and the islands
+    interpolated from them (none without any) over ``box`` (the bbox asked for, else the
+    islands' together)."""
+
+    stations: list[Station]
+    islands: list[isopleths.Island]
+    box: tuple[float, float, float, float] | None
+    since: datetime
+    at: datetime
+    max_distance: float
+
+
+def _window_start(at: datetime, window: int) -> datetime:
+    """``window`` seconds before ``at``; the first instant of year 1 for a window reaching
+    before it (``at=0001-01-01T00:00:00Z`` overflowed: a 500)."""
+    try:
+        return at - timedelta(seconds=window)
+    except OverflowError:
+        return datetime.min.replace(tzinfo=UTC)
+
+
+def field(session: Session, policy: Policy, q: MapQuery) -> MapData:
+    now = policy.now()
+    if q.at is not None and q.at > now:
+        raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
+    at = q.at or now
+    since = _window_start(at, q.window)
+    st = stations(session, since=since, until=at)
+    if not st:
+        return MapData(st, [], q.bbox, since, at, q.max_distance)
+    lon = np.array([s.lon for s in st])
+    lat = np.array([s.lat for s in st])
+    try:
+        found = isopleths.interpolate_islands(
+            lon,
+            lat,
+            np.array([s.level for s in st]),
+            bbox=q.bbox,
+            method=q.method,
+            resolution=q.resolution,
+            max_distance=q.max_distance,
+        )
+    except isopleths.IsoplethError as exc:
+        raise Unprocessable(str(exc), code="bad_field") from None
+    box = q.bbox
+    if box is None and found:
+        boxes = np.array([i.bbox for i in found])
+        box = (
+            float(boxes[:, 0].min()),
+            float(boxes[:, 1].min()),
+            float(boxes[:, 2].max()),
+            float(boxes[:, 3].max()),
+        )
+    return MapData(st, found, box, since, at, q.max_distance)
+
+
+def empty_reason(m: MapData, off_map: list[str], window: int) -> str | None:
+    """Why a map has no bands, or None when it has some."""
+    if any(np.isfinite(i.field.value).any() for i in m.islands):
+        return None
+    if m.stations:
+        return (
+            f"no cell of the bbox lies within max_distance ({m.max_distance:g} m) of a camera"
+            " with a reading"
+        )
+    if off_map:
+        return "the sky cameras with readings have no place (lat/lon) to draw them at"
+    return (
+        f"no sky camera has a graded reading in the {window} s before {m.at.isoformat()} (window)"
+    )
+
+
+def geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[str, Any]:
+    """The collection: the bands (or the uncertainty layer) of every island, one feature per
+    band; the cameras; the islands; why nothing is drawn when nothing is; and warnings of
+    cameras drawn in another category's band and of graded cameras with no place."""
+    st = m.stations
+    per_island = [
+        isopleths.bands(i.field) if q.layer == "levels" else isopleths.uncertainty_bands(i.field)
+        for i in m.islands
+    ]
+    own = [airquality.category(s.level) for s in st]
+    drawn = _bands_drawn(m)
+    cell = [round(v, 1) for v in isopleths.cell_size_m(m.islands[0].field)] if m.islands else None
+    return {
+        "type": "FeatureCollection",
+        "features": isopleths.merged(per_island),
+        "bbox": list(m.box) if m.box else None,
+        "method": q.method,
+        "layer": q.layer,
+        "computed_at": now.isoformat(),
+        "at": m.at.isoformat(),
+        "window_s": q.window,
+        "max_distance_m": q.max_distance,
+        "cameras": [
+            {
+                "camera_id": s.camera_id,
+                "name": s.name,
+                "lon": s.lon,
+                "lat": s.lat,
+                "level": s.level,
+                "category": category,
+                "band": band,
+                "captured_at": s.captured_at.isoformat(),
+            }
+            for s, category, band in zip(st, own, drawn, strict=True)
+        ],
+        "islands": [
+            {
+                "bbox": list(i.bbox),
+                "cell_m": [round(v, 1) for v in isopleths.cell_size_m(i.field)],
+                "cells": [len(i.field.lon), len(i.field.lat)],
+                "method": i.method,
+                "camera_ids": [st[k].camera_id for k in i.cameras.tolist()],
+            }
+            for i in m.islands
+        ],
+        "cell_m": cell,
+        "empty_reason": empty_reason(m, off_map, q.window),
+        "warnings": _warnings(m, own, drawn, cell, off_map, q.method),
+        "uncertainty": _uncertainty(m.islands),
+    }
+
+
+def _bands_drawn(m: MapData) -> list[str | None]:
+    """The category band each camera of ``m`` is drawn in (None: off every island)."""
+    st = m.stations
+    drawn: list[str | None] = [None] * len(st)
+    for island in m.islands:
+        idx = island.cameras
+        found = isopleths.band_at(
+            island.field,
+            np.array([st[k].lon for k in idx]),
+            np.array([st[k].lat for k in idx]),
+        )
+        for k, band in zip(idx.tolist(), found, strict=True):
+            drawn[k] = band
+    return drawn
+
+
+def _warnings(
+    m: MapData,
+    own: list[str],
+    drawn: list[str | None],
+    cell: list[float] | None,
+    off_map: list[str],
+    method: str,
+) -> list[str]:
+    """What the reader of the map should know: cameras drawn in another category's band than
+    their own reading, islands drawn by another method than asked, graded cameras with no
+    place."""
+    warnings = []
+    off = sum(1 for o, d in zip(own, drawn, strict=True) if d is not None and d != o)
+    if off and cell is not None:
+        warnings.append(
+            f"{off} of {len(own)} cameras lie in the band of another category than their"
+            f" own reading, with cells of {cell[0]:.0f} × {cell[1]:.0f} m: ask for a"
+            " smaller bbox or a larger resolution (up to 512); cameras close together"
+            " that disagree stay so at any resolution"
+        )
+    for n, island in enumerate(m.islands):
+        if island.method != method:
+            warnings.append(
+                f"island {n + 1} has cameras at fewer than 3 places, which {method} needs:"
+                f" drawn by {island.method}"
+            )
+    if off_map:
+        named = ", ".join(off_map[:10]) + (" …" if len(off_map) > 10 else "")
+        some = (
+            "1 sky camera with readings has"
+            if len(off_map) == 1
+            else f"{len(off_map)} sky cameras with readings have"
+        )
+        warnings.append(
+            f"{some} no lat/lon and so no place on the map: {named} (PATCH /cameras/{{id}}"
+            " with both)"
+        )
+    return warnings
+
+
+def _uncertainty(islands: list[isopleths.Island]) -> dict[str, Any] | None:
+    """The uncertainty layer's kind (kriging's standard deviation [level] or the distance to
+    the nearest camera [m]), its largest and mean value; None without islands."""
+    if not islands:
+        return None
+    kinds = {i.field.uncertainty_kind for i in islands}
+    return {
+        "kind": kinds.pop() if len(kinds) == 1 else "mixed",
+        "max": max(float(np.nanmax(i.field.uncertainty)) for i in islands),
+        "mean": float(np.nanmean(np.concatenate([i.field.uncertainty.ravel() for i in islands]))),
+    }
