@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import hashlib
 import json
 import os
 import sys
@@ -97,6 +98,17 @@ def _images(folder: Path) -> list[Path]:
     return found
 
 
+def _say(args: argparse.Namespace, summary: str, body: Any) -> None:
+    """The command's result on standard output: a line a person reads, or with ``--json``
+    the service's whole answer."""
+    print(json.dumps(body, indent=2) if args.json else summary)
+
+
+def _warn(body: dict[str, Any]) -> None:
+    for w in body.get("warnings") or []:
+        err.print(f"[yellow]warning:[/] {w}")
+
+
 def _number(value: str, name: str, row: int) -> float | None:
     if value == "":
         return None
@@ -140,7 +152,7 @@ def import_cameras(service: Service, args: argparse.Namespace) -> None:
             progress.advance(task)
     if args.tokens_out:
         with args.tokens_out.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=["id", "token"])
+            w = csv.DictWriter(f, fieldnames=["id", "token"], lineterminator="\n")
             w.writeheader()
             w.writerows(tokens)
         err.print(f"{len(tokens)} cameras registered; their tokens are in {args.tokens_out}")
@@ -172,15 +184,20 @@ def import_panels(service: Service, args: argparse.Namespace) -> None:
 def _files(paths: Sequence[Path], what: str) -> list[tuple[str, tuple[str, bytes, str]]]:
     """The images read (with a progress bar), as multipart ``files``."""
     out = []
+    seen: dict[str, Path] = {}
     with Progress(console=err) as progress:
         task = progress.add_task(f"reading {what}", total=len(paths))
         for p in paths:
+            data = p.read_bytes()
+            first = seen.setdefault(hashlib.sha256(data).hexdigest(), p)
+            if first != p:
+                raise Failed(f"{first} and {p} are the same photo: keep one (a copy weighs twice)")
             kind = (
                 "image/jpeg"
                 if p.suffix.lower() in (".jpg", ".jpeg")
                 else "image/" + p.suffix.lower().lstrip(".")
             )
-            out.append(("files", (p.name, p.read_bytes(), kind)))
+            out.append(("files", (p.name, data, kind)))
             progress.advance(task)
     return out
 
@@ -219,12 +236,22 @@ def _labels(
             raise Failed(f"{labels} has no column {column}")
     table = {r["file"]: r for r in rows}
     kept, chosen = [], []
+    by_name: dict[str, list[Path]] = {}
     for p in paths:
         rel = p.relative_to(folder).as_posix()
         row = table.get(rel, table.get(p.name))
         if row is not None:
             kept.append(p)
             chosen.append(row)
+            if rel not in table:
+                by_name.setdefault(p.name, []).append(p)
+    if twice := {n: ps for n, ps in by_name.items() if len(ps) > 1}:
+        name, found = next(iter(twice.items()))
+        raise Failed(
+            f"{labels} names {name} bare, and {folder} holds it "
+            f"{len(found)} times: {', '.join(q.relative_to(folder).as_posix() for q in found)}"
+            " (name it by its path in the folder, or keep one)"
+        )
     named = {row["file"] for row in chosen}
     if missing := [f for f in table if f not in named]:
         raise Failed(
@@ -248,18 +275,26 @@ def baseline(service: Service, args: argparse.Namespace) -> None:
         "POST", f"/panels/{args.panel_id}/baseline", files=_files(paths, "photos"), params=params
     )
     body = r.json()
-    err.print(f"baseline {body.get('id')} of panel {args.panel_id} from {len(paths)} photos")
-    for w in body.get("warnings") or []:
-        err.print(f"[yellow]warning:[/] {w}")
-    print(json.dumps(body, indent=2))
+    _warn(body)
+    _say(args, f"baseline {body.get('id')} of panel {args.panel_id} from {len(paths)} photos", body)
 
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
     """The fleet model from labelled photos (clean, dust, bird_drop, snow)."""
     paths, labels, groups = _labelled(args.folder, args.labels, "label", args.groups)
     data = {"labels": labels, **({"groups": groups} if groups else {})}
-    r = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data)
-    print(json.dumps(r.json(), indent=2))
+    body = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data).json()
+    _warn(body)
+    accuracy = body.get("cv_balanced_accuracy")
+    how = "" if accuracy is None else f", balanced accuracy {accuracy:.2f}"
+    if accuracy is not None and body.get("cv_low") is not None:
+        how += f" (95 % interval {body['cv_low']:.2f}–{body['cv_high']:.2f})"
+    _say(
+        args,
+        f"fleet model {body['id']} from {body['n_clean']} clean and {body['n_dirty']} dirty "
+        f"photos{how}",
+        body,
+    )
 
 
 def air_calibrate(service: Service, args: argparse.Namespace) -> None:
@@ -283,10 +318,14 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
         params=params,
     )
     body = r.json()
-    err.print(f"calibration {body['id']} ({body['method']}) from {body['n_images']} images")
-    for w in body.get("warnings") or []:
-        err.print(f"[yellow]warning:[/] {w}")
-    print(json.dumps(body, indent=2))
+    _warn(body)
+    graded = ", ".join(body.get("camera_ids") or []) or "every sky camera without its own"
+    _say(
+        args,
+        f"calibration {body['id']} ({body['method']}) from {body['n_images']} images, "
+        f"grading {graded}",
+        body,
+    )
 
 
 def _pages(service: Service, path: str, params: dict[str, Any]) -> Iterator[str]:
@@ -312,7 +351,7 @@ def export_readings(service: Service, args: argparse.Namespace) -> None:
     with args.out.open("w", newline="") as f, Progress(console=err) as progress:
         task = progress.add_task("readings", total=None)
         for k, page in enumerate(_pages(service, "/air/readings", params)):
-            lines = page.splitlines(keepends=True)
+            lines = [line + "\n" for line in page.splitlines()]
             f.writelines(lines if k == 0 else lines[1:])
             n += max(len(lines) - 1, 0)
             progress.update(task, completed=n)
@@ -325,7 +364,7 @@ def export_history(service: Service, args: argparse.Namespace) -> None:
     rows = service.call("GET", f"/panels/{args.panel_id}/history", params=params).json()
     fields = list(rows[0]) if rows else ["start", "end", "frames", "clean", "dirty"]
     with args.out.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
+        w = csv.DictWriter(f, fieldnames=fields, lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
     err.print(f"{len(rows)} buckets of panel {args.panel_id} written to {args.out}")
@@ -357,6 +396,7 @@ def replay(service: Service, args: argparse.Namespace) -> None:
     paths = [p for p in _images(args.folder) if p.suffix.lower() in (".jpg", ".jpeg")]
     times = _times(paths, args.time_from_name, args.timezone)
     camera = Service(service.url, args.camera_token)
+    judged = 0
     with Progress(console=err) as progress, contextlib.closing(camera):
         task = progress.add_task(f"replaying as {args.camera_id}", total=len(paths))
         for i, (p, taken) in enumerate(zip(paths, times, strict=True)):
@@ -369,8 +409,28 @@ def replay(service: Service, args: argparse.Namespace) -> None:
                 headers={"Content-Type": "image/jpeg"},
                 params={} if taken is None else {"captured_at": taken},
             )
-            print(json.dumps({"file": p.name, **r.json()}))
+            body = r.json()
+            verdict = body.get("verdict") or {}
+            judged += verdict.get("reason") is None
+            if args.json:
+                print(json.dumps({"file": p.name, **body}))
+            else:
+                print(f"{p.name}: {_verdict_words(verdict)}")
             progress.advance(task)
+    summary = f"{len(paths)} frames posted as {args.camera_id}: {judged} judged"
+    (err.print if args.json else print)(summary)
+
+
+def _verdict_words(v: dict[str, Any]) -> str:
+    """A frame's verdict as a person reads it: the panel's state, the sky's level, or why
+    none."""
+    if v.get("reason"):
+        return f"no verdict: {v['reason']}"
+    if v.get("kind") == "panel":
+        return "clean" if v.get("clean") else "needs cleaning"
+    if v.get("kind") == "sky":
+        return v.get("message") or f"level {v.get('level')}"
+    return "measured"
 
 
 def parser() -> argparse.ArgumentParser:
@@ -381,6 +441,12 @@ def parser() -> argparse.ArgumentParser:
     top.add_argument("--url", default=os.environ.get("VANTAGE_URL", "http://127.0.0.1:8000"))
     top.add_argument(
         "--token", default=os.environ.get("VANTAGE_TOKEN"), help="default: VANTAGE_TOKEN"
+    )
+    top.add_argument(
+        "--json",
+        action="store_true",
+        help="print the service's answers as JSON (a line a frame for replay) instead of a "
+        "line a person reads",
     )
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

@@ -48,10 +48,10 @@ from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
-from app.solar import events as solar_events
 from app.solar import kind as solar_kind
-from app.solar import metrics as solar_metrics
 from app.solar import router as solar
+from app.solar.services import events as solar_events
+from app.solar.services import metrics as solar_metrics
 from app.web import router as pages
 
 log = logging.getLogger("vantage")

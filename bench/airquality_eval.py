@@ -43,9 +43,9 @@ from sklearn.preprocessing import StandardScaler
 
 from app.air.core import airquality, breakpoints
 from app.air.kind import band_below
-from app.platform.frames import hotelling as soiling
 from app.platform.frames.jpeg import decode_rgb
 from app.platform.frames.stats import channel_stats
+from app.stats import hotelling
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = {
@@ -283,9 +283,9 @@ def deviations(values: np.ndarray, place: np.ndarray) -> np.ndarray:
 def t2_predict(modes_tr: np.ndarray, lv_tr: np.ndarray, modes_te: np.ndarray) -> np.ndarray:
     try:
         cal = airquality.calibrate(
-            modes_tr, lv_tr, significance=0.05, shrinkage=soiling.QUANTISATION_VARIANCE
+            modes_tr, lv_tr, significance=0.05, shrinkage=hotelling.QUANTISATION_VARIANCE
         )
-    except soiling.BaselineError:
+    except hotelling.BaselineError:
         return np.full(len(modes_te), np.nan)
     out = []
     for m in modes_te:

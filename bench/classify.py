@@ -30,11 +30,11 @@ import numpy as np
 
 from app.main import register_kinds
 from app.platform.db.models import CameraKind
-from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
 from app.platform.frames.stats import channel_histograms
 from app.solar.core import fleet
+from app.stats import hotelling
 
 CAMERA = CameraInfo(id="bench", kind=CameraKind.panel, panel_id=None, roi=None)
 WITH_BASELINE = CameraInfo(
@@ -60,7 +60,7 @@ def panel_frame(width: int, height: int, seed: int = 0) -> bytes:
 
 
 def make_variants(
-    data: bytes, baseline: soiling.Baseline, model: fleet.LogisticModel
+    data: bytes, baseline: hotelling.Baseline, model: fleet.LogisticModel
 ) -> dict[str, Callable[[], None]]:
     arr = np.frombuffer(data, np.uint8)
 
@@ -69,7 +69,7 @@ def make_variants(
 
     def service_baseline() -> None:
         d = analyse(data, camera=WITH_BASELINE, max_pixels=10**9)
-        soiling.classify(baseline, d.stats.modes)
+        hotelling.classify(baseline, d.stats.modes)
 
     def service_fleet() -> None:
         d = analyse(data, camera=CAMERA, max_pixels=10**9)
@@ -88,7 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     register_kinds()  # what the app does at start: the panel kind's ingest path
     rng = np.random.default_rng(1)
-    baseline = soiling.fit_baseline(rng.multivariate_normal([56, 60, 84], np.eye(3) * 4, 20))
+    baseline = hotelling.fit_baseline(rng.multivariate_normal([56, 60, 84], np.eye(3) * 4, 20))
     model = fleet.LogisticModel(
         feature_names=fleet.FEATURES,
         mean=np.zeros(len(fleet.FEATURES)),

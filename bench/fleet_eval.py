@@ -42,13 +42,13 @@ from sklearn.model_selection import StratifiedGroupKFold
 
 from app.main import register_kinds
 from app.platform.db.models import CameraKind
-from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
 from app.platform.frames.jpeg import decode_rgb
 from app.solar.core import fleet
-from app.solar.panels import as_core_model
-from app.solar.training import fit_fleet, fleet_search
+from app.solar.services.panels import as_core_model
+from app.solar.services.training import fit_fleet, fleet_search
+from app.stats import hotelling
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = CameraInfo(id="eval", kind=CameraKind.panel, panel_id=None, roi=None)
@@ -257,8 +257,8 @@ def main() -> None:
                 unlike["no panel"][slot] += 1
                 unlike["no panel"][1] += 1
             clean_train = tr[label[tr] == "clean"]
-            baseline = soiling.fit_baseline(modes[clean_train], significance=0.05)
-            t2_pred[te] = [0 if soiling.classify(baseline, m).clean else 1 for m in modes[te]]
+            baseline = hotelling.fit_baseline(modes[clean_train], significance=0.05)
+            t2_pred[te] = [0 if hotelling.classify(baseline, m).clean else 1 for m in modes[te]]
         fr = rates(y[judged], pred[judged])
         tr2 = rates(y[judged], t2_pred[judged])
         sure = judged & ~doubted

@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.platform.policy import Policy  # noqa: E402
-from app.solar import panels  # noqa: E402
 from app.solar.core.panel_state import PanelState  # noqa: E402
+from app.solar.services import panels  # noqa: E402
 from bench.air_trends import PG_ADMIN, analyze, database  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
 from tests.factories import TASK_FACTS, Facts, migrate, store_farm  # noqa: E402

@@ -13,11 +13,12 @@ from sqlalchemy.orm import Session
 from app.air.core import airquality
 from app.air.models import AirAlert, AirCalibration, SkyVerdict
 from app.air.services import grading
+from app.air.services.readings import estimate_out
 from app.platform.db.models import Verdict
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.frames.quality import SKY_LIMITS
 from app.platform.frames.stats import Roi
-from app.platform.schemas import SkyEstimate, SkyVerdictOut
+from app.platform.schemas import SkyVerdictOut
 
 
 def band_below(image: NDArray[np.uint8], roi: Roi | None) -> NDArray[np.uint8] | None:
@@ -51,18 +52,6 @@ def verdict_message(verdict: SkyVerdict) -> str | None:
     if verdict.span:
         return f"Not sure: the air is {airquality.span_words(verdict.span)}"
     return NOT_SURE
-
-
-def estimate_out(verdict: SkyVerdict) -> SkyEstimate | None:
-    """The regression's estimate of a verdict, or None (graded by the clusters)."""
-    if verdict.estimate is None or verdict.estimate_unit is None:
-        return None
-    return SkyEstimate(
-        unit=verdict.estimate_unit,
-        value=verdict.estimate,
-        low=verdict.estimate_low,
-        high=verdict.estimate_high,
-    )
 
 
 def verdict_out(verdict: Verdict) -> SkyVerdictOut:

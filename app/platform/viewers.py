@@ -22,8 +22,9 @@ from sqlalchemy.orm import Session
 from app.platform.auth import hash_token, new_token
 from app.platform.db.models import SigninCode, ViewerToken
 from app.platform.http.deps import Admin, PolicyDep, RecordId, SessionDep
-from app.platform.http.errors import NotFound, Unprocessable
+from app.platform.http.errors import Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
+from app.platform.lookup import get_or_404
 from app.platform.schemas import Out, Schema
 
 router = APIRouter(tags=["viewers"])
@@ -106,9 +107,7 @@ def list_viewers(session: SessionDep, _: Admin) -> list[ViewerOut]:
 @router.delete("/viewers/{viewer_id}", status_code=204, responses={**AUTH_ERRORS, **NOT_FOUND})
 def revoke_viewer(viewer_id: RecordId, session: SessionDep, _: Admin) -> Response:
     """Revoke a viewer token: it is refused (401) from now on."""
-    row = session.get(ViewerToken, viewer_id)
-    if row is None:
-        raise NotFound(f"no viewer token {viewer_id!r}")
+    row = get_or_404(session, ViewerToken, viewer_id, "viewer token")
     session.delete(row)
     return Response(status_code=204)
 

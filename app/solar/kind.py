@@ -18,9 +18,9 @@ from app.platform.frames.cameras import check_in_service
 from app.platform.frames.kinds import KindHandler, Pixels, verdict_common
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.schemas import PanelVerdictOut
-from app.solar import labels, panels
 from app.solar.core import fleet
 from app.solar.models import Baseline, Panel, PanelVerdict, Robot
+from app.solar.services import labels, panels
 
 
 def _features(pixels: Pixels) -> NDArray[np.float64] | None:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.cells import vision as vision_service
+from app.cells.services import vision as vision_service
 from app.main import create_app
 from tests.cells.scenes import PRISM_OUTLINE, cylinder_scene, light_prism_scene, prism_scene
 from tests.factories import ADMIN_TOKEN, corner_error, empty_tables

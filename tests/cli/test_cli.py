@@ -105,7 +105,10 @@ def test_air_calibration_replay_and_readings_export(
     )
     token = r.json()["token"]
     assert (
-        vantage(live, "air-calibrate", str(skies), "--applies-to", "s1", "--camera-id", "s1") == 0
+        vantage(
+            live, "--json", "air-calibrate", str(skies), "--applies-to", "s1", "--camera-id", "s1"
+        )
+        == 0
     )
     made = json.loads(capsys.readouterr().out)
     assert (made["n_images"], made["camera_ids"]) == (40, ["s1"])
@@ -113,7 +116,7 @@ def test_air_calibration_replay_and_readings_export(
     frames.mkdir()
     for k, level in enumerate((10, 7, 3)):
         (frames / f"{k:02d}.jpg").write_bytes(sky_jpeg(level, seed=500 + k))
-    assert vantage(live, "replay", "s1", str(frames), "--camera-token", token) == 0
+    assert vantage(live, "--json", "replay", "s1", str(frames), "--camera-token", token) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [x["verdict"]["level"] for x in lines] == [10, 7, 3]
     out = tmp_path / "readings.csv"
@@ -185,7 +188,14 @@ def test_a_labels_csv_chooses_the_images_and_its_column(
     labels = write_csv(tmp_path / "grades.csv", rows)
     assert (
         vantage(
-            live, "air-calibrate", str(skies), "--labels", str(labels), "--column", "station_grade"
+            live,
+            "--json",
+            "air-calibrate",
+            str(skies),
+            "--labels",
+            str(labels),
+            "--column",
+            "station_grade",
         )
         == 0
     )
@@ -204,7 +214,7 @@ def test_a_labels_csv_chooses_the_images_and_its_column(
     assert httpx.get(f"{live}/air/calibration", headers=ADMIN).json()["id"] == before
     # the regression measures its interval a day left out at a time
     grade = ["--labels", str(labels), "--column", "station_grade", "--method", "regression"]
-    assert vantage(live, "air-calibrate", str(skies), *grade, "--groups", "day") == 0
+    assert vantage(live, "--json", "air-calibrate", str(skies), *grade, "--groups", "day") == 0
     assert json.loads(capsys.readouterr().out)["regression"]["sigma_from"] == "days left out"
     assert vantage(live, "air-calibrate", str(skies), "--groups", "day") == 1
     assert "give --labels" in capsys.readouterr().err
@@ -241,7 +251,7 @@ def test_replay_takes_each_frames_time_from_its_name(
     frames.mkdir()
     for k, t in enumerate(taken):
         (frames / f"{t:%Y%m%d-%H%M}.jpg").write_bytes(sky_jpeg(7, seed=k))
-    args = ["replay", "s2", str(frames), "--camera-token", token, "--time-from-name"]
+    args = ["--json", "replay", "s2", str(frames), "--camera-token", token, "--time-from-name"]
     assert vantage(live, *args, "%Y%m%d-%H%M", "--timezone", "Europe/Rome") == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [datetime.fromisoformat(x["captured_at"]) for x in lines] == taken
@@ -252,3 +262,60 @@ def test_replay_takes_each_frames_time_from_its_name(
     assert "not an IANA time zone" in capsys.readouterr().err
     listed = httpx.get(f"{live}/cameras/s2/frames", headers=ADMIN)
     assert len(listed.json()) == 2
+
+
+def test_a_crlf_csv_leaves_no_carriage_return(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cameras = tmp_path / "cameras.csv"  # as a spreadsheet on Windows saves it
+    cameras.write_bytes(b"id,kind,name\r\ncr-1,sky,North\r\ncr-2,sky,South\r\n")
+    tokens = tmp_path / "tokens.csv"
+    assert vantage(live, "cameras", "import", str(cameras), "--tokens-out", str(tokens)) == 0
+    listed = {c["id"]: c["name"] for c in httpx.get(f"{live}/cameras", headers=ADMIN).json()}
+    assert (listed["cr-1"], listed["cr-2"]) == ("North", "South")
+    written = tokens.read_bytes()
+    assert b"\r" not in written  # cut -d, -f2 tokens.csv gives the token alone
+    assert [line.split(b",")[0] for line in written.splitlines()] == [b"id", b"cr-1", b"cr-2"]
+    assert "2 cameras registered" in capsys.readouterr().err
+
+
+def test_a_photo_twice_in_a_folder_is_refused_with_its_paths(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert httpx.post(f"{live}/panels", json={"id": "p2"}, headers=ADMIN).status_code == 201
+    clean = tmp_path / "clean"
+    (clean / "monday").mkdir(parents=True)
+    (clean / "copy").mkdir()
+    for i, data in enumerate(clean_set(6)):
+        (clean / "monday" / f"{i}.jpg").write_bytes(data)
+    (clean / "copy" / "3.jpg").write_bytes((clean / "monday" / "3.jpg").read_bytes())
+    capsys.readouterr()
+    assert vantage(live, "baseline", "p2", str(clean)) == 1
+    said = capsys.readouterr().err.replace("\n", "")
+    assert "copy/3.jpg and" in said
+    assert "monday/3.jpg are the same photo" in said
+    assert httpx.get(f"{live}/panels/p2/baseline", headers=ADMIN).status_code == 404
+    # a labels CSV naming a file bare that two sub-folders hold: which one is meant?
+    (clean / "copy" / "3.jpg").write_bytes(clean_set(7)[6])
+    labels = write_csv(tmp_path / "labels.csv", [{"file": "3.jpg", "label": "clean"}])
+    assert vantage(live, "fleet", str(clean), "--labels", str(labels)) == 1
+    said = capsys.readouterr().err.replace("\n", "")
+    assert "holds it 2 times: copy/3.jpg, monday/3.jpg" in said
+
+
+def test_each_command_ends_with_a_line_a_person_reads(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert httpx.post(f"{live}/panels", json={"id": "p3"}, headers=ADMIN).status_code == 201
+    clean = tmp_path / "clean"
+    clean.mkdir()
+    for i, data in enumerate(clean_set(8)):
+        (clean / f"{i}.jpg").write_bytes(data)
+    capsys.readouterr()
+    assert vantage(live, "baseline", "p3", str(clean)) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1
+    assert out[0].startswith("baseline ")
+    assert "from 8 photos" in out[0]
+    assert vantage(live, "--json", "baseline", "p3", str(clean)) == 0
+    assert json.loads(capsys.readouterr().out)["n"] == 8

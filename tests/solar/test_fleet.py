@@ -19,7 +19,7 @@ from app.solar.core.fleet import (
     lbp_histogram,
     reduce,
 )
-from app.solar.training import fit_fleet, fold_interval, reach
+from app.solar.services.training import fit_fleet, fold_interval, reach
 from tests.factories import panel
 
 

@@ -6,7 +6,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from app.solar.panels import FORECAST_HORIZON, crossing_at
+from app.solar.services.panels import FORECAST_HORIZON, crossing_at
 
 T0 = datetime(2026, 6, 1, tzinfo=UTC)
 NOW = T0 + timedelta(days=2)

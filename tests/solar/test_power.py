@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.platform.frames import hotelling
 from app.solar.core import power
+from app.stats import hotelling
 
 
 def test_the_veil_found_is_detected_nine_times_in_ten() -> None:

@@ -21,8 +21,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.stats import t as t_dist
 
 from app.air.core import breakpoints
-from app.platform.frames import hotelling as soiling
 from app.platform.frames.stats import channel_histograms
+from app.stats import hotelling
 
 LEVELS = range(1, 11)
 CATEGORIES = (
@@ -108,7 +108,7 @@ class Cluster:
     """The calibration levels pooled into this cluster (one, unless too few images)."""
     level: int
     """The level the cluster reports (the median of its images' levels)."""
-    baseline: soiling.Baseline
+    baseline: hotelling.Baseline
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +125,7 @@ def calibrate(
     or ill-conditioned (its images share a mode in some channel) gets the quantisation
     variance, 1/12 level², on its diagonal, with a warning; eq. 6.13 is unchanged otherwise.
 
-    Raises soiling.BaselineError when a cluster's covariance is singular even so.
+    Raises hotelling.BaselineError when a cluster's covariance is singular even so.
     """
     x = np.asarray(modes, dtype=np.float64)
     lv = np.asarray(levels, dtype=np.int64)
@@ -154,22 +154,22 @@ def calibrate(
         members = np.isin(lv, g)
         named = f"level {g[0]}" if len(g) == 1 else f"levels {g} (pooled)"
         try:
-            baseline = soiling.fit_baseline(
+            baseline = hotelling.fit_baseline(
                 x[members], significance=significance, shrinkage=shrinkage
             )
-        except soiling.BaselineError as exc:
-            if shrinkage >= soiling.QUANTISATION_VARIANCE:  # say which of up to ten it is
-                raise soiling.BaselineError(f"{named}: {exc}") from exc
+        except hotelling.BaselineError as exc:
+            if shrinkage >= hotelling.QUANTISATION_VARIANCE:  # say which of up to ten it is
+                raise hotelling.BaselineError(f"{named}: {exc}") from exc
             # one grey sky at several exposures shares one mode vector: the modes are whole
             # levels, so each channel carries at least the rounding's variance, 1/12 level²
             try:
-                baseline = soiling.fit_baseline(
+                baseline = hotelling.fit_baseline(
                     x[members],
                     significance=significance,
-                    shrinkage=soiling.QUANTISATION_VARIANCE,
+                    shrinkage=hotelling.QUANTISATION_VARIANCE,
                 )
-            except soiling.BaselineError as again:
-                raise soiling.BaselineError(f"{named}: {again}") from again
+            except hotelling.BaselineError as again:
+                raise hotelling.BaselineError(f"{named}: {again}") from again
             warnings.append(
                 f"{named}: {exc} — 1/12 level² (the variance of rounding modes to whole "
                 "levels) added to its covariance's diagonal"
@@ -192,7 +192,7 @@ def grade(calibration: Calibration, modes: ArrayLike) -> Grade:
     the smallest F; of none, no level ("outside calibration") rather than a guess."""
     if not calibration.clusters:  # a regression's, made without them
         return Grade(None, None, None, "the calibration has no clusters to grade modes by")
-    results = [(c, soiling.classify(c.baseline, modes)) for c in calibration.clusters]
+    results = [(c, hotelling.classify(c.baseline, modes)) for c in calibration.clusters]
     accepted = [(c, r) for c, r in results if r.clean]  # F < F₍₃,ₙ₋₃,ς₎ (6.21–6.22)
     if not accepted:
         best = min(results, key=lambda cr: cr[1].f_stat)[1]

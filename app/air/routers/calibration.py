@@ -27,6 +27,8 @@ from app.platform.http.deps import (
     PolicyDep,
     SessionDep,
     SettingsDep,
+    Shrinkage,
+    Significance,
     UtcTime,
     image_work,
 )
@@ -44,20 +46,6 @@ from app.platform.http.responses import (
 from app.platform.http.uploads import images_or_frames
 
 router = APIRouter(prefix="/air", tags=["air quality"])
-
-
-Significance = Annotated[float, Query(ge=1e-6, le=0.05, description="ς (eq. 6.21).")]
-
-
-Shrinkage = Annotated[
-    float,
-    Query(
-        ge=0,
-        le=100,
-        description="Variance added to the diagonal of each level's Σ̂ of modes [grey level²]; "
-        "0.0833 when a channel's mode is the same in all of a level's images.",
-    ),
-]
 
 
 UploadsCamera = Annotated[

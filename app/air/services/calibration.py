@@ -27,7 +27,6 @@ from app.air.schemas import (
 from app.air.services.cameras import graded_cameras, sky_camera
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.db.session import release
-from app.platform.frames import hotelling as soiling
 from app.platform.frames import ingest
 from app.platform.frames.camera_info import (
     CameraInfo,
@@ -43,6 +42,7 @@ from app.platform.http.errors import (
     Unprocessable,
 )
 from app.platform.memo import ById
+from app.stats import hotelling
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,7 +266,7 @@ def as_core(row: AirCalibration) -> airquality.Calibration:
         airquality.Cluster(
             levels=tuple(c["levels"]),
             level=int(c["level"]),
-            baseline=soiling.Baseline(
+            baseline=hotelling.Baseline(
                 n=int(c["n"]),
                 mean_modes=np.asarray(c["mean_modes"], dtype=np.float64),
                 covariance=np.asarray(c["covariance"], dtype=np.float64),
@@ -404,7 +404,7 @@ def calibrate(
         regression = fit_regression(features, list(targets), unit=unit, groups=groups, table=table)
     try:
         cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
-    except soiling.BaselineError as exc:
+    except hotelling.BaselineError as exc:
         if regression is None:
             raise Unprocessable(f"cannot calibrate: {exc}", code="bad_calibration") from None
         # the regression grades without the clusters (they grade only a frame stored without

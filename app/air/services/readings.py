@@ -19,7 +19,6 @@ from sqlalchemy import (
 from sqlalchemy.orm import QueryableAttribute, Session
 
 from app.air.core import airquality
-from app.air.kind import estimate_out
 from app.air.models import SkyVerdict
 from app.air.schemas import (
     AirLatest,
@@ -29,6 +28,7 @@ from app.air.services.cameras import TRUSTED, Place, Reading, sky_camera, sky_ca
 from app.platform.db.base import time_slot
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.frames.cameras import NEWEST_FIRST, FrameKey, after, taken_in
+from app.platform.schemas import SkyEstimate
 
 
 def latest_of(session: Session, camera_id: str) -> tuple[Place, Reading | None]:
@@ -104,6 +104,18 @@ def readings(
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
     q = q.where(*taken_in(camera_ids, since, until), *after(cursor))
     return session.execute(q.order_by(*NEWEST_FIRST).limit(limit).offset(offset)).all()
+
+
+def estimate_out(verdict: SkyVerdict) -> SkyEstimate | None:
+    """The regression's estimate of a verdict, or None (graded by the clusters)."""
+    if verdict.estimate is None or verdict.estimate_unit is None:
+        return None
+    return SkyEstimate(
+        unit=verdict.estimate_unit,
+        value=verdict.estimate,
+        low=verdict.estimate_low,
+        high=verdict.estimate_high,
+    )
 
 
 def reading_out(r: Any) -> AirReading:

@@ -9,8 +9,8 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.cells import calibrations
-from app.cells.calibrations import Board
+from app.cells.services import calibrations
+from app.cells.services.calibrations import Board
 from app.platform.http.deps import (
     Admin,
     Limit,

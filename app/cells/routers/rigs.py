@@ -11,7 +11,6 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from app.cells import grid, rigs
 from app.cells.core import laser, shapes
 from app.cells.models import Rig
 from app.cells.schemas import (
@@ -25,6 +24,7 @@ from app.cells.schemas import (
     TriangulateIn,
     TriangulateOut,
 )
+from app.cells.services import grid, rigs
 from app.platform.db.session import release
 from app.platform.http.deps import (
     Admin,

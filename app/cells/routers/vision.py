@@ -10,9 +10,9 @@ import numpy as np
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
 
-from app.cells import vision
 from app.cells.core.imaging import CannyParams, OutlineParams
 from app.cells.schemas import EllipseOut, OutlineOut
+from app.cells.services import vision
 from app.platform.http.deps import RobotOrAdmin, SettingsDep, image_work
 from app.platform.http.errors import Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, UNPROCESSABLE, UPLOAD_ERRORS, multipart_body

@@ -21,6 +21,7 @@ from app.platform.frames.ingest import check_fits
 from app.platform.frames.kinds import KINDS
 from app.platform.frames.writer import Credential, Refusal
 from app.platform.http.errors import Conflict, NotFound, Unprocessable
+from app.platform.lookup import get_or_404
 from app.platform.policy import Policy
 from app.platform.schemas import CameraCreate, CameraUpdate
 
@@ -96,10 +97,7 @@ def create_camera(session: Session, data: CameraCreate) -> tuple[Camera, str]:
 
 
 def get_camera(session: Session, camera_id: str) -> Camera:
-    camera = session.get(Camera, camera_id)
-    if camera is None:
-        raise NotFound(f"no camera {camera_id!r}")
-    return camera
+    return get_or_404(session, Camera, camera_id, "camera")
 
 
 def check_in_service(row: Retirable) -> None:

@@ -280,6 +280,25 @@ TimeRangeQuery = Annotated[TimeRange, Depends(_time_range)]
 """The ``since`` and ``until`` query parameters of a listing by time."""
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0, le=10_000_000)]
+Significance = Annotated[
+    float,
+    Query(
+        ge=1e-6,
+        le=0.05,
+        description="ς, the level of significance of Hotelling's T² test (eq. 5.21; eq. 6.21 "
+        "for the sky's levels).",
+    ),
+]
+Shrinkage = Annotated[
+    float,
+    Query(
+        ge=0,
+        le=100,
+        description="Variance added to the diagonal of each Σ̂ of modes [level²]. 0 refuses a "
+        "singular covariance; 1/12 (the integer rounding of modes) admits a channel whose "
+        "mode never changes.",
+    ),
+]
 
 
 T = TypeVar("T")

@@ -18,10 +18,10 @@ from app.platform.http.deps import (
     SessionDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
-from app.solar import cleaning, lookup
 from app.solar.models import CleaningTask
-from app.solar.panels import task_view
 from app.solar.schemas import ClaimOut, FailIn, PanelPlace, TaskOut
+from app.solar.services import cleaning, lookup
+from app.solar.services.panels import task_view
 
 router = APIRouter(prefix="/cleaning", tags=["cleaning"])
 

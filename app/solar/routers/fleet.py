@@ -36,9 +36,9 @@ from app.platform.http.responses import (
 from app.platform.http.uploads import content_type, read_form, read_json
 from app.platform.policy import Policy
 from app.platform.schemas import Schema
-from app.solar import labels as labels_service
-from app.solar import panels, training
 from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
+from app.solar.services import labels as labels_service
+from app.solar.services import panels, training
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
 

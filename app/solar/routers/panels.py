@@ -23,6 +23,8 @@ from app.platform.http.deps import (
     RobotOrAdmin,
     SessionDep,
     SettingsDep,
+    Shrinkage,
+    Significance,
     TimeRangeQuery,
     image_work,
 )
@@ -39,7 +41,6 @@ from app.platform.http.responses import (
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
 from app.platform.policy import Policy
-from app.solar import cleaning, history, lookup, panels, registry, training
 from app.solar.core.panel_state import PanelState
 from app.solar.kind import verdict_out
 from app.solar.models import Baseline, Panel
@@ -61,21 +62,10 @@ from app.solar.schemas import (
     TwoSampleOut,
     ViewOut,
 )
+from app.solar.services import cleaning, history, lookup, panels, registry, training
 
 router = APIRouter(tags=["panels"])
 
-Significance = Annotated[
-    float, Query(ge=1e-6, le=0.05, description="ς, the level of significance (eq. 5.21).")
-]
-Shrinkage = Annotated[
-    float,
-    Query(
-        ge=0,
-        le=100,
-        description="Variance added to Σ̂'s diagonal [level²]. 0 refuses a singular covariance; "
-        "1/12 (integer rounding of modes) admits a channel whose mode never changes.",
-    ),
-]
 _FILES_BODY = multipart_body(json=BaselineFromFrames, files="files")
 
 

@@ -16,9 +16,9 @@ from app.platform.http.responses import (
     ROBOT_RETIRED,
     UNPROCESSABLE,
 )
-from app.solar import lookup, registry
 from app.solar.models import Robot
 from app.solar.schemas import RobotCreate, RobotCreated, RobotOut
+from app.solar.services import lookup, registry
 
 router = APIRouter(tags=["robots"])
 

@@ -16,7 +16,7 @@ from app.platform.http.deps import Admin, Limit, PolicyDep, SessionDep
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.platform.schemas import Out, Schema
-from app.solar.events import TOPIC, TYPES
+from app.solar.services.events import TOPIC, TYPES
 
 router = APIRouter(prefix="/solar", tags=["panels"])
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from app.platform.frames.hotelling import (
+from app.platform.frames.stats import channel_stats
+from app.stats.hotelling import (
     QUANTISATION_VARIANCE,
     BaselineError,
     classify,
@@ -16,7 +17,6 @@ from app.platform.frames.hotelling import (
     misclassification,
     two_sample_t2,
 )
-from app.platform.frames.stats import channel_stats
 
 RNG = np.random.default_rng(20240521)
 # a clean panel's modes: R 56, G 60, B 84 (dissertation, chapter 5 §III, Figure 5.3a)

@@ -14,12 +14,13 @@ from datetime import datetime
 from sqlalchemy import ColumnElement, and_, or_, select
 from sqlalchemy.orm import Session
 
-from app.platform.http.errors import Conflict, NotFound
+from app.platform.http.errors import Conflict
+from app.platform.lookup import get_or_404
 from app.platform.policy import Policy
-from app.solar import events
 from app.solar.core.panel_state import TaskPhase, task_phase
-from app.solar.lookup import get_panel, get_robot
 from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
+from app.solar.services import events
+from app.solar.services.lookup import get_panel, get_robot
 
 
 def _claimable(now: datetime) -> ColumnElement[bool]:
@@ -54,12 +55,7 @@ def claim_next(session: Session, robot_id: str, policy: Policy) -> CleaningTask 
 
 
 def _locked(session: Session, task_id: str) -> CleaningTask:
-    task = session.scalars(
-        select(CleaningTask).where(CleaningTask.id == task_id).with_for_update()
-    ).one_or_none()
-    if task is None:
-        raise NotFound(f"no cleaning task {task_id!r}")
-    return task
+    return get_or_404(session, CleaningTask, task_id, "cleaning task", lock=True)
 
 
 def claim(session: Session, task_id: str, robot_id: str, policy: Policy) -> CleaningTask:
@@ -151,10 +147,7 @@ def holds_task_on(session: Session, robot_id: str, panel_id: str, now: datetime)
 
 
 def get_task(session: Session, task_id: str) -> CleaningTask:
-    task = session.get(CleaningTask, task_id)
-    if task is None:
-        raise NotFound(f"no cleaning task {task_id!r}")
-    return task
+    return get_or_404(session, CleaningTask, task_id, "cleaning task")
 
 
 def shown_as(status: str, now: datetime) -> ColumnElement[bool]:

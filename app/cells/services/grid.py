@@ -9,10 +9,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import TypeAdapter, ValidationError
 
-from app.cells import vision
 from app.cells.core import laser, laser_grid
 from app.cells.core.laser_grid import Geometry
 from app.cells.schemas import Finite, LaserGridOut
+from app.cells.services import vision
 from app.platform.http.errors import Unprocessable
 
 Files = list[tuple[str | None, bytes]]

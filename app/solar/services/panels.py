@@ -14,15 +14,13 @@ from sqlalchemy import ColumnElement, Select, and_, case, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import Camera, Frame
-from app.platform.frames import hotelling as soiling
 from app.platform.frames.camera_info import Region, describe_region, region_now
 from app.platform.frames.kinds import Prepared
 from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
+from app.platform.lookup import get_or_404
 from app.platform.memo import ById
 from app.platform.policy import Policy
-from app.solar import events, labels
-from app.solar.cleaning import shown_as
 from app.solar.core import power
 from app.solar.core.fleet import Head, KernelModel, LogisticModel
 from app.solar.core.panel_state import (
@@ -42,16 +40,14 @@ from app.solar.models import (
     PanelVerdict,
     TaskStatus,
 )
+from app.solar.services import events, labels
+from app.solar.services.cleaning import shown_as
+from app.stats import hotelling
 
 
 def lock_panel(session: Session, panel_id: str) -> Panel:
     """The panel row, locked for this transaction (PostgreSQL; SQLite's writer lock suffices)."""
-    panel = session.scalars(
-        select(Panel).where(Panel.id == panel_id).with_for_update()
-    ).one_or_none()
-    if panel is None:
-        raise NotFound(f"no panel {panel_id!r}")
-    return panel
+    return get_or_404(session, Panel, panel_id, "panel", lock=True)
 
 
 def open_task(session: Session, panel_id: str, *, lock: bool = False) -> CleaningTask | None:
@@ -142,8 +138,8 @@ def latest_fleet_model(session: Session) -> FleetModel | None:
     ).first()
 
 
-def as_core_baseline(row: Baseline) -> soiling.Baseline:
-    return soiling.Baseline(
+def as_core_baseline(row: Baseline) -> hotelling.Baseline:
+    return hotelling.Baseline(
         n=row.n,
         mean_modes=np.asarray(row.mean_modes, dtype=np.float64),
         covariance=np.asarray(row.covariance, dtype=np.float64),
@@ -374,7 +370,7 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
     if decoded.quality is not None:
         verdict.reason = decoded.quality
     elif row is not None:
-        result = soiling.classify(as_core_baseline(row), decoded.stats.modes)
+        result = hotelling.classify(as_core_baseline(row), decoded.stats.modes)
         verdict.method, verdict.baseline_id = "baseline", row.id
         verdict.clean, verdict.t2, verdict.f_stat = result.clean, result.t2, result.f_stat
         verdict.p_value, verdict.threshold = result.p_value, result.threshold
@@ -565,9 +561,7 @@ def views(session: Session, panel: Panel, now: datetime) -> list[View]:
 
 
 def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
-    panel = session.get(Panel, panel_id)
-    if panel is None:
-        raise NotFound(f"no panel {panel_id!r}")
+    panel = get_or_404(session, Panel, panel_id, "panel")
     now = policy.now()
     task = open_task(session, panel_id)
     newest = session.get(Baseline, panel.baseline_id) if panel.baseline_id else None

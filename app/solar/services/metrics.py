@@ -10,8 +10,8 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.platform.policy import Policy
-from app.solar import panels
 from app.solar.models import CleaningTask
+from app.solar.services import panels
 
 
 def collect(session: Session, policy: Policy) -> Iterable[Metric]:

@@ -12,7 +12,6 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.cells import calibrations
 from app.cells.core import laser_grid, pantilt
 from app.cells.core.triangulation import (
     CrossRig,
@@ -24,8 +23,10 @@ from app.cells.core.triangulation import (
 )
 from app.cells.models import Rig
 from app.cells.schemas import RigSpec
+from app.cells.services import calibrations
 from app.platform.db.base import utcnow
-from app.platform.http.errors import Conflict, NotFound, Unprocessable
+from app.platform.http.errors import Conflict, Unprocessable
+from app.platform.lookup import get_or_404
 
 
 def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
@@ -84,11 +85,7 @@ def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
 
 
 def get(session: Session, rig_id: str, *, lock: bool = False) -> Rig:
-    q = select(Rig).where(Rig.id == rig_id)
-    row = session.scalars(q.with_for_update() if lock else q).one_or_none()
-    if row is None:
-        raise NotFound(f"no rig {rig_id!r}")
-    return row
+    return get_or_404(session, Rig, rig_id, "rig", lock=lock)
 
 
 def replace(session: Session, rig_id: str, body: RigSpec) -> Rig:

@@ -18,7 +18,8 @@ from sqlalchemy.orm import Session
 from app.cells.core import calibration
 from app.cells.models import Calibration
 from app.platform.frames.jpeg import JpegError, decode_image
-from app.platform.http.errors import NotFound, Unprocessable
+from app.platform.http.errors import Unprocessable
+from app.platform.lookup import get_or_404
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,10 +212,7 @@ def listed(session: Session, *, kind: str | None, limit: int, offset: int) -> Se
 
 
 def get(session: Session, calibration_id: str) -> Calibration:
-    row = session.get(Calibration, calibration_id)
-    if row is None:
-        raise NotFound(f"no calibration {calibration_id!r}")
-    return row
+    return get_or_404(session, Calibration, calibration_id, "calibration")
 
 
 def stereo_cameras(session: Session, calibration_id: str) -> list[dict[str, Any]]:

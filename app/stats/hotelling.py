@@ -1,4 +1,5 @@
-"""Solar-panel soiling from colour-channel modes: the dissertation's chapter 5, and what it needs.
+"""Hotelling's T² of colour-channel modes against a baseline: the dissertation's chapter 5
+(solar-panel soiling), which chapter 6 reuses for the sky's levels, and what it needs.
 
 A camera photographs a panel; dust, sand and droppings shift the modes of the R, G and B
 histograms upwards. A clean baseline of ``n`` images gives the mean mode vector and its

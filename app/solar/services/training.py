@@ -15,7 +15,6 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.platform.db.models import Camera, CameraKind, Frame
-from app.platform.frames import hotelling as soiling
 from app.platform.frames import verdicts
 from app.platform.frames.camera_info import (
     CameraInfo,
@@ -28,11 +27,12 @@ from app.platform.frames.camera_info import (
 from app.platform.frames.cameras import check_in_service
 from app.platform.frames.kinds import Decoded
 from app.platform.http.errors import Unprocessable
-from app.solar import events, labels
 from app.solar.core import power
 from app.solar.core.fleet import ALL_FEATURES
 from app.solar.models import Baseline, FleetModel, PanelVerdict
-from app.solar.panels import baseline_unfit, lock_panel
+from app.solar.services import events, labels
+from app.solar.services.panels import baseline_unfit, lock_panel
+from app.stats import hotelling
 
 MIN_FLEET_PER_CLASS = 5
 
@@ -157,8 +157,8 @@ def train_baseline(
     check_in_service(panel)
     check_region_in_use(session, panel_id, roi)
     try:
-        fit = soiling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
-    except soiling.BaselineError as exc:
+        fit = hotelling.fit_baseline(modes, significance=significance, shrinkage=shrinkage)
+    except hotelling.BaselineError as exc:
         raise Unprocessable(str(exc), code="bad_baseline") from None
     row = Baseline(
         id=str(uuid.uuid4()),
@@ -190,8 +190,8 @@ def train_baseline(
 
 @dataclass(frozen=True, slots=True)
 class Evaluation:
-    test: soiling.TwoSampleT2
-    rates: soiling.Misclassification
+    test: hotelling.TwoSampleT2
+    rates: hotelling.Misclassification
     clean_modes: NDArray[np.float64]
     dirty_modes: NDArray[np.float64]
 
@@ -201,8 +201,8 @@ def evaluate(
 ) -> Evaluation:
     """Two-sample T² between the sets and the classifier's two error rates."""
     try:
-        test = soiling.two_sample_t2(clean, dirty)
-        rates = soiling.misclassification(
+        test = hotelling.two_sample_t2(clean, dirty)
+        rates = hotelling.misclassification(
             clean, dirty, significance=significance, shrinkage=shrinkage
         )
     except ValueError as exc:  # BaselineError included: too few or degenerate sets

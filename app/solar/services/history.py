@@ -10,8 +10,8 @@ from sqlalchemy.orm import Session
 
 from app.platform.db.base import time_slot
 from app.platform.db.models import Frame
-from app.solar.lookup import get_panel
 from app.solar.models import PanelVerdict
+from app.solar.services.lookup import get_panel
 
 BUCKETS = {"hour": 3600, "day": 86400}
 

@@ -10,10 +10,10 @@ from app.platform.db.models import Camera
 from app.platform.frames.cameras import check_in_service, check_located, insert_new, retire_row
 from app.platform.http.errors import Conflict
 from app.platform.policy import Policy
-from app.solar import cleaning, panels
-from app.solar.lookup import get_panel, get_robot
 from app.solar.models import Panel, Robot, TaskStatus
 from app.solar.schemas import PanelCreate, PanelUpdate, RobotCreate
+from app.solar.services import cleaning, panels
+from app.solar.services.lookup import get_panel, get_robot
 
 
 def create_panel(session: Session, data: PanelCreate) -> Panel:
