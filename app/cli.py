@@ -433,23 +433,8 @@ def _verdict_words(v: dict[str, Any]) -> str:
     return "measured"
 
 
-def parser() -> argparse.ArgumentParser:
-    top = argparse.ArgumentParser(
-        prog="vantage",
-        description="Bulk work against a running Vantage service (VANTAGE_URL, VANTAGE_TOKEN).",
-    )
-    top.add_argument("--url", default=os.environ.get("VANTAGE_URL", "http://127.0.0.1:8000"))
-    top.add_argument(
-        "--token", default=os.environ.get("VANTAGE_TOKEN"), help="default: VANTAGE_TOKEN"
-    )
-    top.add_argument(
-        "--json",
-        action="store_true",
-        help="print the service's answers as JSON (a line a frame for replay) instead of a "
-        "line a person reads",
-    )
-    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
+def _registry_commands(sub: Any) -> None:
+    """cameras import, panels import."""
     cams = sub.add_parser("cameras", help="register cameras").add_subparsers(
         dest="action", required=True
     )
@@ -469,6 +454,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("csv", type=Path)
     p.set_defaults(run=import_panels)
 
+
+def _training_commands(sub: Any) -> None:
+    """baseline, fleet, air-calibrate."""
     b = sub.add_parser("baseline", help="a panel's clean baseline from a folder of photos")
     b.add_argument("panel_id")
     b.add_argument("folder", type=Path)
@@ -509,6 +497,9 @@ def parser() -> argparse.ArgumentParser:
     a.add_argument("--camera-id", help="the camera whose region the photos are measured in")
     a.set_defaults(run=air_calibrate)
 
+
+def _export_and_replay_commands(sub: Any) -> None:
+    """export readings, export panel-history, replay."""
     ex = sub.add_parser("export", help="readings or panel history to CSV").add_subparsers(
         dest="what", required=True
     )
@@ -539,6 +530,28 @@ def parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--timezone", default="UTC", help="the zone of those times (Europe/Rome)")
     rp.set_defaults(run=replay)
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(
+        prog="vantage",
+        description="Bulk work against a running Vantage service (VANTAGE_URL, VANTAGE_TOKEN).",
+    )
+    top.add_argument("--url", default=os.environ.get("VANTAGE_URL", "http://127.0.0.1:8000"))
+    top.add_argument(
+        "--token", default=os.environ.get("VANTAGE_TOKEN"), help="default: VANTAGE_TOKEN"
+    )
+    top.add_argument(
+        "--json",
+        action="store_true",
+        help="print the service's answers as JSON (a line a frame for replay) instead of a "
+        "line a person reads",
+    )
+    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    _registry_commands(sub)
+    _training_commands(sub)
+    _export_and_replay_commands(sub)
     return top
 
 

@@ -34,7 +34,8 @@ from app.platform.frames import jpeg, kinds, rate_limit, retention, sources
 from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
 from app.platform.frames.camera_info import TokenCache
-from app.platform.frames.storage import StoreUnavailable, frame_store
+from app.platform.frames.storage import StoreUnavailable
+from app.platform.frames.stores import frame_store
 from app.platform.frames.writer import GroupCommitWriter
 from app.platform.http.compression import CompressedReads
 from app.platform.http.cors import PublicReadCors
@@ -48,6 +49,7 @@ from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
+from app.platform.state import AppState
 from app.solar import kind as solar_kind
 from app.solar import router as solar
 from app.solar.services import events as solar_events
@@ -126,133 +128,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
     configure_logging(settings.log_level, settings.log_json)
     register_kinds()
-
-    @asynccontextmanager
-    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        log.info("vantage %s starting", __version__, extra={"database": engine.dialect.name})
-        # the data directory (frames; by default the SQLite file too): on a network mount
-        # whose server is gone it hangs, and waiting for it kept the process from ever serving,
-        # what needs only PostgreSQL included. Waited for as /health waits for the store;
-        # the orphan sweep below shares the bound.
-        patience = settings.frame_store_timeout_seconds
-        deadline = asyncio.get_running_loop().time() + patience
-        made = partial(settings.data_dir.mkdir, mode=0o700, parents=True, exist_ok=True)
-        if not await _done_by(deadline, made):
-            log.error(
-                "data directory %s not answering after %g s: serving meanwhile",
-                settings.data_dir,
-                patience,
-            )
-        try:
-            await asyncio.to_thread(schema.check, engine)
-        except schema.SchemaBehind as exc:
-            log.error("not starting: %s", exc)
-            raise
-        except Exception as exc:
-            if not database_unavailable(exc):
-                raise
-            # serve anyway, as without the frame store: /health says so, requests get 503
-            log.error("schema not checked, database unreachable: %s", str(exc).splitlines()[0])
-        # files a killed process wrote without committing their rows (only files too old to
-        # be in flight: it may go on in the background once the bound is over)
-        sweep = partial(
-            retention.sweep_orphans,
-            app.state.sessionmaker,
-            app.state.frame_store,
-            min_age_s=settings.orphan_min_age_seconds,
-        )
-        try:
-            if not await _done_by(deadline, sweep):
-                log.error(
-                    "orphan sweep still running after %g s (the frame store is slow or hung): "
-                    "serving meanwhile",
-                    patience,
-                )
-        except StoreUnavailable as exc:
-            # serve anyway: /health says so, uploads get 503 until the store is back
-            log.error("orphan sweep skipped, frame store unreachable: %s", exc)
-        app.state.writer.start()
-        if settings.warm_up_triangulation:
-            # before serving, not in a thread beside requests: numba's compiler and FastAPI's
-            # route building both swap the process-wide warning filters
-            triangulation.warm_up()
-        notifier = None
-        if settings.alert_webhook_url:
-            notifier = asyncio.create_task(
-                alert_webhook.run(
-                    app.state.sessionmaker,
-                    settings.alert_webhook_url,
-                    app.state.policy,
-                    settings.alert_poll_seconds,
-                    timedelta(hours=settings.alert_retry_hours),
-                    key=app.state.webhook_key,
-                )
-            )
-            if settings.alert_webhook_secret is None:
-                log.warning(
-                    "alerts are POSTed unsigned: set VANTAGE_ALERT_WEBHOOK_SECRET so that the"
-                    " receiver can tell them from forged ones"
-                )
-        puller = None
-        if settings.pull_sources:
-            pulling = sources.Puller(
-                app.state.sessionmaker,
-                app.state.writer,
-                lambda: app.state.frame_store if settings.store_frames else None,
-                lambda: app.state.policy,
-                threads=settings.pull_threads,
-                timeout=settings.pull_timeout_seconds,
-                max_pixels=settings.max_pixels,
-                allowed_networks=settings.source_allowed_networks,
-                rate_limit=lambda camera_id: frame_deps.within_rate(
-                    app.state.sessionmaker,
-                    app.state.rate_budgets,
-                    app.state.policy,
-                    settings.rate_limit_per_minute,
-                    camera_id,
-                ),
-            )
-            puller = asyncio.create_task(pulling.run())
-        # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)
-        farm_events = asyncio.create_task(
-            outbox.run(
-                app.state.sessionmaker,
-                solar_events.TOPIC,
-                app.state.policy,
-                settings.alert_poll_seconds,
-            )
-        )
-        sweeper = asyncio.create_task(
-            retention.run(
-                app.state.sessionmaker,
-                app.state.frame_store,
-                app.state.policy,
-                settings.frame_retention_days,
-                settings.retention_sweep_seconds,
-                settings.history_retention_days,
-            )
-        )
-        # what start-up built lives as long as the process: frozen out of the cyclic
-        # collector's way, so that a full collection does not walk it (a pause of the GIL).
-        # Not collected first: a full collection costs a process that imported the
-        # scientific stack ~0.3 s, for a little start-up garbage kept
-        gc.freeze()
-        yield
-        gc.unfreeze()
-        for task in (sweeper, farm_events, *([puller] if puller else [])):
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        if notifier is not None:
-            notifier.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await notifier
-        app.state.writer.stop(settings.frame_store_timeout_seconds)
-        app.state.frame_store.close()
-        engine.dispose()
-        if read_engine is not None:
-            read_engine.dispose()
-
     # the docs pages' scripts and styles served by the service itself, not from a CDN: the
     # networks of street cameras and robot cells are often closed to the internet, where
     # FastAPI's /docs was a blank page
@@ -263,14 +138,35 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         responses=DATABASE_UNAVAILABLE,
     )
-    engine = make_engine(
+    app.state = build_state(settings)
+    install_error_handlers(app)
+    app.openapi = with_security(app)  # type: ignore[method-assign]
+    add_middleware(app, settings)
+    for module in (
+        cameras,  # first: the frame upload is matched first
+        health,
+        solar,
+        air,
+        cells,
+        viewers,
+        pages,
+    ):
+        app.include_router(module.router)
+    pages.mount_static(app)
+    return app
+
+
+def build_state(settings: Settings) -> AppState:
+    """The service's long-lived parts: engines and sessions, the writer, the frame store, the
+    token hashes and caches, the clock and its policy, the public lanes' limits."""
+    state = AppState()
+    state.settings = settings
+    state.engine = make_engine(
         settings.effective_database_url,
         pool_size=settings.database_pool_size,
         max_overflow=settings.database_max_overflow,
         statement_timeout_s=settings.database_statement_timeout_seconds,
     )
-    app.state.settings = settings
-    app.state.engine = engine
     if jpeg.decoder_cap() != settings.max_pixels:
         log.warning(
             "OpenCV decodes at most %d pixels, the pixel limit is %d: set VANTAGE_MAX_PIXELS in "
@@ -278,50 +174,47 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             jpeg.decoder_cap(),
             settings.max_pixels,
         )
-    app.state.sessionmaker = make_sessionmaker(engine)
+    state.sessionmaker = make_sessionmaker(state.engine)
     # a connection per public lane's thread: the computations', and the cheap reads' (which
     # would otherwise wait for a map's session)
-    read_engine = make_read_engine(
+    state.read_engine = make_read_engine(
         settings.effective_database_url, 2 * settings.public_work_threads
     )
-    app.state.read_sessionmaker = make_sessionmaker(read_engine or engine)
+    state.read_sessionmaker = make_sessionmaker(state.read_engine or state.engine)
     # frame uploads decode in the writer's own threads, apart from the shared pool: with the
     # disk store about as many as there are cores (more only contend for them and the GIL)
-    app.state.writer = GroupCommitWriter(
-        app.state.sessionmaker,
-        preparers=settings.effective_ingest_threads,
-        check=registry.refusals,
+    state.writer = GroupCommitWriter(
+        state.sessionmaker, preparers=settings.effective_ingest_threads, check=registry.refusals
     )
-    app.state.admin_token_hash = admin_token_hash(settings)
+    state.admin_token_hash = admin_token_hash(settings)
     metrics = settings.metrics_token
-    app.state.metrics_token_hash = (
-        None if metrics is None else hash_token(metrics.get_secret_value())
-    )
-    app.state.camera_tokens = TokenCache(ttl=settings.camera_cache_seconds)
+    state.metrics_token_hash = None if metrics is None else hash_token(metrics.get_secret_value())
+    state.camera_tokens = TokenCache(ttl=settings.camera_cache_seconds)
     # tokens of callers other than the admin and cameras: (role, owner id of a token hash)
-    app.state.token_owners = (("robot", solar_kind.robot_of),)
-    app.state.rate_budgets = rate_limit.LocalBudgets()
-    app.state.policy = Policy(
+    state.token_owners = (("robot", solar_kind.robot_of),)
+    state.rate_budgets = rate_limit.LocalBudgets()
+    state.policy = Policy(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )
-    app.state.frame_store = frame_store(settings)
-    app.state.bounded_store = BoundedStore(
-        app.state.frame_store, seconds=settings.frame_store_timeout_seconds
+    state.frame_store = frame_store(settings)
+    state.bounded_store = BoundedStore(
+        state.frame_store, seconds=settings.frame_store_timeout_seconds
     )
-    app.state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
-    app.state.crowds = Crowds(
+    state.isopleth_cache = MapCache(ttl=settings.isopleth_cache_seconds)
+    state.crowds = Crowds(
         requests_per_minute=settings.public_requests_per_minute,
         work_per_minute=settings.public_work_per_minute,
         queue=settings.public_work_queue,
     )
     secret = settings.alert_webhook_secret
-    app.state.db_metrics = [solar_metrics.collect]
-    app.state.webhook_key = (
-        None if secret is None else webhooks.signing_key(secret.get_secret_value())
-    )
+    state.db_metrics = [solar_metrics.collect]
+    state.webhook_key = None if secret is None else webhooks.signing_key(secret.get_secret_value())
+    return state
 
-    install_error_handlers(app)
-    app.openapi = with_security(app)  # type: ignore[method-assign]
+
+def add_middleware(app: FastAPI, settings: Settings) -> None:
+    """The middleware, innermost first: query checks, body limits, CORS for public reads,
+    security headers, compression, HEAD, the anonymous limit, and the request log outermost."""
     app.add_middleware(CheckedQuery, service=app)
     app.add_middleware(
         BodyLimitMiddleware, body=settings.max_body_bytes, bulk=settings.max_upload_bytes
@@ -340,17 +233,153 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.add_middleware(CompressedReads)  # inside HEAD: a HEAD's Content-Length is its GET's
     app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
-    app.add_middleware(AnonymousLimit, crowds=app.state.crowds)
+    app.add_middleware(AnonymousLimit, crowds=app_state_of(app).crowds)
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
-    for module in (
-        cameras,  # first: the frame upload is matched first
-        health,
-        solar,
-        air,
-        cells,
-        viewers,
-        pages,
-    ):
-        app.include_router(module.router)
-    pages.mount_static(app)
-    return app
+
+
+def app_state_of(app: FastAPI) -> AppState:
+    state = app.state
+    assert isinstance(state, AppState)
+    return state
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Start: the data directory and the schema checked, orphans swept, the writer and the
+    background loops started. Stop: the loops cancelled, the writer drained, all closed."""
+    state = app_state_of(app)
+    log.info("vantage %s starting", __version__, extra={"database": state.engine.dialect.name})
+    await prepare_storage(state)
+    state.writer.start()
+    if state.settings.warm_up_triangulation:
+        # before serving, not in a thread beside requests: numba's compiler and FastAPI's
+        # route building both swap the process-wide warning filters
+        triangulation.warm_up()
+    tasks = background_loops(state)
+    # what start-up built lives as long as the process: frozen out of the cyclic
+    # collector's way, so that a full collection does not walk it (a pause of the GIL).
+    # Not collected first: a full collection costs a process that imported the
+    # scientific stack ~0.3 s, for a little start-up garbage kept
+    gc.freeze()
+    yield
+    gc.unfreeze()
+    for task in tasks:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    state.writer.stop(state.settings.frame_store_timeout_seconds)
+    state.frame_store.close()
+    state.engine.dispose()
+    if state.read_engine is not None:
+        state.read_engine.dispose()
+
+
+async def prepare_storage(state: AppState) -> None:
+    """The data directory made, the schema checked and the orphan files swept, each within
+    ``frame_store_timeout_seconds``: the data directory (frames; by default the SQLite file
+    too) on a network mount whose server is gone hangs, and waiting for it kept the process
+    from ever serving, what needs only PostgreSQL included. Past the bound it serves
+    meanwhile; /health says what is missing and requests that need it get 503."""
+    settings = state.settings
+    patience = settings.frame_store_timeout_seconds
+    deadline = asyncio.get_running_loop().time() + patience
+    made = partial(settings.data_dir.mkdir, mode=0o700, parents=True, exist_ok=True)
+    if not await _done_by(deadline, made):
+        log.error(
+            "data directory %s not answering after %g s: serving meanwhile",
+            settings.data_dir,
+            patience,
+        )
+    try:
+        await asyncio.to_thread(schema.check, state.engine)
+    except schema.SchemaBehind as exc:
+        log.error("not starting: %s", exc)
+        raise
+    except Exception as exc:
+        if not database_unavailable(exc):
+            raise
+        log.error("schema not checked, database unreachable: %s", str(exc).splitlines()[0])
+    # files a killed process wrote without committing their rows (only files too old to
+    # be in flight: it may go on in the background once the bound is over)
+    sweep = partial(
+        retention.sweep_orphans,
+        state.sessionmaker,
+        state.frame_store,
+        min_age_s=settings.orphan_min_age_seconds,
+    )
+    try:
+        if not await _done_by(deadline, sweep):
+            log.error(
+                "orphan sweep still running after %g s (the frame store is slow or hung): "
+                "serving meanwhile",
+                patience,
+            )
+    except StoreUnavailable as exc:
+        log.error("orphan sweep skipped, frame store unreachable: %s", exc)
+
+
+def background_loops(state: AppState) -> list[asyncio.Task[None]]:
+    """The loops that run beside requests: the retention sweep, the farm's events to its
+    webhook, and, as configured, the air alerts' webhook and the cameras' sources."""
+    settings = state.settings
+    tasks = [
+        asyncio.create_task(
+            retention.run(
+                state.sessionmaker,
+                state.frame_store,
+                state.policy,
+                settings.frame_retention_days,
+                settings.retention_sweep_seconds,
+                settings.history_retention_days,
+            )
+        ),
+        # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)
+        asyncio.create_task(
+            outbox.run(
+                state.sessionmaker, solar_events.TOPIC, state.policy, settings.alert_poll_seconds
+            )
+        ),
+    ]
+    if settings.pull_sources:
+        tasks.append(asyncio.create_task(puller(state).run()))
+    if settings.alert_webhook_url:
+        tasks.append(
+            asyncio.create_task(
+                alert_webhook.run(
+                    state.sessionmaker,
+                    settings.alert_webhook_url,
+                    state.policy,
+                    settings.alert_poll_seconds,
+                    timedelta(hours=settings.alert_retry_hours),
+                    key=state.webhook_key,
+                )
+            )
+        )
+        if settings.alert_webhook_secret is None:
+            log.warning(
+                "alerts are POSTed unsigned: set VANTAGE_ALERT_WEBHOOK_SECRET so that the"
+                " receiver can tell them from forged ones"
+            )
+    return tasks
+
+
+def puller(state: AppState) -> sources.Puller:
+    """The loop that pulls the frames of cameras registered with a ``source``."""
+    settings = state.settings
+    return sources.Puller(
+        state.sessionmaker,
+        state.writer,
+        lambda: state.frame_store if settings.store_frames else None,
+        lambda: state.policy,
+        threads=settings.pull_threads,
+        timeout=settings.pull_timeout_seconds,
+        max_pixels=settings.max_pixels,
+        allowed_networks=settings.source_allowed_networks,
+        rate_limit=lambda camera_id: frame_deps.within_rate(
+            state.sessionmaker,
+            state.rate_budgets,
+            state.policy,
+            settings.rate_limit_per_minute,
+            camera_id,
+        ),
+    )

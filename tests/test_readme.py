@@ -27,6 +27,7 @@ def first_session() -> str:
     return "\n".join(lines[1:])
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 @pytest.mark.skipif(shutil.which("curl") is None, reason="the README's session uses curl")
 def test_the_first_session_runs_as_written(tmp_path: Path) -> None:
     (tmp_path / "docs").symlink_to(ROOT / "docs")

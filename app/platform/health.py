@@ -25,6 +25,7 @@ from app.platform.http.deps import Admin, MetricsReader, get_sessionmaker
 from app.platform.http.responses import AUTH_ERRORS
 from app.platform.policy import Policy
 from app.platform.schemas import Health
+from app.platform.state import app_state
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger("vantage.health")
@@ -53,7 +54,7 @@ async def health(request: Request) -> JSONResponse:
 
 async def _store_state(request: Request) -> Literal["ok", "unreachable", "full"]:
     try:
-        await request.app.state.bounded_store.check()
+        await app_state(request).bounded_store.check()
     except DiskFull as exc:
         log.warning("frame store full: %s", exc)
         return "full"
@@ -130,7 +131,9 @@ def metrics(request: Request, _: MetricsReader) -> Response:
     sources: list[DbMetrics] = getattr(request.app.state, "db_metrics", [])
     if sources:
         shared = CollectorRegistry()
-        shared.register(_FromDatabase(get_sessionmaker(request), request.app.state.policy, sources))
+        shared.register(
+            _FromDatabase(get_sessionmaker(request), app_state(request).policy, sources)
+        )
         body += generate_latest(shared)
     return Response(body, media_type=CONTENT_TYPE_LATEST)
 
@@ -138,11 +141,11 @@ def metrics(request: Request, _: MetricsReader) -> Response:
 @router.post("/admin/retention/sweep", tags=["admin"], responses=AUTH_ERRORS)
 def sweep_now(request: Request, _: Admin) -> dict[str, int]:
     """Run the frame-retention sweep now (it also runs on its own, hourly)."""
-    settings = request.app.state.settings
+    settings = app_state(request).settings
     swept = retention.sweep(
-        request.app.state.sessionmaker,
-        request.app.state.frame_store,
-        request.app.state.policy,
+        app_state(request).sessionmaker,
+        app_state(request).frame_store,
+        app_state(request).policy,
         settings.frame_retention_days,
         settings.history_retention_days,
     )

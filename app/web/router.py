@@ -22,6 +22,7 @@ from app.air.services import cameras
 from app.air.services.map_picture import COLOURS
 from app.platform.http.deps import get_sessionmaker
 from app.platform.http.errors import NotFound
+from app.platform.state import app_state
 
 HERE = Path(__file__).resolve().parent
 
@@ -80,7 +81,7 @@ def landing(request: Request) -> HTMLResponse:
 @router.get("/map", response_class=HTMLResponse)
 def city_map(request: Request) -> HTMLResponse:
     """The city map: isopleth bands over a base map, every sky camera labelled."""
-    settings = request.app.state.settings
+    settings = app_state(request).settings
     config = {"tiles": settings.map_tiles, "attribution": settings.map_attribution}
     return _page(request, "map.html", title="Air quality map", config=config)
 

@@ -27,7 +27,8 @@ from sqlalchemy import Engine, event
 
 from app.main import create_app
 from app.platform.frames import retention
-from app.platform.frames.storage import S3FrameStore, digest
+from app.platform.frames.storage import digest
+from app.platform.frames.stores import S3FrameStore
 from app.platform.settings import Settings
 from tests.factories import (
     ADMIN_TOKEN,

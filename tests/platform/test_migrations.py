@@ -177,6 +177,7 @@ def empty_database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[s
         yield url
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_a_deploy_rolled_back_step_by_step_with_data_and_upgraded_again(
     tmp_path: Path, empty_database: str
 ) -> None:

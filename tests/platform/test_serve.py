@@ -87,6 +87,7 @@ def test_a_connection_idle_longer_than_uvicorns_keep_alive_is_still_served(
         assert _response(sock)[:12] == b"HTTP/1.1 200"
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_the_server_lifts_its_soft_file_limit_to_the_hard_one(server: Server) -> None:
     """Started under a soft limit of 256 (systemd's default is 1,024), the process serving
     (``python -m app.serve`` execs uvicorn: the same process) runs with its hard limit: a
@@ -111,7 +112,8 @@ def test_a_wrong_shutdown_grace_stops_the_start_with_its_name() -> None:
     assert "shutdown_grace_seconds" in proc.stderr
 
 
-@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
+@pytest.mark.slow  # a real server process, seconds of waiting
+@pytest.mark.parametrize("workers", [1, 2])
 def test_the_server_logs_json_lines_only_and_one_a_request(
     database_url: str, engine: Engine, tmp_path: Path, workers: int
 ) -> None:

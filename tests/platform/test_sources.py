@@ -65,6 +65,7 @@ def frames(client: TestClient, admin: dict[str, str]) -> list[dict[str, Any]]:
     return list(r.json())
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_a_snapshot_camera_is_pulled_every_interval(
     puller: TestClient, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
@@ -93,6 +94,7 @@ def test_a_snapshot_camera_is_pulled_every_interval(
     assert len(times) == len(set(times))
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_pulled_frames_spend_the_cameras_rate_limit(
     settings: Settings, engine: Any, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
@@ -123,6 +125,7 @@ def test_a_page_instead_of_video_is_a_bad_stream(
     assert frames(puller, admin) == []
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_a_stopped_camera_is_unreachable_then_recovers(
     puller: TestClient, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
@@ -137,6 +140,7 @@ def test_a_stopped_camera_is_unreachable_then_recovers(
     assert len(frames(puller, admin)) > n
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_a_hung_camera_is_cut_by_the_timeout(
     puller: TestClient, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
@@ -151,6 +155,7 @@ def test_a_hung_camera_is_cut_by_the_timeout(
     assert frames(puller, admin) == []
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_an_mjpeg_stream_is_decoded_by_ffmpeg(
     puller: TestClient, admin: dict[str, str], camera_server: CameraServer
 ) -> None:
@@ -195,6 +200,7 @@ def rtsp() -> Iterator[str]:
             proc.stdout.close()
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_an_rtsp_h264_stream_from_a_real_server(
     puller: TestClient, admin: dict[str, str], rtsp: str
 ) -> None:

@@ -208,6 +208,7 @@ def test_without_file_locks_frames_are_stored_and_no_pack_is_idle(
     assert store.idle_packs(0) == []
 
 
+@pytest.mark.slow  # a real server or camera process, seconds of waiting
 def test_a_bucket_that_never_answers_fails_in_bounded_time(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -218,7 +219,7 @@ def test_a_bucket_that_never_answers_fails_in_bounded_time(
     import socket
     import threading
 
-    from app.platform.frames.storage import S3FrameStore, S3Timeouts
+    from app.platform.frames.stores import S3FrameStore, S3Timeouts
 
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "test")
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "test")

@@ -1,4 +1,4 @@
-"""When a panel's fitted F line crosses its threshold (``panels.crossing_at``)."""
+"""When a panel's fitted F line crosses its threshold (``trends.crossing_at``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from app.solar.services.panels import FORECAST_HORIZON, crossing_at
+from app.solar.services.trends import FORECAST_HORIZON, crossing_at
 
 T0 = datetime(2026, 6, 1, tzinfo=UTC)
 NOW = T0 + timedelta(days=2)

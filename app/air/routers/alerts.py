@@ -33,6 +33,7 @@ from app.platform.http.responses import (
     NOT_FOUND,
     UNPROCESSABLE,
 )
+from app.platform.state import app_state
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -50,7 +51,7 @@ def try_alert_webhook(
     receiver and its signing secret can be checked before the air turns Poor."""
     if settings.alert_webhook_url is None:
         raise Conflict("no webhook is configured: set VANTAGE_ALERT_WEBHOOK_URL", code="no_webhook")
-    key = request.app.state.webhook_key
+    key = app_state(request).webhook_key
     msg_id, error = webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
     return WebhookTestOut(
         webhook_id=msg_id, delivered=error is None, error=error, signed=key is not None

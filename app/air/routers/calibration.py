@@ -44,6 +44,7 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import images_or_frames
+from app.platform.state import app_state
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -203,7 +204,7 @@ async def regrade(
     that grades it now (after a new calibration), measured in its region now; smooth its
     readings again. Its history then speaks one calibration: each reading names it
     (``calibration_id``). Raises no alerts (history). Oldest first, ``limit`` at a time."""
-    store = request.app.state.frame_store if settings.store_frames else None
+    store = app_state(request).frame_store if settings.store_frames else None
     done = await image_work(
         request,
         partial(

@@ -31,6 +31,7 @@ from app.platform.http.responses import (
     UNPROCESSABLE,
     not_modified,
 )
+from app.platform.state import app_state
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -115,7 +116,7 @@ def _map_query(
     window to the minute, max_distance to 100 m, the resolution to a multiple of 16. A
     token given must be valid (401)."""
     box = _bbox(bbox)
-    crowds: Crowds = request.app.state.crowds
+    crowds: Crowds = app_state(request).crowds
     anonymous = crowds.anonymous(request.scope)
     if anonymous and request.headers.get("authorization"):
         get_principal(request)  # a token given must be valid (401)
@@ -158,7 +159,7 @@ async def _cached_map(
     ``public_work``, one at a time; a kept map waits for none); 304 when the client's
     ``If-None-Match`` names it. With ``compress``, kept gzipped too, and sent so to clients
     that take it (compressed once, not at every poll)."""
-    cache: MapCache = request.app.state.isopleth_cache
+    cache: MapCache = app_state(request).isopleth_cache
     kept = cache.kept(key)
     if kept is None:
         kept = await public_work(

@@ -39,6 +39,7 @@ from app.platform.http.responses import (
     NOT_FOUND,
     UNPROCESSABLE,
 )
+from app.platform.state import app_state
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -93,7 +94,8 @@ async def sky_picture(request: Request, camera_id: CameraId, session: SessionDep
             f"sky camera {place.camera_id!r} measures its whole view (no roi): only a sky "
             "region is published, never a street"
         )
-    data = await request.app.state.bounded_store.read(frame.stored_path)
+    assert frame.stored_path is not None  # refused above
+    data = await app_state(request).bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the latest frame of {place.camera_id!r} is no longer kept")
     body = await image_work(request, sky_readings.sky_crop, data, verdict.roi)

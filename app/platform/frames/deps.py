@@ -41,6 +41,7 @@ from app.platform.http.errors import (
     Unprocessable,
 )
 from app.platform.policy import Policy
+from app.platform.state import app_state
 
 
 def _cursor(
@@ -121,7 +122,7 @@ async def fresh_upload_target(request: Request, target: CameraInfo) -> CameraInf
         raise NotFound(f"no camera {target.id!r}")
     info = replace(info, token_hash=target.token_hash)
     if target.token_hash is not None:
-        cache: TokenCache = request.app.state.camera_tokens
+        cache: TokenCache = app_state(request).camera_tokens
         cache.put(target.token_hash, info)
     return info
 
@@ -134,7 +135,7 @@ async def get_upload_target(camera_id: CameraId, request: Request) -> CameraInfo
         challenge_cameras(request, exc)
         raise
     if target.token_hash is not None:  # its uploads skip the anonymous limits (``crowds``)
-        crowds: Crowds = request.app.state.crowds
+        crowds: Crowds = app_state(request).crowds
         crowds.trust(target.token_hash)
     return target
 
@@ -151,12 +152,12 @@ async def _upload_target(camera_id: CameraId, request: Request) -> CameraInfo:
         raise Unauthorized("missing Authorization header")
     token, basic_user = credentials_of(header)
     digest = hash_token(token)
-    if basic_user is None and hmac.compare_digest(digest, request.app.state.admin_token_hash):
+    if basic_user is None and hmac.compare_digest(digest, app_state(request).admin_token_hash):
         info = await run_in_threadpool(_camera_by_id, request, camera_id)
         if info is None:
             raise NotFound(f"no camera {camera_id!r}")
         return info
-    cache: TokenCache = request.app.state.camera_tokens
+    cache: TokenCache = app_state(request).camera_tokens
     found: CameraInfo | Principal | None = cache.get(digest)
     if found is None:
         found = await run_in_threadpool(_camera_by_token, request, digest)
@@ -184,13 +185,13 @@ async def _check_rate(request: Request, camera_id: str) -> None:
     processes: budget reserved in the database in blocks (``app.platform.frames.rate_limit``), spent
     here without a round trip. A camera flooding is refused before its body is read and cannot
     crowd out the others."""
-    limit: int = request.app.state.settings.rate_limit_per_minute
+    limit: int = app_state(request).settings.rate_limit_per_minute
     if limit <= 0:
         return
-    policy: Policy = request.app.state.policy
+    policy: Policy = app_state(request).policy
     now = policy.now()
     minute = rate_limit.minute_of(now)
-    budgets: rate_limit.LocalBudgets = request.app.state.rate_budgets
+    budgets: rate_limit.LocalBudgets = app_state(request).rate_budgets
     if budgets.take(camera_id, minute):
         return
     granted = await run_in_threadpool(_reserve, request, camera_id, minute, limit)

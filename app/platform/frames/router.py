@@ -57,6 +57,7 @@ from app.platform.http.uploads import read_jpeg
 from app.platform.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.platform.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.platform.settings import Settings
+from app.platform.state import app_state
 
 router = APIRouter(tags=["cameras"])
 
@@ -176,8 +177,8 @@ async def post_frame(
     if upload.captured_at is not None:
         when = _form_captured_at(upload.captured_at, when, policy.now(), settings)
     data = upload.data
-    store = request.app.state.frame_store if settings.store_frames else None
-    writer: GroupCommitWriter = request.app.state.writer
+    store = app_state(request).frame_store if settings.store_frames else None
+    writer: GroupCommitWriter = app_state(request).writer
 
     prepare = partial(
         ingest.recording,
@@ -192,7 +193,7 @@ async def post_frame(
     # decoding and the file write take one of the writer's preparing threads, which then queues
     # the database part itself; the wait for the commit takes no thread, so a stalled database
     # (a failover) holds none
-    tokens: TokenCache = request.app.state.camera_tokens
+    tokens: TokenCache = app_state(request).camera_tokens
     for _ in range(MEASURES):
         try:
             done = await _within(
@@ -330,7 +331,7 @@ def update_camera(
     is refused (422). Frames uploaded afterwards are judged with the new values, on every
     server process (each batch of frames checks its cameras again)."""
     sources.check_address(body.source, settings.source_allowed_networks)
-    tokens: TokenCache = request.app.state.camera_tokens
+    tokens: TokenCache = app_state(request).camera_tokens
     return _shown(session, registry.update_camera(session, camera_id, body, tokens))
 
 
@@ -345,7 +346,7 @@ def rotate_camera_token(
     """Issue the camera a new upload token, shown only this once; the old token stops working
     (at once on this server process, within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s) on the
     others)."""
-    tokens: TokenCache = request.app.state.camera_tokens
+    tokens: TokenCache = app_state(request).camera_tokens
     camera, token = registry.rotate_camera_token(session, camera_id, tokens)
     return _with_token(session, camera, token)
 
@@ -364,7 +365,7 @@ def retire_camera(
     refused (409), and it leaves the air-quality map and the camera list (``?retired=true``
     shows it). Its frames, verdicts, readings and alerts stay readable until the retention
     removes them; its id stays taken. Retiring it again changes nothing."""
-    tokens: TokenCache = request.app.state.camera_tokens
+    tokens: TokenCache = app_state(request).camera_tokens
     registry.retire_camera(session, camera_id, tokens, policy)
     return Response(status_code=204)
 
@@ -433,7 +434,7 @@ async def get_frame_image(
     headers = {"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"}
     if not_modified(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
-    data = await request.app.state.bounded_store.read(frame.stored_path)
+    data = await app_state(request).bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
     return Response(data, media_type="image/jpeg", headers=headers)
@@ -489,7 +490,7 @@ async def get_frame_region(
         ingest.check_fits(region, frame.width, frame.height)
     except ValueError as exc:
         raise Unprocessable(str(exc), code="roi_outside_frame") from None
-    data = await request.app.state.bounded_store.read(frame.stored_path)
+    data = await app_state(request).bounded_store.read(frame.stored_path)
     if data is None:
         raise NotFound(f"the image of frame {frame_id!r} is no longer kept")
     body = await image_work(request, _outlined, data, region)

@@ -29,17 +29,18 @@ from app.platform.http.errors import (
 )
 from app.platform.policy import Policy
 from app.platform.settings import Settings
+from app.platform.state import app_state
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
 
 
 def get_sessionmaker(request: Request) -> sessionmaker[Session]:
-    sm: sessionmaker[Session] = request.app.state.sessionmaker
+    sm: sessionmaker[Session] = app_state(request).sessionmaker
     return sm
 
 
 async def get_settings(request: Request) -> Settings:
-    settings: Settings = request.app.state.settings
+    settings: Settings = app_state(request).settings
     return settings
 
 
@@ -67,7 +68,7 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
 
 
 async def get_policy(request: Request) -> Policy:
-    policy: Policy = request.app.state.policy
+    policy: Policy = app_state(request).policy
     return policy
 
 
@@ -96,7 +97,7 @@ def _identify(request: Request, session: Session) -> Principal:
     token, basic_user = credentials_of(header)
     digest = hash_token(token)
     principal = _owner(request, session, digest, basic_user)
-    crowds: Crowds = request.app.state.crowds
+    crowds: Crowds = app_state(request).crowds
     crowds.trust(digest)
     return principal
 
@@ -109,7 +110,7 @@ def _owner(request: Request, session: Session, digest: str, basic_user: str | No
         return Principal("camera", camera_id)
     if basic_user is not None:  # a browser replays Basic cross-site: only cameras use it
         raise Unauthorized("HTTP Basic is for cameras (their id and token); use Bearer")
-    if hmac.compare_digest(digest, request.app.state.admin_token_hash):
+    if hmac.compare_digest(digest, app_state(request).admin_token_hash):
         return Principal("admin")
     principal = other_owner(request, session, digest)
     if principal is None:
@@ -123,7 +124,7 @@ def other_owner(request: Request, session: Session, digest: str) -> Principal | 
     viewer_id = session.scalar(select(ViewerToken.id).where(ViewerToken.token_hash == digest))
     if viewer_id is not None:
         return Principal("viewer", viewer_id)
-    for role, owner_of in request.app.state.token_owners:
+    for role, owner_of in app_state(request).token_owners:
         owner = owner_of(session, digest)
         if owner is not None:
             return Principal(role, owner)
@@ -164,7 +165,7 @@ PrincipalDep = Annotated[Principal, Depends(get_principal)]
 def require_metrics_reader(request: Request) -> None:
     """``/metrics``: the metrics token (``VANTAGE_METRICS_TOKEN``, a scraper's, good for
     nothing else) or the admin token. It names every camera, so it is not public."""
-    expected: str | None = request.app.state.metrics_token_hash
+    expected: str | None = app_state(request).metrics_token_hash
     header = request.headers.get("authorization")
     if header and expected is not None:
         token, _ = credentials_of(header)
@@ -309,7 +310,7 @@ async def _limited(
 ) -> T:
     """``fn`` in a worker thread, at most ``capacity`` at once in this process under the
     limiter ``name``; the others wait their turn (holding no thread)."""
-    state = request.app.state
+    state = app_state(request)
     limiter: anyio.CapacityLimiter | None = getattr(state, name, None)
     if limiter is None:  # made on first use, inside the event loop
         limiter = anyio.CapacityLimiter(capacity)
@@ -322,7 +323,7 @@ async def image_work(request: Request, fn: Callable[..., T], *args: Any, **kwarg
     wait their turn. The work is CPU-bound, so more at once only shares the cores, and each
     holds its images' pixels (an outline of a 36 MP photo peaked at ~460 MB): without a bound,
     FastAPI's 40 threads could hold 40 of them."""
-    capacity = request.app.state.settings.effective_image_threads
+    capacity = app_state(request).settings.effective_image_threads
     return await _limited(request, "image_limiter", capacity, fn, *args, **kwargs)
 
 
@@ -331,7 +332,7 @@ async def public_read(request: Request, fn: Callable[..., T], *args: Any, **kwar
     own, in a worker thread), in a lane of its own: cheap public reads that every dashboard
     polls (the latest reading of every camera) never wait behind the maps and aggregates,
     nor count as computations against a client's share."""
-    state = request.app.state
+    state = app_state(request)
     capacity = state.settings.public_work_threads
     return await _limited(request, "public_read_limiter", capacity, _read, state, fn, args, kwargs)
 
@@ -344,7 +345,7 @@ async def public_work(request: Request, fn: Callable[..., T], *args: Any, **kwar
     SQLite that one takes the write lock (see ``make_read_engine``). With 8 dashboards asking
     for a week's daily means, uploads kept 0.79–0.84 of their rate one at a time, 0.47 with
     40 at once (bench/public_load.py)."""
-    state = request.app.state
+    state = app_state(request)
     capacity = state.settings.public_work_threads
     crowds: Crowds = state.crowds
     try:

@@ -36,6 +36,7 @@ from app.platform.http.responses import (
 from app.platform.http.uploads import content_type, read_form, read_json
 from app.platform.policy import Policy
 from app.platform.schemas import Schema
+from app.platform.state import app_state
 from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
 from app.solar.services import labels as labels_service
 from app.solar.services import panels, training
@@ -146,7 +147,7 @@ async def _stored(
     found = await run_in_threadpool(labels_service.stored_to_learn, session, frame_ids)
     out = []
     for s in found:
-        data = await request.app.state.bounded_store.read(s.stored_path)
+        data = await app_state(request).bounded_store.read(s.stored_path)
         if data is None:
             raise Unprocessable(f"the image of frame {s.frame_id!r} is no longer kept")
         out.append((s, data))

@@ -301,6 +301,44 @@ def check_fleet_groups(groups: NDArray[np.str_], dirty: NDArray[np.bool_]) -> No
             )
 
 
+def _checked_labels(
+    features: NDArray[np.float64], labels: Sequence[str]
+) -> tuple[NDArray[np.str_], dict[str, int]]:
+    """The labels as the model reads them (dirty is dust) and each label's count; Unprocessable
+    for too few photos of a class or non-finite features."""
+    names = np.array(["dust" if label == "dirty" else label for label in labels])
+    counts = {label: int((names == label).sum()) for label in FLEET_LABELS}
+    n_clean, n_dirty = counts["clean"], counts["dust"] + counts["bird_drop"]
+    if min(n_dirty, n_clean) < MIN_FLEET_PER_CLASS:
+        raise Unprocessable(
+            f"need at least {MIN_FLEET_PER_CLASS} clean and {MIN_FLEET_PER_CLASS} dust or "
+            f"bird_drop images; got {n_clean} clean, {n_dirty} needing cleaning"
+        )
+    if not np.isfinite(features).all():
+        raise Unprocessable("some images gave non-finite features")
+    return names, counts
+
+
+def _heads(z: NDArray[np.float64], names: NDArray[np.str_]) -> dict[str, Any]:
+    """Logistic heads on the standardised features ``z``: snow against the rest, droppings
+    against dust, each when at least 3 photos show it and 3 do not."""
+    from sklearn.linear_model import LogisticRegression
+
+    def head(positive: NDArray[np.bool_], rows: NDArray[np.bool_]) -> dict[str, Any] | None:
+        if positive[rows].sum() < 3 or (~positive[rows]).sum() < 3:
+            return None
+        fit = LogisticRegression(C=0.3, class_weight="balanced", max_iter=5000)
+        fit.fit(z[rows], positive[rows])
+        return {"coef": fit.coef_[0].tolist(), "intercept": float(fit.intercept_[0])}
+
+    everyone = np.ones(len(names), dtype=bool)
+    heads = {
+        "snow": head(names == "snow", everyone),
+        "bird_drop": head(names == "bird_drop", np.isin(names, ("dust", "bird_drop"))),
+    }
+    return {name: h for name, h in heads.items() if h is not None}
+
+
 def fit_fleet(
     features: NDArray[np.float64],
     labels: Sequence[str],
@@ -325,16 +363,8 @@ def fit_fleet(
     from sklearn.linear_model import LogisticRegression
     from sklearn.model_selection import cross_val_predict, cross_val_score
 
-    names = np.array(["dust" if label == "dirty" else label for label in labels])
-    counts = {label: int((names == label).sum()) for label in FLEET_LABELS}
+    names, counts = _checked_labels(features, labels)
     n_clean, n_dirty = counts["clean"], counts["dust"] + counts["bird_drop"]
-    if min(n_dirty, n_clean) < MIN_FLEET_PER_CLASS:
-        raise Unprocessable(
-            f"need at least {MIN_FLEET_PER_CLASS} clean and {MIN_FLEET_PER_CLASS} dust or "
-            f"bird_drop images; got {n_clean} clean, {n_dirty} needing cleaning"
-        )
-    if not np.isfinite(features).all():
-        raise Unprocessable("some images gave non-finite features")
     k = features.shape[1]
     judged = names != "snow"
     x, dirty = features[judged], np.isin(names[judged], ("dust", "bird_drop"))
@@ -360,19 +390,7 @@ def fit_fleet(
     scaler, svm = best.named_steps["scale"], best.named_steps["svm"]
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
     z = (features - scaler.mean_) / scale
-
-    def head(positive: NDArray[np.bool_], rows: NDArray[np.bool_]) -> dict[str, Any] | None:
-        if positive[rows].sum() < 3 or (~positive[rows]).sum() < 3:
-            return None
-        fit = LogisticRegression(C=0.3, class_weight="balanced", max_iter=5000)
-        fit.fit(z[rows], positive[rows])
-        return {"coef": fit.coef_[0].tolist(), "intercept": float(fit.intercept_[0])}
-
-    everyone = np.ones(len(names), dtype=bool)
-    heads = {
-        "snow": head(names == "snow", everyone),
-        "bird_drop": head(names == "bird_drop", np.isin(names, ("dust", "bird_drop"))),
-    }
+    heads = _heads(z, names)
     return FleetModel(
         id=str(uuid.uuid4()),
         created_at=now,
@@ -390,7 +408,7 @@ def fit_fleet(
             "training": z.tolist(),
             "reach": reach(z, groups=g),
         },
-        heads={name: h for name, h in heads.items() if h is not None},
+        heads=heads,
         threshold=0.5,
         n_clean=n_clean,
         n_dirty=n_dirty,
