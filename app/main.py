@@ -17,23 +17,22 @@ from fastapi_offline import FastAPIOffline
 
 from app import __version__
 from app.air import kind as air_kind
-from app.air import router as air
+from app.air.router import router as air_router
 from app.air.services import webhook as alert_webhook
 from app.air.services.map_cache import MapCache
 from app.cells import kind as cells_kind
-from app.cells import router as cells
 from app.cells.core import triangulation
+from app.cells.router import router as cells_router
 from app.platform import health, outbox, viewers, webhooks
 from app.platform.auth import admin_token_hash, hash_token
 from app.platform.db import schema
 from app.platform.db.models import CameraKind
 from app.platform.db.session import make_engine, make_read_engine, make_sessionmaker
-from app.platform.frames import cameras as registry
+from app.platform.frames import cameras, jpeg, kinds, rate_limit, retention, sources
 from app.platform.frames import deps as frame_deps
-from app.platform.frames import jpeg, kinds, rate_limit, retention, sources
-from app.platform.frames import router as cameras
 from app.platform.frames.bounded_store import BoundedStore
 from app.platform.frames.camera_info import TokenCache
+from app.platform.frames.router import router as frames_router
 from app.platform.frames.storage import StoreUnavailable
 from app.platform.frames.stores import frame_store
 from app.platform.frames.writer import GroupCommitWriter
@@ -51,7 +50,7 @@ from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
 from app.platform.state import AppState
 from app.solar import kind as solar_kind
-from app.solar import router as solar
+from app.solar.router import router as solar_router
 from app.solar.services import events as solar_events
 from app.solar.services import metrics as solar_metrics
 from app.web import router as pages
@@ -142,16 +141,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app)
     app.openapi = with_security(app)  # type: ignore[method-assign]
     add_middleware(app, settings)
-    for module in (
-        cameras,  # first: the frame upload is matched first
-        health,
-        solar,
-        air,
-        cells,
-        viewers,
-        pages,
+    for router in (
+        frames_router,  # first: the frame upload is matched first
+        health.router,
+        solar_router,
+        air_router,
+        cells_router,
+        viewers.router,
+        pages.router,
     ):
-        app.include_router(module.router)
+        app.include_router(router)
     pages.mount_static(app)
     return app
 
@@ -184,7 +183,7 @@ def build_state(settings: Settings) -> AppState:
     # frame uploads decode in the writer's own threads, apart from the shared pool: with the
     # disk store about as many as there are cores (more only contend for them and the GIL)
     state.writer = GroupCommitWriter(
-        state.sessionmaker, preparers=settings.effective_ingest_threads, check=registry.refusals
+        state.sessionmaker, preparers=settings.effective_ingest_threads, check=cameras.refusals
     )
     state.admin_token_hash = admin_token_hash(settings)
     metrics = settings.metrics_token

@@ -29,7 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.air.services import readings as sky_readings  # noqa: E402
-from tests.factories import migrate, store  # noqa: E402
+from tests.factories import migrate  # noqa: E402
+from tests.factories.air import store  # noqa: E402
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 PG_BENCH = "postgresql+psycopg://postgres@127.0.0.1:5432/vantage_trends_bench"

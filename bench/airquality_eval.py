@@ -282,7 +282,7 @@ def deviations(values: np.ndarray, place: np.ndarray) -> np.ndarray:
 
 def t2_predict(modes_tr: np.ndarray, lv_tr: np.ndarray, modes_te: np.ndarray) -> np.ndarray:
     try:
-        cal = airquality.calibrate(
+        cal = airquality.level_clusters(
             modes_tr, lv_tr, significance=0.05, shrinkage=hotelling.QUANTISATION_VARIANCE
         )
     except hotelling.BaselineError:

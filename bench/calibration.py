@@ -48,7 +48,7 @@ def run(name: str, find: Finder) -> None:
             find(cv2.imread(str(DATA / f"{side}{n}.jpg"), cv2.IMREAD_GRAYSCALE)) for n in VIEWS
         ]
         points[side] = [p for p in found if p is not None]
-        fits[side] = C.calibrate([obj] * len(points[side]), points[side], (640, 480))
+        fits[side] = C.fit_intrinsics([obj] * len(points[side]), points[side], (640, 480))
         f = fits[side]
         worst = f.per_view_rms.max() / np.median(f.per_view_rms)
         print(
@@ -65,14 +65,14 @@ def run(name: str, find: Finder) -> None:
 
 
 def family(name: str, find: Finder) -> None:
-    from tests.factories import K_RENDER, rendered_views
+    from tests.factories.cells import K_RENDER, rendered_views
 
     rms, err, found = [], [], 0
     for seed in range(100, 130):
         views = [cv2.imdecode(np.frombuffer(b, np.uint8), 0) for b in rendered_views(6, seed=seed)]
         points = [p for p in (find(g) for g in views) if p is not None]
         found += len(points)
-        fit = C.calibrate([C.board_points(9, 6, 25.0)] * len(points), points, (640, 480))
+        fit = C.fit_intrinsics([C.board_points(9, 6, 25.0)] * len(points), points, (640, 480))
         rms.append(fit.rms)
         err.append(abs(fit.K[0, 0] / K_RENDER[0, 0] - 1) * 100)
     print(

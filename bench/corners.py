@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.cells.core import calibration
-from tests.factories import rendered_board
+from tests.factories.cells import rendered_board  # noqa: E402
 
 
 def timed(image: np.ndarray, side: int) -> tuple[float, np.ndarray | None]:

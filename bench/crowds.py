@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.ingest import ADMIN, Server, pct  # noqa: E402
-from tests.factories import sky_jpeg  # noqa: E402
+from tests.factories.air import sky_jpeg  # noqa: E402
 
 ON = {  # the settings' defaults
     "VANTAGE_PUBLIC_REQUESTS_PER_MINUTE": "300",

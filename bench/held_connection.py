@@ -165,7 +165,7 @@ def seed_alerts(data: Path, n: int) -> None:
     from sqlalchemy import create_engine
 
     sys.path.insert(0, str(ROOT))
-    from tests.factories import seed_alerts as seed
+    from tests.factories.air import seed_alerts as seed
 
     seed(create_engine(f"sqlite:///{data / 'vantage.db'}"), n, taken=datetime.now(UTC))
 

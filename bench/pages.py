@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.ingest import ADMIN, Server, pct  # noqa: E402
-from tests.factories import sky_jpeg  # noqa: E402
+from tests.factories.air import sky_jpeg  # noqa: E402
 
 
 def populate(server: Server, cameras: int) -> None:

@@ -31,7 +31,8 @@ from app.solar.core.panel_state import PanelState  # noqa: E402
 from app.solar.services import panels  # noqa: E402
 from bench.air_trends import PG_ADMIN, analyze, database  # noqa: E402
 from bench.readings_pages import timed  # noqa: E402
-from tests.factories import TASK_FACTS, Facts, migrate, store_farm  # noqa: E402
+from tests.factories import migrate  # noqa: E402
+from tests.factories.solar import TASK_FACTS, Facts, store_farm  # noqa: E402
 
 NOW = datetime(2026, 6, 1, 12, tzinfo=UTC)
 

@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.air_trends import city_readings  # noqa: E402
 from bench.ingest import PG_BENCH_URL, Server, drive, jpeg_640x480, pct  # noqa: E402
-from tests.factories import store  # noqa: E402
+from tests.factories.air import store  # noqa: E402
 
 
 def dashboards(port: int, n: int, stop: threading.Event, t0: datetime, took: list[float]) -> None:

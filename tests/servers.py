@@ -16,7 +16,8 @@ from typing import Any
 import httpx2 as httpx
 import pytest
 
-from tests.factories import ADMIN_TOKEN, ROOT, sky_jpeg
+from tests.factories import ADMIN_TOKEN, ROOT
+from tests.factories.air import sky_jpeg
 
 
 def free_port() -> int:

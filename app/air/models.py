@@ -62,7 +62,7 @@ class AirCalibration(Base):
     warnings: Mapped[list[str]] = mapped_column(JSON)
     n_images: Mapped[int] = mapped_column(Integer)
     method: Mapped[str] = mapped_column(String(16), default="clusters", server_default="clusters")
-    """How frames are graded: the T² clusters (the dissertation) or the regression."""
+    """How frames are graded: the T² clusters ([Fayed 2013]) or the regression."""
     regression: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """{mean, scale, coef, intercept} of the ridge regression on the sky features."""
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)

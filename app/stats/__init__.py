@@ -1,2 +1,2 @@
 """Statistics the domains share, pure NumPy and SciPy: Hotelling's T² against a baseline
-(dissertation ch. 5, which chapter 6 reuses for the sky's levels)."""
+([Fayed 2013] ch. 5, which chapter 6 reuses for the sky's levels)."""

@@ -1,4 +1,4 @@
-"""Hotelling's T² of colour-channel modes against a baseline: the dissertation's chapter 5
+"""Hotelling's T² of colour-channel modes against a baseline: [Fayed 2013]'s chapter 5
 (solar-panel soiling), which chapter 6 reuses for the sky's levels, and what it needs.
 
 A camera photographs a panel; dust, sand and droppings shift the modes of the R, G and B
@@ -93,7 +93,7 @@ def fit_baseline(
     Parameters
     ----------
     modes : array of shape (n, 3): the R, G, B modes of each clean image [level].
-    significance : ς in (0, 0.05] (the dissertation requires ≤ 0.05).
+    significance : ς in (0, 0.05] ([Fayed 2013] requires ≤ 0.05).
     shrinkage : variance added to the diagonal of Σ̂ [level²]. 0 (default) refuses a singular
         covariance; ``QUANTISATION_VARIANCE`` (1/12) is the principled choice when a channel's
         mode is constant across the images, since modes are rounded to integer levels.
@@ -171,7 +171,7 @@ def classify(baseline: Baseline, modes: ArrayLike) -> T2Verdict:
     .. math:: F = \frac{n-3}{3(n-1)} t^2 \sim F_{3,n-3}
 
     Clean iff F < F₍₃,ₙ₋₃,ς₎ (5.21), i.e. (x − x̄ₘ)' Σ̂⁻¹ (x − x̄ₘ) < 3(n² − 1)/(n(n − 3)) F₍₃,ₙ₋₃,ς₎
-    (5.22). The dissertation's eq. 5.23, x' Σ̂⁻¹ x < x̄ₘ' Σ̂⁻¹ x̄ₘ + …, is *not* equivalent: expanding
+    (5.22). [Fayed 2013]'s eq. 5.23, x' Σ̂⁻¹ x < x̄ₘ' Σ̂⁻¹ x̄ₘ + …, is *not* equivalent: expanding
     the quadratic form of 5.22 leaves the cross term −2 x̄ₘ' Σ̂⁻¹ x + 2 x̄ₘ' Σ̂⁻¹ x̄ₘ, which 5.23
     drops. 5.22 is implemented (in its F form, 5.21).
     """
@@ -210,7 +210,7 @@ def two_sample_t2(first: ArrayLike, second: ArrayLike) -> TwoSampleT2:
     .. math:: T^2 = \frac{n_1 n_2}{n_1 + n_2} (\bar x_1 - \bar x_2)' S_p^{-1} (\bar x_1 - \bar x_2)
     .. math:: F = \frac{n_1 + n_2 - p - 1}{p (n_1 + n_2 - 2)} T^2 \sim F_{p,\, n_1 + n_2 - p - 1}
 
-    The dissertation uses it to show that clean and dusty panels differ (chapter 5, §III).
+    [Fayed 2013] uses it to show that clean and dusty panels differ (chapter 5, §III).
     """
     a = np.asarray(first, dtype=np.float64)
     b = np.asarray(second, dtype=np.float64)

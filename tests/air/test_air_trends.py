@@ -16,7 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from tests.factories import Reading, pages, store
+from tests.factories import pages
+from tests.factories.air import Reading, store
 
 
 def expected(readings: list[Reading], bucket: str, tz: ZoneInfo) -> list[dict[str, Any]]:

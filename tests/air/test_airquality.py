@@ -22,7 +22,7 @@ from app.air.core.isopleths import (
     interpolate,
     uncertainty_bands,
 )
-from tests.factories import CLEAN, HAZE
+from tests.factories.air import CLEAN, HAZE
 from tests.memory import traced_peak
 
 # very clean sky: R 30, G 78, B 180 (Figure 6.3a); haze moves it towards grey
@@ -71,7 +71,7 @@ class TestCalibration:
         levels = [1, 3, 5, 7, 10]
         modes = np.vstack([sky_modes(v, 12, seed=v) for v in levels])
         labels = np.repeat(levels, 12)
-        cal = airquality.calibrate(modes, labels, significance=0.01)
+        cal = airquality.level_clusters(modes, labels, significance=0.01)
         assert [c.level for c in cal.clusters] == levels
         assert cal.warnings == ()
         for v in levels:
@@ -81,7 +81,7 @@ class TestCalibration:
     def test_sparse_level_is_pooled_with_a_warning(self) -> None:
         modes = np.vstack([sky_modes(2, 10, 1), sky_modes(3, 2, 2), sky_modes(8, 10, 3)])
         labels = [2] * 10 + [3] * 2 + [8] * 10
-        cal = airquality.calibrate(modes, labels)
+        cal = airquality.level_clusters(modes, labels)
         assert [c.levels for c in cal.clusters] == [(2, 3), (8,)]
         assert "pooled" in cal.warnings[0]
 
@@ -92,7 +92,7 @@ class TestCalibration:
         modes = np.vstack([np.round(sky_modes(v, 6, seed=v)) for v in (2, 5, 8)])
         modes[6:12, 2] = 175.0
         labels = np.repeat([2, 5, 8], 6)
-        cal = airquality.calibrate(modes, labels)
+        cal = airquality.level_clusters(modes, labels)
         assert [c.level for c in cal.clusters] == [2, 5, 8]
         [warning] = cal.warnings
         assert warning.startswith("level 5: the B mode is the same in all 6 images")
@@ -106,7 +106,7 @@ class TestCalibration:
         assert by_level[2].shrinkage == 0.0
 
     def test_outside_calibration_is_said_not_guessed(self) -> None:
-        cal = airquality.calibrate(sky_modes(10, 10, 1), [10] * 10)
+        cal = airquality.level_clusters(sky_modes(10, 10, 1), [10] * 10)
         g = airquality.grade(cal, [200.0, 40.0, 40.0])  # a red sunset
         assert g.level is None
         assert "outside calibration" in (g.reason or "")

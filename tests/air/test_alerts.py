@@ -1,451 +1,340 @@
-"""Alert delivery against real receivers on a local socket: only a 2xx answer to the POST is a
-delivery, a bad answer is one alert's failed attempt, and retries go on for the retry period."""
+"""Air-quality alerts: raised when a camera's smoothed level turns Poor, cleared when it is
+back, one per episode, history never an alert; the listing."""
 
 from __future__ import annotations
 
-import base64
-import contextlib
-import json
-import socket
-import threading
-import time
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from datetime import UTC, datetime, timedelta
-from http.server import BaseHTTPRequestHandler
+from datetime import datetime, timedelta
+from itertools import pairwise
 from typing import Any
 
+import cv2
+import numpy as np
 import pytest
-import standardwebhooks
-from pydantic import ValidationError
-from sqlalchemy import Engine, select
-from sqlalchemy.orm import Session, sessionmaker
+from fastapi.testclient import TestClient
 
-from app.air.models import AirAlert
-from app.air.services import webhook as alert_webhook
-from app.platform import webhooks
-from app.platform.db.models import Camera
-from app.platform.db.session import make_engine, make_sessionmaker
-from app.platform.policy import Policy
-from app.platform.settings import Settings
-from tests.factories import T0, recorder, seed_alerts, served
+from tests.factories.air import calibrate, post, sky_jpeg
 
 
-def at(now: datetime) -> Policy:
-    """A policy whose clock stands at ``now``."""
-    return Policy(clock=lambda: now)
-
-
-def state(engine: Engine) -> dict[str, tuple[bool, int, str | None]]:
-    with Session(engine) as s:
-        return {a.id: (a.delivered, a.attempts, a.last_error) for a in s.scalars(select(AirAlert))}
-
-
-@pytest.fixture
-def sessions(database_url: str) -> Iterator[sessionmaker[Session]]:
-    engine = make_engine(database_url)
-    try:
-        yield make_sessionmaker(engine)
-    finally:
-        engine.dispose()
-
-
-def test_a_redirect_is_not_a_delivery(engine: Engine, sessions: sessionmaker[Session]) -> None:
-    """An http:// hook that moved to https:// answers 301. Followed, urllib would send a GET
-    without the alert, and a page answering it 200 would have counted as delivered."""
-    seen: list[tuple[str, str]] = []
-
-    class Moved(BaseHTTPRequestHandler):
-        def do_POST(self) -> None:  # noqa: N802
-            self.rfile.read(int(self.headers["Content-Length"]))
-            seen.append(("POST", self.path))
-            self.send_response(301)
-            self.send_header("Location", "/landing")
-            self.end_headers()
-
-        def do_GET(self) -> None:  # noqa: N802
-            seen.append(("GET", self.path))
-            self.send_response(200)
-            self.end_headers()
-
-        def log_message(self, *args: Any) -> None:
-            pass
-
-    seed_alerts(engine, 1)
-    with served(Moved) as base:
-        assert alert_webhook.sweep(sessions, f"{base}/hook", at(T0)) == 0
-    assert seen == [("POST", "/hook")]
-    delivered, attempts, error = state(engine)["a0"]
-    assert (delivered, attempts) == (False, 1)
-    assert "301 redirect to '/landing'" in str(error)
-
-
-def raw_receiver(answer: Callable[[str], bytes]) -> tuple[socket.socket, str]:
-    """A TCP server reading one request per connection and sending ``answer(alert_id)``."""
-    listener = socket.create_server(("127.0.0.1", 0))
-
-    def loop() -> None:
-        while True:
-            try:
-                conn, _ = listener.accept()
-            except OSError:
-                return
-            with conn:
-                data = b""
-                while b"\r\n\r\n" not in data:
-                    data += conn.recv(65536)
-                head, _, body = data.partition(b"\r\n\r\n")
-                length = int(next(
-                    line.split(b":")[1] for line in head.split(b"\r\n")
-                    if line.lower().startswith(b"content-length")
-                ))  # fmt: skip
-                while len(body) < length:
-                    body += conn.recv(65536)
-                conn.sendall(answer(json.loads(body)["alert_id"]))
-
-    threading.Thread(target=loop, daemon=True).start()
-    return listener, f"http://127.0.0.1:{listener.getsockname()[1]}/hook"
-
-
-def test_an_answer_that_is_not_http_fails_that_alert_only(
-    engine: Engine, sessions: sessionmaker[Session]
-) -> None:
-    """A proxy that cuts one answer (or something not HTTP on the port) made the whole sweep
-    raise before: its transaction rolled back, the alerts already delivered were sent again
-    at every sweep, and the failing one was retried every few seconds without an error."""
-    answers = {
-        "a0": b"HTTP/1.1 204 No Content\r\n\r\n",
-        "a1": b"-ERR unknown command\r\n",
-        "a2": b"HTTP/1.1 204 No Content\r\n\r\n",
-    }
-    posted: list[str] = []
-
-    def answer(alert_id: str) -> bytes:
-        posted.append(alert_id)
-        return answers[alert_id]
-
-    seed_alerts(engine, 3)
-    listener, url = raw_receiver(answer)
-    try:
-        assert alert_webhook.sweep(sessions, url, at(T0)) == 2
-        after = state(engine)
-        assert {k: v[:2] for k, v in after.items()} == {
-            "a0": (True, 1),
-            "a1": (False, 1),
-            "a2": (True, 1),
-        }
-        assert "BadStatusLine" in str(after["a1"][2])
-        # the next sweep, once a1's backoff has passed, tries a1 alone
-        assert alert_webhook.sweep(sessions, url, at(T0 + timedelta(seconds=3))) == 0
-    finally:
-        listener.close()
-    assert posted == ["a0", "a1", "a2", "a1"]
-
-
-def test_a_receiver_sending_its_answer_a_byte_at_a_time_fails_at_the_deadline(
-    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Each read waits at most TIMEOUT_S, and a receiver sending a byte every few seconds
-    never let one run out: a POST was still waiting after 50 s, and the sweep with it (no
-    later alert went anywhere). And once cut, what had come passed for a whole answer 200.
-    The POST now fails at DEADLINE_S (1 s here), and the sweep goes on to the next alert."""
-    monkeypatch.setattr(webhooks, "DEADLINE_S", 1.0)
-    listener = socket.create_server(("127.0.0.1", 0))
-    stop = threading.Event()
-
-    def trickle() -> None:
-        while not stop.is_set():
-            try:
-                conn, _ = listener.accept()
-            except OSError:
-                return
-            with conn:
-                conn.recv(65536)
-                with contextlib.suppress(OSError):
-                    conn.sendall(b"HTTP/1.1 204 No Content\r\n")
-                    while not stop.wait(0.2):
-                        conn.sendall(b"X")
-
-    threading.Thread(target=trickle, daemon=True).start()
-    seed_alerts(engine, 2)
-    result: list[int] = []
-    url = f"http://127.0.0.1:{listener.getsockname()[1]}/hook"
-    sweeping = threading.Thread(
-        target=lambda: result.append(alert_webhook.sweep(sessions, url, at(T0)))
+def post_taken(
+    client: TestClient, city: dict[str, Any], camera: str, jpeg: bytes, taken: datetime
+) -> Any:
+    """Post ``jpeg`` for ``camera`` as taken at ``taken`` (a backlog's frame); its verdict."""
+    r = client.post(
+        f"/cameras/{camera}/frames",
+        content=jpeg,
+        headers={
+            "Authorization": f"Bearer {city['tokens'][camera][0]}",
+            "Content-Type": "image/jpeg",
+        },
+        params={"captured_at": taken.isoformat()},
     )
-    try:
-        sweeping.start()
-        sweeping.join(timeout=15)
-        assert not sweeping.is_alive(), "the sweep is still posting"
-    finally:
-        stop.set()
-        listener.close()
-    assert result == [0]
-    after = state(engine)
-    assert {k: v[:2] for k, v in after.items()} == {"a0": (False, 1), "a1": (False, 1)}
-    assert all("no whole answer within 1 s" in str(v[2]) for v in after.values())
+    assert r.status_code == 201, r.text
+    return r.json()["verdict"]
 
 
-def closed_port() -> str:
-    with socket.create_server(("127.0.0.1", 0)) as s:
-        return f"http://127.0.0.1:{s.getsockname()[1]}/hook"
-
-
-def test_retries_back_off_up_to_ten_minutes_apart_for_the_retry_period(
-    engine: Engine, sessions: sessionmaker[Session]
+def test_alert_when_the_smoothed_level_turns_poor(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """A receiver down for hours (nothing listens on the port) still gets the alert when it is
-    back; after the retry period the alert is given up. Before, the sixth failure (62 s after
-    the first) was the last."""
-    seed_alerts(engine, 1)
-    url = closed_port()
-    now = T0
-    times = []
-    while now < T0 + timedelta(hours=2):
-        with Session(engine) as s:
-            due = s.get(AirAlert, "a0")
-            assert due is not None
-            now = max(now, due.next_attempt_at or now)
-        alert_webhook.sweep(sessions, url, at(now), retry_for=timedelta(hours=3))
-        times.append(now)
-    gaps = [(b - a).total_seconds() for a, b in zip(times, times[1:], strict=False)]
-    assert gaps[:9] == [2, 4, 8, 16, 32, 64, 128, 256, 512]
-    assert set(gaps[9:]) == {600}
-    assert state(engine)["a0"][:2] == (False, len(times))
-    with Session(engine) as s:
-        alert = s.get(AirAlert, "a0")
-        assert alert is not None
-        assert alert_webhook.delivery(
-            alert, T0 + timedelta(hours=2), retry_for=timedelta(hours=3)
-        ) == ("pending")
-        assert alert_webhook.delivery(
-            alert, T0 + timedelta(hours=4), retry_for=timedelta(hours=3)
-        ) == ("gave_up")
-        assert alert_webhook.delivery(alert, T0, retry_for=None) == "no_webhook"
-    # past the retry period the sweep leaves it alone
-    late = T0 + timedelta(hours=3, seconds=1)
-    alert_webhook.sweep(sessions, url, at(late), retry_for=timedelta(hours=3))
-    assert state(engine)["a0"][1] == len(times)
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    assert client.get("/air/alerts").json() == []
+    for k in range(4):
+        city["clock"].advance(minutes=20)
+        post(client, city, "sky1", 1, seed=10 + k)
+    alerts = client.get("/air/alerts").json()
+    assert len(alerts) == 1  # entering Poor once raises one alert, not one per frame
+    assert alerts[0]["camera_id"] == "sky1"
+    assert alerts[0]["category"] in ("Poor", "Very Poor")
+    assert alerts[0]["delivery"] == "no_webhook"  # recorded; nothing is configured to send it
 
 
-@pytest.mark.parametrize("url", ["hooks.example.org/alerts", "ftp://example.org/x", "http://"])
-def test_a_webhook_url_that_cannot_be_posted_to_is_refused_at_start(url: str) -> None:
-    with pytest.raises(ValidationError, match="VANTAGE_ALERT_WEBHOOK_URL"):
-        Settings(alert_webhook_url=url)
-
-
-def test_a_process_dying_mid_sweep_keeps_the_deliveries_before(
-    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+def test_alerts_of_a_period(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """The process stops (here SystemExit) while posting the second alert: the first, already
-    taken by the receiver, stays delivered (one transaction for the whole sweep rolled it back,
-    and it was sent again). The second, claimed, may have reached the receiver: it is sent
-    again once its claim has run out, the third with it."""
-    posted: list[str] = []
-
-    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
-        posted.append(json.loads(body)["alert_id"])
-        if len(posted) == 2:
-            raise SystemExit
-
-    seed_alerts(engine, 3)
-    monkeypatch.setattr(webhooks, "post", post)
-    with pytest.raises(SystemExit):
-        alert_webhook.sweep(sessions, "http://hook", at(T0))
-    assert {k: v[:2] for k, v in state(engine).items()} == {
-        "a0": (True, 1),
-        "a1": (False, 1),
-        "a2": (False, 0),
-    }
-    monkeypatch.undo()
-    receiver, got = recorder()
-    with served(receiver) as url:
-        assert (
-            alert_webhook.sweep(sessions, url, at(T0 + alert_webhook.CLAIM - timedelta(seconds=1)))
-            == 1
-        )
-        assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2"]  # a1 still claimed
-        assert alert_webhook.sweep(sessions, url, at(T0 + alert_webhook.CLAIM)) == 1
-    assert [json.loads(b)["alert_id"] for b, _ in got] == ["a2", "a1"]
-    assert {k: v[:2] for k, v in state(engine).items()} == {
-        "a0": (True, 1),
-        "a1": (True, 2),
-        "a2": (True, 1),
-    }
-
-
-def test_the_signature_of_the_standard_webhooks_example() -> None:
-    """The example of the Standard Webhooks specification (secret, id, timestamp, body and the
-    signature its reference library, standardwebhooks 1.1.0, computes for them)."""
-    key = webhooks.signing_key("whsec_MfKQ9r8GKYqrTwjUPD8ILPZIo2LaLaSw")
-    got = webhooks.signature(
-        key, "msg_p5jXN8AQM9LWM0D4loKWxJek", 1614265330, b'{"test": 2432232314}'
-    )
-    assert got == "v1,g0hM9SsE+OTPJTGt/tmIKtSyZlE3uFJELVlNIOLJ1OE="
-
-
-@pytest.mark.parametrize(
-    ("secret", "why"),
-    [
-        ("whsec_not base64!", "base64"),
-        ("whsec_" + "QUJD", "3"),  # 3 bytes
-        ("whsec_" + "A" * 100, "75"),  # 75 bytes
-    ],
-)
-def test_a_secret_that_is_not_a_standard_webhooks_one_is_refused_at_start(
-    secret: str, why: str
-) -> None:
-    with pytest.raises(ValidationError, match=f"VANTAGE_ALERT_WEBHOOK_SECRET: .*{why}"):
-        Settings(alert_webhook_url="http://hook.example/", alert_webhook_secret=secret)
-
-
-def test_alerts_are_signed_and_say_where_and_when(
-    engine: Engine, sessions: sessionmaker[Session]
-) -> None:
-    """A receiver checks each POST with a Standard Webhooks library (the reference one, not
-    this service's code): signed with the secret, and one tampered with is refused. The id is
-    the alert's on every attempt, so a receiver drops a repeat; the body names the camera's
-    place and when the frame was taken."""
-    secret = "whsec_" + base64.b64encode(bytes(range(32))).decode()
-    receiver_class, got = recorder(500)
-    seed_alerts(engine, 1)
-    with Session(engine) as s:
-        camera = s.get(Camera, "sky")
-        assert camera is not None
-        camera.name, camera.lat, camera.lon = "Piazza Duomo", 45.464, 9.19
-        s.commit()
-    now = datetime.now(UTC)  # receivers refuse a timestamp more than 5 minutes off
-    old = now - T0 + timedelta(days=1)  # the alerts were raised at T0: retried till now
-    key = webhooks.signing_key(secret)
-    with served(receiver_class) as base:
-        for t, delivered in ((now, 0), (now + timedelta(seconds=3), 1)):  # 500, then 204
-            sent = alert_webhook.sweep(sessions, f"{base}/hook", at(t), key=key, retry_for=old)
-            assert sent == delivered
-    receiver = standardwebhooks.Webhook(secret)
-    for body, headers in got:
-        alert = receiver.verify(body, headers)
-        assert headers["webhook-id"] == alert["alert_id"] == "a0"
-        assert alert["kind"] == "raised"
-        assert {k: alert[k] for k in ("camera_name", "lat", "lon", "captured_at")} == {
-            "camera_name": "Piazza Duomo",
-            "lat": 45.464,
-            "lon": 9.19,
-            "captured_at": T0.isoformat(),
-        }
-    assert [int(h["webhook-timestamp"]) for _, h in got] == [
-        int(now.timestamp()),
-        int(now.timestamp()) + 3,
+    """A dashboard shows the day's alerts: ``since`` and ``until`` bound when they were raised."""
+    assert calibrate(client, admin).status_code == 201
+    raised = []
+    for cam in ("sky1", "sky2", "sky3"):
+        city["clock"].advance(hours=5)
+        post(client, city, cam, 1, seed=1)
+        raised.append(city["clock"].now)
+    assert [a["camera_id"] for a in client.get("/air/alerts").json()] == ["sky3", "sky2", "sky1"]
+    span = {"since": raised[1].isoformat(), "until": raised[2].isoformat()}
+    assert [a["camera_id"] for a in client.get("/air/alerts", params=span).json()] == ["sky2"]
+    since = {"since": raised[1].isoformat()}
+    assert [a["camera_id"] for a in client.get("/air/alerts", params=since).json()] == [
+        "sky3",
+        "sky2",
     ]
-    body, headers = got[0]
-    with pytest.raises(standardwebhooks.webhooks.WebhookVerificationError):
-        receiver.verify(body.replace(b'"Poor"', b'"Good"'), headers)
-    with pytest.raises(standardwebhooks.webhooks.WebhookVerificationError):
-        standardwebhooks.Webhook("whsec_" + base64.b64encode(bytes(32)).decode()).verify(
-            body, headers
+    backwards = client.get("/air/alerts", params={"since": span["until"], "until": span["since"]})
+    assert backwards.status_code == 422
+    # a district's cameras: camera_id repeated (before, the last one alone was answered)
+    district = client.get("/air/alerts", params={"camera_id": ["sky1", "sky3"]})
+    assert [a["camera_id"] for a in district.json()] == ["sky3", "sky1"]
+    unknown = client.get("/air/alerts", params={"camera_id": ["sky1", "sky99"]})
+    assert (unknown.status_code, unknown.json()["unknown"]) == (404, ["sky99"])
+
+
+def test_why_a_delivery_failed_is_for_the_operator(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
+) -> None:
+    """``GET /air/alerts`` is public, and a failed delivery's error can hold the receiver's
+    addresses (a redirect's Location, with its token): only the admin token reads it."""
+    from app.air.models import AirAlert
+
+    assert calibrate(client, admin).status_code == 201
+    post(client, city, "sky1", 1, seed=1)
+    error = "HTTP 301 redirect to 'https://hooks.example/T0/B0/s3cr3t', not followed"
+    with app.state.sessionmaker() as s:
+        s.get(AirAlert, client.get("/air/alerts").json()[0]["id"]).last_error = error
+        s.commit()
+    public = client.get("/air/alerts").json()[0]
+    assert public["last_error"] is None
+    assert public["category"] in ("Poor", "Very Poor")
+    assert client.get("/air/alerts", headers=admin).json()[0]["last_error"] == error
+    camera = {"Authorization": f"Bearer {city['tokens']['sky1'][0]}"}
+    assert client.get("/air/alerts", headers=camera).json()[0]["last_error"] is None
+    wrong = client.get("/air/alerts", headers={"Authorization": "Bearer nope"})
+    assert wrong.status_code == 401
+
+
+def test_air_getting_worse_again_is_a_second_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Poor, then Very Poor: one alert for each category entered, worst last (entering Very
+    Poor from Poor raised none before); getting better raises none."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    for level, n in ((3, 8), (1, 12), (3, 12)):
+        for k in range(n):
+            city["clock"].advance(minutes=20)
+            post(client, city, "sky1", level, seed=100 * level + k)
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings) if r["smoothed_level"]]
+    alerts = client.get("/air/alerts").json()
+    assert [a["category"] for a in alerts] == ["Very Poor", "Poor"]
+    assert min(smoothed) < 2.5  # it did reach Very Poor, and came back to Poor without an alert
+    assert 2.5 <= smoothed[-1] < 4.5
+
+
+def test_an_episode_of_poor_air_is_raised_then_cleared(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """A receiver showing "Poor air at sky1" learns when it is over: once the smoothed level is
+    back to 5.0 (clear of Poor by the hysteresis), one ``cleared`` alert; the next episode
+    raises again. Hovering just above the edge (4.5–5.0) clears nothing."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    graded = [3] * 6 + [5] * 12 + [10] * 18 + [3] * 8
+    for k, level in enumerate(graded):
+        city["clock"].advance(minutes=20)
+        assert post(client, city, "sky1", level, seed=300 + k)["level"] == level
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings)][3:]
+    alerts = list(reversed(client.get("/air/alerts").json()))
+    assert [(a["kind"], a["category"]) for a in alerts] == [
+        ("raised", "Poor"),
+        ("cleared", "Fair"),
+        ("raised", "Poor"),
+    ]
+    frames = [r["frame_id"] for r in reversed(readings)][3:]
+    raised, cleared = frames.index(alerts[0]["frame_id"]), frames.index(alerts[1]["frame_id"])
+    assert smoothed[raised] < 4.5 <= smoothed[raised - 1]
+    assert cleared == next(i for i in range(raised, len(smoothed)) if smoothed[i] >= 5.0)
+    assert any(4.5 <= v < 5.0 for v in smoothed[raised:cleared])  # the dead band cleared nothing
+    only = client.get("/air/alerts", params={"kind": "cleared"}).json()
+    assert [a["id"] for a in only] == [alerts[1]["id"]]
+
+
+def test_an_episode_over_before_cleared_alerts_existed_is_not_cleared_again(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any], app: Any
+) -> None:
+    """Alerts raised before this service sent cleared ones (here: the cleared alert removed,
+    as a database upgraded from then holds none) are over once a reading came back to 5.0:
+    the next clean frame, weeks on, clears nothing."""
+    from app.air.models import AirAlert
+
+    assert calibrate(client, admin).status_code == 201
+    for level, n in ((10, 3), (1, 6), (10, 12)):
+        for k in range(n):
+            city["clock"].advance(minutes=20)
+            post(client, city, "sky1", level, seed=400 + k)
+    kinds = [(a["kind"], a["category"]) for a in client.get("/air/alerts").json()]
+    assert kinds == [("cleared", "Fair"), ("raised", "Very Poor"), ("raised", "Poor")]
+    with app.state.sessionmaker() as s:
+        s.query(AirAlert).filter(AirAlert.kind == "cleared").delete()
+        s.commit()
+    city["clock"].advance(days=20)
+    post(client, city, "sky1", 10, seed=500)
+    assert [a["kind"] for a in client.get("/air/alerts").json()] == ["raised", "raised"]
+
+
+def test_air_hovering_on_the_poor_edge_is_one_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """Clean air, then frames every 20 minutes graded 3 or 5: the smoothed level settles near
+    4.5 and crosses the Fair/Poor edge five times. One episode of Poor air is one alert (and
+    one webhook), not one per crossing."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    graded = [3] * 6 + [5, 5, 3, 5, 5, 5, 3, 5, 5, 3, 5, 5, 3, 5, 5, 5, 5, 3]
+    for k, level in enumerate(graded):
+        city["clock"].advance(minutes=20)
+        assert post(client, city, "sky1", level, seed=200 + k)["level"] == level
+    readings = client.get("/air/readings", params={"camera_id": "sky1", "limit": 100}).json()
+    smoothed = [r["smoothed_level"] for r in reversed(readings)]
+    entered = sum(1 for a, b in pairwise(smoothed) if a >= 4.5 > b)
+    assert entered == 5
+    assert max(smoothed[10:]) < 5.0  # never clearly Fair again after the first entry
+    alerts = client.get("/air/alerts").json()
+    assert [a["category"] for a in alerts] == ["Poor"]
+
+
+def test_a_late_upload_of_hazy_hours_is_history_not_an_alert(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
+) -> None:
+    """sky1 reports clean air for three hours, then uploads its backlog: four frames of haze
+    taken six hours ago. They are graded and smoothed with the hours before they were taken
+    (Very Poor then), but they raise no alert now and the camera's latest stays clean; its
+    smoothed level now counts them, five and six hours back."""
+    assert calibrate(client, admin).status_code == 201
+    for hour in range(3):
+        city["clock"].advance(hours=1)
+        post(client, city, "sky1", 10, seed=hour)
+    token = city["tokens"]["sky1"][0]
+    for k in range(4):
+        taken = city["clock"].now - timedelta(hours=6) + timedelta(minutes=20 * k)
+        r = client.post(
+            "/cameras/sky1/frames",
+            content=sky_jpeg(1, seed=20 + k),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "image/jpeg"},
+            params={"captured_at": taken.isoformat()},
         )
+        assert r.status_code == 201, r.text
+        assert r.json()["verdict"]["level"] in (1, 2)
+    assert client.get("/air/alerts").json() == []
+    latest = client.get("/air/cameras/sky1/latest").json()
+    assert latest["level"] == 10
+    readings = client.get("/air/readings", params={"camera_id": "sky1"}).json()
+    late = [r for r in readings if r["level"] in (1, 2)]
+    assert len(late) == 4
+    assert all(r["smoothed_level"] <= 2 for r in late)  # the hours before them had no reading
+    # NowCast at the latest: hours 0, 1, 2 ago at 10, hour 5 the three later hazy frames, hour
+    # 6 the first; w = max(min/max of the hourly means, 0.5) = 0.5
+    five, six = np.mean([r["level"] for r in late[:3]]), late[3]["level"]
+    expected = (10 * (1 + 0.5 + 0.25) + five * 0.5**5 + six * 0.5**6) / (1.75 + 0.5**5 + 0.5**6)
+    assert latest["smoothed_level"] == pytest.approx(expected, rel=1e-9)
+    assert latest["category"] == "Very Good"
 
 
-def test_unsigned_without_a_secret(engine: Engine, sessions: sessionmaker[Session]) -> None:
-    receiver_class, got = recorder()
-    seed_alerts(engine, 1)
-    with served(receiver_class) as base:
-        assert alert_webhook.sweep(sessions, f"{base}/hook", at(T0)) == 1
-    headers = got[0][1]
-    assert headers["webhook-id"] == "a0"
-    assert "webhook-signature" not in headers
-
-
-def test_a_receiver_slow_to_answer_holds_no_database_connection(
-    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+def test_a_backlog_uploaded_newest_first_is_smoothed_as_if_uploaded_in_order(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """While a POST waits for the receiver, the database serves everyone else. The sweep's
-    engine is the service's: with SQLite, one connection for every request. A sweep that held
-    its transaction through the POST held the whole service for as long, up to ``TIMEOUT_S``
-    an alert (GET /cameras waited 20 s behind 4 alerts to a receiver that never answered)."""
-    wait = 20.0
-    seed_alerts(engine, 1)
-    posting, answer = threading.Event(), threading.Event()
+    """Cameras that buffer frames while offline may send the newest first. Each reading's
+    smoothed level is the NowCast of the readings up to it, whatever order they came in:
+    sky2 uploads four hours of changing air in order, sky3 the same frames newest first.
+    Ungraded readings (a night frame; one sky outside calibration) keep the camera's smoothed
+    level of their time too."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=5)
+    frames = [
+        (start + timedelta(minutes=20 * k), sky_jpeg(level, seed=k))
+        for k, level in enumerate([10, 10, 7, 7, 5, 5, 3, 3, 5, 7, 7, 10])
+    ]
+    ok, night = cv2.imencode(".jpg", np.full((100, 160, 3), 3, np.uint8))
+    assert ok
+    frames.insert(4, (start + timedelta(minutes=70), night.tobytes()))
+    for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
+        for taken, jpeg in order:
+            post_taken(client, city, camera, jpeg, taken)
+    in_order, newest_first = (
+        client.get("/air/readings", params={"camera_id": c}).json() for c in ("sky2", "sky3")
+    )
+    assert len(in_order) == len(newest_first) == len(frames)
+    assert [r["level"] for r in newest_first] == [r["level"] for r in in_order]
+    assert len({r["level"] for r in in_order}) >= 3  # the air changed
+    ungraded = [r for r in in_order if r["level"] is None]
+    assert len(ungraded) == 2
+    assert all(r["smoothed_level"] is not None for r in ungraded)
+    smoothed = [r["smoothed_level"] for r in in_order]
+    assert [r["smoothed_level"] for r in newest_first] == pytest.approx(smoothed, rel=1e-9)
+    assert smoothed != pytest.approx([r["level"] for r in in_order])  # smoothing did something
+    latest = client.get("/air/cameras/sky3/latest").json()
+    assert latest["smoothed_level"] == pytest.approx(smoothed[0], rel=1e-9)
 
-    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
-        posting.set()
-        answer.wait(2 * wait)
 
-    def alerts_pending() -> int:
-        with sessions() as s:
-            return len(s.scalars(select(AirAlert).where(AirAlert.delivered.is_(False))).all())
-
-    monkeypatch.setattr(webhooks, "post", post)
-    with ThreadPoolExecutor(2) as pool:
-        sweep = pool.submit(alert_webhook.sweep, sessions, "http://hook", at(T0))
-        try:
-            assert posting.wait(wait)
-            assert pool.submit(alerts_pending).result(timeout=wait) == 1
-            assert not sweep.done()
-        finally:
-            answer.set()
-        assert sweep.result(timeout=wait) == 1
-    assert state(engine)["a0"] == (True, 1, None)
-
-
-def test_an_alert_posted_late_in_a_long_sweep_is_not_due_for_another_process(
-    engine: Engine, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+def test_a_backlog_sent_newest_first_raises_the_alert_its_public_level_calls_for(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """A sweep of many alerts to a slow receiver takes minutes. Each alert is claimed from the
-    time it is posted, not from the sweep's start: a claim dated from the start ran out before
-    the later alerts were posted, and another process's sweep would send them too."""
-    seed_alerts(engine, 3)
-    clock = [T0]
-    due_elsewhere = []
+    """Four hours of Poor air and a last frame of Fair sent newest first: the newest alone
+    smooths to Fair (no alert); the older frames are history (no alert of their own) but
+    smooth it again to Poor, the camera's public level, which then raises the alert, once,
+    on the newest frame. Sent in order, the same frames raise one Poor alert too. Before,
+    the newest-first camera's backlog raised none."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=4)
+    levels = [3] * 11 + [7]
+    frames = [
+        (start + timedelta(minutes=20 * k), sky_jpeg(level, seed=k))
+        for k, level in enumerate(levels)
+    ]
+    newest_alone = None
+    for camera, order in (("sky2", frames), ("sky3", frames[::-1])):
+        for taken, jpeg in order:
+            post_taken(client, city, camera, jpeg, taken)
+            if camera == "sky3" and newest_alone is None:
+                newest_alone = client.get("/air/cameras/sky3/latest").json()
+    assert newest_alone is not None
+    assert newest_alone["category"] not in ("Poor", "Very Poor")
+    alerts = client.get("/air/alerts").json()
+    by_camera = {c: [a for a in alerts if a["camera_id"] == c] for c in ("sky2", "sky3")}
+    assert [(a["kind"], a["category"]) for a in by_camera["sky2"]] == [("raised", "Poor")]
+    assert [(a["kind"], a["category"]) for a in by_camera["sky3"]] == [("raised", "Poor")]
+    latest = client.get("/air/cameras/sky3/latest").json()
+    assert latest["category"] == "Poor"
+    newest = client.get("/air/readings", params={"camera_id": "sky3"}).json()[0]
+    assert newest["captured_at"] == latest["captured_at"]
+    assert by_camera["sky3"][0]["frame_id"] == newest["frame_id"]
 
-    def post(url: str, body: bytes, headers: dict[str, str]) -> None:
-        clock[0] += timedelta(minutes=1)  # a slow receiver: each POST takes a minute
-        alert_id = json.loads(body)["alert_id"]
-        with Session(engine) as s:
-            alert = s.get(AirAlert, alert_id)
-            assert alert is not None
-            assert alert.next_attempt_at is not None
-            due_elsewhere.append(alert.next_attempt_at <= clock[0])
 
-    monkeypatch.setattr(webhooks, "post", post)
-    assert alert_webhook.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
-    assert due_elsewhere == [False, False, False]
-
-
-def test_a_name_server_that_does_not_answer_fails_the_post_in_time(
-    monkeypatch: pytest.MonkeyPatch,
+def test_a_backlog_sent_newest_first_clears_the_episode_its_public_level_ends(
+    client: TestClient, admin: dict[str, str], city: dict[str, Any]
 ) -> None:
-    """The receiver's name is looked up within TIMEOUT_S (0.5 s here) too. Before, the lookup
-    was bounded by the resolver alone (by glibc's documented defaults, up to 30 s with three
-    silent name servers), beyond the POST's deadline, and held the sweep as long. Here the lookup of
-    ``hooks.example`` never answers until the test ends; the POST fails within seconds, and
-    nothing is sent when the answer comes after all."""
-    monkeypatch.setattr(webhooks, "TIMEOUT_S", 0.5)
-    real = socket.getaddrinfo
-    released = threading.Event()
-    receiver_class, got = recorder()
+    """An hour of Poor air raises its alert; the camera's backlog of the next two hours, clean
+    air then a last Poor frame, comes newest first. That frame smooths to Poor with the hour
+    before it (still the episode: nothing); the clean frames, history, smooth it again past
+    5.0: the camera's public level has left the episode, which is cleared, once."""
+    assert calibrate(client, admin).status_code == 201
+    start = city["clock"].now - timedelta(hours=4)
 
-    def silent(host: Any, *args: Any, **kwargs: Any) -> Any:
-        if host == "hooks.example":
-            released.wait(30)
-            return real("127.0.0.1", *args, **kwargs)
-        return real(host, *args, **kwargs)
+    def send(minutes: int, level: int) -> Any:
+        city["clock"].advance(seconds=1)  # received one after another
+        taken = start + timedelta(minutes=minutes)
+        return post_taken(client, city, "sky2", sky_jpeg(level, seed=minutes), taken)
 
-    monkeypatch.setattr(socket, "getaddrinfo", silent)
-    with served(receiver_class) as base:
-        port = base.rsplit(":", 1)[1]
-        with ThreadPoolExecutor(1) as pool:
-            url = f"http://hooks.example:{port}/h"
-            posting = pool.submit(webhooks.send_test, url, T0, key=None)
-            try:
-                _, error = posting.result(timeout=10)
-            finally:
-                released.set()
-        assert error is not None
-        assert "no address for 'hooks.example' within 0.5 s" in error
-        time.sleep(0.2)  # the lookup answered: still nothing is sent
-        assert got == []
-        # a name that does answer is posted to, trying its addresses in the resolver's order
-        # (localhost may come as ::1 first, where nothing listens)
-        _, error = webhooks.send_test(f"http://localhost:{port}/h", T0, key=None)
-        assert error is None
-        assert len(got) == 1
+    for minutes in (0, 20, 40):
+        send(minutes, 3)
+    assert [(a["kind"], a["category"]) for a in client.get("/air/alerts").json()] == [
+        ("raised", "Poor")
+    ]
+    assert send(180, 3)["level"] in (3, 4)
+    assert client.get("/air/cameras/sky2/latest").json()["category"] == "Poor"
+    assert len(client.get("/air/alerts").json()) == 1
+    for minutes in (160, 140, 120, 100, 80, 60):
+        send(minutes, 10)
+    latest = client.get("/air/cameras/sky2/latest").json()
+    assert latest["smoothed_level"] >= 5.0
+    alerts = client.get("/air/alerts").json()  # newest first
+    assert [(a["kind"], a["category"]) for a in alerts][1:] == [("raised", "Poor")]
+    assert alerts[0]["kind"] == "cleared"
+    assert alerts[0]["category"] in ("Fair", "Good", "Very Good")
+    newest = client.get("/air/readings", params={"camera_id": "sky2"}).json()[0]
+    assert alerts[0]["frame_id"] == newest["frame_id"]

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.air.core.breakpoints import aqi_of_pm25, level_of_aqi, level_of_pm25, table_for_places
-from tests.factories import sky_jpeg
+from tests.factories.air import sky_jpeg
 
 # (PM2.5 µg/m³, AQI) at each category's edges, as the EPA table and eq. 1 give them
 EDGES = [

@@ -26,6 +26,7 @@ ROI = [0, 32, 1920, 298]
 needs_data = pytest.mark.skipif(not DATA.exists(), reason="shared data absent")
 
 
+@pytest.mark.slow  # the real series through the API, end to end
 @needs_data
 def test_a_milan_camera_ranks_later_days_by_the_european_index(
     client: TestClient, admin: dict[str, str], clock: Any

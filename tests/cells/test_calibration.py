@@ -9,13 +9,13 @@ import pytest
 from app.cells.core.calibration import (
     CalibrationError,
     board_points,
-    calibrate,
     canonical,
     find_corners,
+    fit_intrinsics,
     flagged_views,
     refine_half_window,
 )
-from tests.factories import rendered_board
+from tests.factories.cells import rendered_board
 
 K_TRUE = np.array([[800.0, 0.0, 320.0], [0.0, 790.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -39,7 +39,7 @@ def synthetic_views(n: int, seed: int = 0) -> tuple[list[np.ndarray], list[np.nd
 
 def test_recovers_a_known_camera() -> None:
     objs, imgs = synthetic_views(12)
-    c = calibrate(objs, imgs, (640, 480))
+    c = fit_intrinsics(objs, imgs, (640, 480))
     np.testing.assert_allclose(c.K, K_TRUE, rtol=1e-4, atol=0.05)
     np.testing.assert_allclose(c.dist, DIST_TRUE, atol=2e-3)
     assert c.rms < 1e-3
@@ -50,7 +50,7 @@ def test_recovers_a_known_camera() -> None:
 def test_too_few_views() -> None:
     objs, imgs = synthetic_views(2)
     with pytest.raises(CalibrationError, match="at least 3"):
-        calibrate(objs, imgs, (640, 480))
+        fit_intrinsics(objs, imgs, (640, 480))
 
 
 def views_at(
@@ -88,7 +88,7 @@ def test_boards_facing_one_way_do_not_determine_the_focal_length(
         turned(np.array(tilt), [0.0, 0.2, -0.2, 0.4, -0.3]), noise=0.05, seed=seed
     )
     with pytest.raises(CalibrationError, match="faces the same way|do not determine"):
-        calibrate(objs, imgs, (640, 480))
+        fit_intrinsics(objs, imgs, (640, 480))
 
 
 def test_a_focal_length_known_only_roughly_is_refused() -> None:
@@ -100,7 +100,7 @@ def test_a_focal_length_known_only_roughly_is_refused() -> None:
     ]
     objs, imgs = views_at(rotations, noise=0.5, seed=0)
     with pytest.raises(CalibrationError, match=r"only to ±\d+ %, worse than ±5 %"):
-        calibrate(objs, imgs, (640, 480))
+        fit_intrinsics(objs, imgs, (640, 480))
 
 
 def test_well_tilted_views_pass_the_checks() -> None:
@@ -110,7 +110,7 @@ def test_well_tilted_views_pass_the_checks() -> None:
         cv2.Rodrigues(np.r_[rng.normal(0, 0.3, 2), rng.normal(0, 0.3)])[0] for _ in range(5)
     ]
     objs, imgs = views_at(rotations, noise=0.3, seed=3)
-    c = calibrate(objs, imgs, (640, 480))
+    c = fit_intrinsics(objs, imgs, (640, 480))
     assert abs(c.K[0, 0] - 800.0) < 3 * c.std["fx"]
     assert c.std["fx"] / c.K[0, 0] < 0.01
 

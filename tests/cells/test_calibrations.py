@@ -11,7 +11,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from tests.cells.scenes import checkerboard_photo
-from tests.factories import K_RENDER, SHARED_DATA, rendered_views, table_counts, upload
+from tests.factories import SHARED_DATA, table_counts
+from tests.factories.cells import K_RENDER, rendered_views, upload
 
 DATA = SHARED_DATA / "calibration" / "opencv_stereo"
 

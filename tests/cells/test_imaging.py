@@ -35,7 +35,7 @@ from tests.cells.scenes import (
     light_prism_scene,
     prism_scene,
 )
-from tests.factories import corner_error
+from tests.factories.cells import corner_error
 
 # Table 3.2 of the dissertation: Hough segments of Prism06.jpg
 

@@ -17,7 +17,7 @@ from sqlalchemy import Engine, insert
 
 from app.cells.core.triangulation import CrossRig, View, project_views
 from app.cells.models import Rig
-from tests.factories import RIG, calibrated_views, points
+from tests.factories.cells import RIG, calibrated_views, points
 
 
 def test_cross_rig(client: TestClient, admin: dict[str, str]) -> None:

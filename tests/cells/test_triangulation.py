@@ -17,7 +17,7 @@ from app.cells.core.triangulation import (
     triangulate_views,
     z_estimates,
 )
-from tests.factories import RIG, calibrated_views, points
+from tests.factories.cells import RIG, calibrated_views, points
 
 
 class TestCross:

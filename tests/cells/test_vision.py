@@ -15,7 +15,8 @@ from fastapi.testclient import TestClient
 from app.cells.services import vision as vision_service
 from app.main import create_app
 from tests.cells.scenes import PRISM_OUTLINE, cylinder_scene, light_prism_scene, prism_scene
-from tests.factories import ADMIN_TOKEN, corner_error, empty_tables
+from tests.factories import ADMIN_TOKEN, empty_tables
+from tests.factories.cells import corner_error
 
 
 def encode(image: np.ndarray, ext: str = ".png") -> bytes:

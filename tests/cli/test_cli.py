@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 from app import cli
-from tests.factories import ADMIN_TOKEN, CLEAN_RGB, clean_set, panel_jpeg, sky_jpeg
+from tests.factories import ADMIN_TOKEN
+from tests.factories.air import sky_jpeg
+from tests.factories.solar import CLEAN_RGB, clean_set, panel_jpeg
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 COMMANDS = (

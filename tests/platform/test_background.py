@@ -23,7 +23,7 @@ from app.platform.background import in_thread
 from app.platform.db.session import make_engine, make_sessionmaker
 from app.platform.policy import Policy
 from app.platform.settings import Settings
-from tests.factories import T0, seed_alerts
+from tests.factories.air import T0, seed_alerts
 
 
 def test_a_cancelled_wait_still_waits_for_the_thread() -> None:

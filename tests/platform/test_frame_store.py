@@ -30,16 +30,9 @@ from app.platform.frames import retention
 from app.platform.frames.storage import digest
 from app.platform.frames.stores import S3FrameStore
 from app.platform.settings import Settings
-from tests.factories import (
-    ADMIN_TOKEN,
-    CLEAN_RGB,
-    Clock,
-    empty_tables,
-    migrate,
-    panel_jpeg,
-    rig_camera,
-    table_counts,
-)
+from tests.factories import ADMIN_TOKEN, Clock, empty_tables, migrate, table_counts
+from tests.factories.cells import rig_camera
+from tests.factories.solar import CLEAN_RGB, panel_jpeg
 from tests.servers import free_port, server_env, start_server
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}

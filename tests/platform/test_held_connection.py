@@ -19,7 +19,9 @@ from fastapi.testclient import TestClient
 
 from app.cells.routers import rigs
 from app.platform.frames import ingest
-from tests.factories import calibrate, clean_set, make_jpeg
+from tests.factories import make_jpeg
+from tests.factories.air import calibrate
+from tests.factories.solar import clean_set
 
 WAIT = 20.0
 """How long a request that needs only the database may take here (it takes milliseconds)."""

@@ -10,7 +10,8 @@ from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
 from app.platform.settings import Settings
-from tests.factories import calibrate, sky_jpeg, table_counts
+from tests.factories import table_counts
+from tests.factories.air import calibrate, sky_jpeg
 
 
 @pytest.fixture

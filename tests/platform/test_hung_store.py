@@ -21,7 +21,8 @@ from sqlalchemy import Engine
 from app.main import create_app
 from app.platform.frames.storage import FrameStore
 from app.platform.settings import Settings
-from tests.factories import ADMIN_TOKEN, empty_tables, make_jpeg, rig_camera
+from tests.factories import ADMIN_TOKEN, empty_tables, make_jpeg
+from tests.factories.cells import rig_camera
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
 WAIT = 20.0
@@ -220,6 +221,7 @@ print("stopped", flush=True)
 """
 
 
+@pytest.mark.slow  # a separate interpreter, seconds of waiting
 def test_a_process_with_an_upload_hung_in_the_store_stops(
     settings: Settings, engine: Engine, tmp_path: Path
 ) -> None:

@@ -18,6 +18,9 @@ from app.main import create_app
 from app.platform.settings import Settings
 from tests import factories
 from tests.factories import ADMIN_TOKEN, alembic_config, migrate, postgres_database, table_counts
+from tests.factories import air as air_cases
+from tests.factories import cells as cell_cases
+from tests.factories import solar as solar_cases
 
 
 def test_verdicts_baselines_and_calibrations_take_their_cameras_region(tmp_path: Path) -> None:
@@ -205,23 +208,23 @@ def test_a_deploy_rolled_back_step_by_step_with_data_and_upgraded_again(
         token = client.post("/cameras", json=camera, headers=admin).json()["token"]
         robot = client.post("/robots", json={"id": "r1"}, headers=admin).json()["token"]
         farm = {"camera": token, "clock": clock}
-        factories.dirty_with_a_task(client, admin, farm)
+        solar_cases.dirty_with_a_task(client, admin, farm)
         claimed = client.post("/cleaning/claim", headers=factories.bearer(robot))
         assert claimed.status_code == 200, claimed.text
 
         sky = {"id": "sky0", "kind": "sky", "lat": 45.4, "lon": 9.1, "roi": [0, 0, 160, 55]}
         sky_token = client.post("/cameras", json=sky, headers=admin).json()["token"]
-        assert factories.calibrate(client, admin).status_code == 201
+        assert air_cases.calibrate(client, admin).status_code == 201
         city = {"tokens": {"sky0": (sky_token, sky["lon"])}, "clock": clock}
         for k, level in enumerate((10, 1, 1, 1)):
             clock.advance(minutes=20)
-            factories.post(client, city, "sky0", level, seed=k)
+            air_cases.post(client, city, "sky0", level, seed=k)
         assert client.get("/air/alerts").json()
 
         rig = {"id": "cell-1", "kind": "cross", "f_px": 800, "ax": 0.3, "ay": 0.2}
         assert client.post("/rigs", json=rig, headers=admin).status_code == 201
-        views = factories.rendered_views(4)
-        status, _ = factories.upload(client, admin, [(f"{i}.jpg", v) for i, v in enumerate(views)])
+        views = cell_cases.rendered_views(4)
+        status, _ = cell_cases.upload(client, admin, [(f"{i}.jpg", v) for i, v in enumerate(views)])
         assert status == 201
     engine = create_engine(url)
     filled = table_counts(engine)

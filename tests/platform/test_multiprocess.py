@@ -16,20 +16,9 @@ import pytest
 from sqlalchemy import Engine
 
 from app.air.core import airquality
-from tests.factories import (
-    ADMIN_TOKEN,
-    CLEAN_RGB,
-    DUST,
-    LEFT,
-    RIGHT,
-    calibrate,
-    clean_set,
-    empty_tables,
-    halves,
-    near,
-    panel_jpeg,
-    sky_jpeg,
-)
+from tests.factories import ADMIN_TOKEN, LEFT, RIGHT, empty_tables, halves, near
+from tests.factories.air import calibrate, sky_jpeg
+from tests.factories.solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 from tests.servers import free_port, server_env, start_server
 
 URL = os.environ.get("VANTAGE_TEST_DATABASE_URL", "")

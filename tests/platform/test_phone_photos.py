@@ -17,7 +17,8 @@ from PIL import Image, ImageOps
 
 from app.platform.frames import jpeg
 from tests.cells.scenes import PRISM_OUTLINE, prism_scene
-from tests.factories import corner_error, make_jpeg
+from tests.factories import make_jpeg
+from tests.factories.cells import corner_error
 
 TRAILER = b"SEFH" + bytes(range(60)) + b"\xff\xd9SEFT"  # a trailer that even holds FF D9
 VIDEO = b"\x00\x00\x00\x18ftypmp42" + np.random.default_rng(3).bytes(40_000)  # a motion photo
@@ -281,7 +282,7 @@ def test_a_calibration_from_photos_held_in_portrait(
     """Boards rendered through K_RENDER, each stored turned with its EXIF orientation (6 and
     8 alternately): the corners are found in the upright pictures, so the calibration gives
     back that K, its principal point where the upright image has it."""
-    from tests.factories import K_RENDER, rendered_views, upload
+    from tests.factories.cells import K_RENDER, rendered_views, upload
 
     views = []
     for i, data in enumerate(rendered_views(5)):

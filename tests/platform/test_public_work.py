@@ -17,7 +17,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from app.air.services import maps, readings
-from tests.factories import make_jpeg, store
+from tests.factories import make_jpeg
+from tests.factories.air import store
 
 PATIENCE = 30.0
 """Seconds before a wait counts as a hang."""

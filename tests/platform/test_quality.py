@@ -17,7 +17,8 @@ from app.platform.frames.quality import (
     unusable_reason,
 )
 from app.platform.frames.stats import channel_stats
-from tests.factories import SHARED_DATA, panel
+from tests.factories import SHARED_DATA
+from tests.factories.solar import panel
 
 
 def reason(image: np.ndarray) -> str | None:

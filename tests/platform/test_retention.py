@@ -11,7 +11,8 @@ from sqlalchemy import Engine, text
 
 from app.platform.frames import retention
 from app.platform.frames.storage import DiskFrameStore, digest, pack_of, relative_path
-from tests.factories import CLEAN_RGB, Clock, clean_set, panel_jpeg, table_counts
+from tests.factories import Clock, table_counts
+from tests.factories.solar import CLEAN_RGB, clean_set, panel_jpeg
 
 
 def test_old_frames_go_frames_in_use_stay(

@@ -79,7 +79,7 @@ def test_an_option_in_the_form_is_not_left_at_its_default(
 ) -> None:
     """Six clean panel photos and ``-F significance=0.01``: before, 201 with the default 0.05.
     In the query, the option is taken."""
-    from tests.factories import CLEAN_RGB, panel_jpeg
+    from tests.factories.solar import CLEAN_RGB, panel_jpeg
 
     client.post("/panels", json={"id": "p"}, headers=admin)
     photos = [

@@ -11,17 +11,16 @@ from sqlalchemy import select
 
 from app.solar.kind import HANDLER
 from app.solar.models import FrameLabel
-from tests.factories import (
+from tests.factories import Clock, bearer
+from tests.factories.air import sky_jpeg
+from tests.factories.solar import (
     CLEAN_RGB,
     DUST,
     SAND,
-    Clock,
-    bearer,
     clean_set,
     fleet_photos,
     panel_jpeg,
     post_frame,
-    sky_jpeg,
     train,
     train_fleet,
 )

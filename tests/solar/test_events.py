@@ -15,17 +15,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.platform import outbox
-from tests.factories import (
-    CLEAN_RGB,
-    DUST,
-    Clock,
-    bearer,
-    clean_set,
-    panel_jpeg,
-    recorder,
-    served,
-    train,
-)
+from tests.factories import Clock, bearer, recorder, served
+from tests.factories.solar import CLEAN_RGB, DUST, clean_set, panel_jpeg, train
 
 SECRET = "whsec_" + base64.b64encode(bytes(range(32))).decode()
 

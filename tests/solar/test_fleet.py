@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
 import pytest
+from fastapi.testclient import TestClient
 from sklearn.svm import SVC
 
 from app.platform.http.errors import Unprocessable
@@ -20,7 +23,18 @@ from app.solar.core.fleet import (
     reduce,
 )
 from app.solar.services.training import fit_fleet, fold_interval, reach
-from tests.factories import panel
+from tests.factories import bearer
+from tests.factories.solar import (
+    CLEAN_RGB,
+    SAND,
+    clean_set,
+    panel,
+    panel_jpeg,
+    post_frame,
+    status,
+    train,
+    train_fleet,
+)
 
 
 def dusty(image: np.ndarray, amount: float) -> np.ndarray:
@@ -318,3 +332,115 @@ def test_the_fold_interval_is_students() -> None:
     assert low == pytest.approx(0.9 - 0.0981623, abs=1e-6)
     assert high == pytest.approx(0.9 + 0.0981623, abs=1e-6)
     assert fold_interval(np.array([1.0, 1.0, 0.9, 1.0, 1.0]))[1] == 1.0
+
+
+class TestFleetModel:
+    def test_train_and_judge_a_panel_without_baseline(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        r = train_fleet(client, admin)
+        assert r.json()["cv_balanced_accuracy"] == 1.0
+        assert status(client, admin)["state"] == "unknown"
+        v = post_frame(client, farm, CLEAN_RGB)
+        assert (v["method"], v["clean"]) == ("fleet", True)
+        v = post_frame(client, farm, 0.5 * CLEAN_RGB + 0.5 * SAND)
+        assert (v["method"], v["clean"]) == ("fleet", False)
+        assert v["p_dirty"] > 0.5
+
+    def test_a_view_without_a_baseline_is_judged_by_the_fleet_model(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """c1's view of p1 has a baseline; c2, added later with another view, has none yet. Its
+        frames got `clean: null` though a fleet model could judge them, as it judges panels
+        with no baseline at all."""
+        train_fleet(client, admin)
+        assert train(client, admin, clean_set(8)).status_code == 201  # c1's view: the whole frame
+        # most of the frame: features like those of the fleet's whole-frame photos
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [0, 0, 160, 112]}
+        r = client.post("/cameras", json=c2, headers=admin)
+        assert r.status_code == 201, r.text
+        side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
+
+        v = post_frame(client, farm, CLEAN_RGB)  # c1: its view's baseline
+        assert (v["method"], v["clean"]) == ("baseline", True), v
+        for rgb, clean in ((CLEAN_RGB, True), (0.5 * CLEAN_RGB + 0.5 * SAND, False)):
+            farm["clock"].advance(minutes=10)
+            r = client.post("/cameras/c2/frames", content=panel_jpeg(rgb, seed=7), headers=side)
+            assert r.status_code == 201, r.text
+            v = r.json()["verdict"]
+            assert (v["method"], v["clean"], v["baseline_id"]) == ("fleet", clean, None), v
+
+    def test_a_view_unlike_the_fleets_photos_gets_no_verdict(
+        self, client: TestClient, admin: dict[str, str], farm: Any
+    ) -> None:
+        """A small part of the frame (grid lines 16 px apart in a 100×80 crop) is unlike the
+        whole-frame photos the model learnt from: no verdict and no task, the reason given,
+        however sure its probability looks."""
+        train_fleet(client, admin)
+        c2 = {"id": "c2", "kind": "panel", "panel_id": "p1", "roi": [10, 10, 100, 80]}
+        r = client.post("/cameras", json=c2, headers=admin)
+        assert r.status_code == 201, r.text
+        side = {**bearer(r.json()["token"]), "Content-Type": "image/jpeg"}
+        for _ in range(4):  # past the debounce, had the frames been judged dirty
+            farm["clock"].advance(minutes=10)
+            dusty = panel_jpeg(0.5 * CLEAN_RGB + 0.5 * SAND, seed=7)
+            r = client.post("/cameras/c2/frames", content=dusty, headers=side)
+            assert r.status_code == 201, r.text
+            v = r.json()["verdict"]
+            assert (v["method"], v["clean"], v["condition"]) == ("fleet", None, None), v
+            assert v["reason"].startswith("unlike every photo the fleet model learnt from")
+        s = status(client, admin)
+        assert s["state"] == "unknown", s
+        assert client.get("/cleaning/tasks", headers=admin).json() == []
+
+    def farm_photos(self, panels: int) -> tuple[list[Any], list[str], list[str]]:
+        """Each panel photographed clean and half covered in sand (seeded)."""
+        rng = np.random.default_rng(6)
+        files, labels, groups = [], [], []
+        for i in range(panels):
+            c = CLEAN_RGB + rng.normal(0, 6, 3)
+            for name, rgb in (("clean", c), ("dust", 0.5 * c + 0.5 * SAND)):
+                photo = panel_jpeg(rgb, seed=10 * i + len(files))
+                files.append(("files", (f"{name}{i}.jpg", photo, "image/jpeg")))
+                labels.append(name)
+                groups.append(f" row-A-{i} ")  # as cut from a CSV: stripped
+        return files, labels, groups
+
+    def test_photos_grouped_by_panel(self, client: TestClient, admin: dict[str, str]) -> None:
+        files, labels, groups = self.farm_photos(8)
+        data = {"labels": labels, "groups": groups}
+        r = client.post("/fleet/model", files=files, data=data, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["n_groups"] == 8
+        assert r.json()["cv_balanced_accuracy"] == 1.0
+        r = client.post("/fleet/model", files=files, data={"labels": labels}, headers=admin)
+        assert r.status_code == 201, r.text
+        assert r.json()["n_groups"] is None
+
+    @pytest.mark.parametrize(
+        ("regroup", "code"),
+        [
+            (lambda g: g[1:], "groups_mismatch"),
+            (lambda g: [f"row-{i % 4}" for i in range(len(g))], "too_few_groups"),
+            (lambda g: [*g[:3], " ", *g[4:]], "empty_group"),
+        ],
+    )
+    def test_groups_that_cannot_fold_are_refused_and_nothing_stored(
+        self,
+        client: TestClient,
+        admin: dict[str, str],
+        regroup: Callable[[list[str]], list[str]],
+        code: str,
+    ) -> None:
+        files, labels, groups = self.farm_photos(8)
+        data = {"labels": labels, "groups": regroup(groups)}
+        r = client.post("/fleet/model", files=files, data=data, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.json()["code"] == code
+        assert client.get("/fleet/model", headers=admin).status_code == 404
+
+    def test_labels_must_match_files(self, client: TestClient, admin: dict[str, str]) -> None:
+        files = [("files", ("a.jpg", panel_jpeg(CLEAN_RGB), "image/jpeg"))]
+        r = client.post("/fleet/model", files=files, data={"labels": "shiny"}, headers=admin)
+        assert r.status_code == 422
+        assert client.get("/fleet/model", headers=admin).status_code == 404

@@ -13,7 +13,8 @@ from fastapi.testclient import TestClient
 from scipy import stats
 from sqlalchemy import Engine, create_engine, text
 
-from tests.factories import Clock, bearer, migrate, train
+from tests.factories import Clock, bearer, migrate
+from tests.factories.solar import train
 
 CLEAN = np.array([56.0, 60.0, 84.0])
 

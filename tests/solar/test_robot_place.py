@@ -9,7 +9,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.factories import CLEAN_RGB, DUST, Clock, bearer, clean_set, post_frame, train
+from tests.factories import Clock, bearer
+from tests.factories.solar import CLEAN_RGB, DUST, clean_set, post_frame, train
 
 
 @pytest.fixture

@@ -15,10 +15,14 @@ import httpx2 as httpx
 import numpy as np
 import pytest
 
-from tests.factories import CLEAN_RGB, DUST, calibrate, clean_set, panel_jpeg, sky_jpeg
+from tests.factories.air import calibrate, sky_jpeg
+from tests.factories.solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt install chromium)")
+pytestmark = [
+    pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt install chromium)"),
+    pytest.mark.slow,  # a real browser driving the pages end to end
+]
 SHOTS = Path(__file__).resolve().parents[2] / "build" / "screenshots"
 TILE = cv2.imencode(".png", np.full((256, 256, 3), 235, np.uint8))[1].tobytes()
 """What the base map's tile server answers in these tests (they have no network)."""

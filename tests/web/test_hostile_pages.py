@@ -11,7 +11,8 @@ import httpx2 as httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.factories import calibrate, make_jpeg, sky_jpeg
+from tests.factories import make_jpeg
+from tests.factories.air import calibrate, sky_jpeg
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from fastapi.testclient import TestClient
 
-from tests.factories import calibrate, post, sky_jpeg
+from tests.factories.air import calibrate, post, sky_jpeg
 
 
 def test_every_page_answers_with_its_frame(client: TestClient) -> None:

@@ -1,4 +1,4 @@
-"""Air quality from the sky: dissertation chapter 6.
+"""Air quality from the sky: [Fayed 2013] chapter 6.
 
 Street cameras photograph the sky; haze raises the red and green modes of the sky region and
 lowers the blue one. Labelled images (levels 1–10 measured by reference instruments) make one
@@ -117,7 +117,7 @@ class Calibration:
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
 
-def calibrate(
+def level_clusters(
     modes: ArrayLike, levels: ArrayLike, *, significance: float = 0.05, shrinkage: float = 0.0
 ) -> Calibration:
     """One cluster per level (eqs. 6.12–6.13); levels with fewer than ``MIN_CLUSTER`` images are
@@ -332,7 +332,7 @@ def log_contrasts(
     channel: C = (L_sky − L_q) / (L_sky + 1) for the band's ``SKYLINE_QUANTILES`` percentiles
     L_q (grey levels), clipped at ``MIN_CONTRAST``. Shape (bands × quantiles × 3,).
 
-    Not in the dissertation: Koschmieder's law (Middleton, *Vision through the Atmosphere*,
+    Not in [Fayed 2013]: Koschmieder's law (Middleton, *Vision through the Atmosphere*,
     1952, ch. 5) gives the contrast of a dark object at distance d as C = C₀·e^(−b·d), b the
     extinction coefficient that fine particles raise, so ln C falls linearly with the haze,
     faster for farther bands. All from histograms: no float copy of the strip."""
@@ -375,7 +375,7 @@ def skyline_edges(grey: NDArray[np.float32] | None) -> NDArray[np.float64]:
     ``EDGE_WIDTH`` px across; Sobel's 3×3 derivative scaled by 1/8, so a ramp of slope s gives
     s. Shape (bands,).
 
-    Not in the dissertation: haze veils an object of contrast C₀ at distance d to
+    Not in [Fayed 2013]: haze veils an object of contrast C₀ at distance d to
     C₀·e^(−b·d) (Koschmieder; Middleton, *Vision through the Atmosphere*, 1952, ch. 5), and a
     veil scales every gradient of the object alike, so ln |∇L| falls by b·d: the edges of
     windows, roofs and masts, where ``log_contrasts`` sees only a band's darkest pixels."""

@@ -133,7 +133,7 @@ def from_uploads(
     release(session)  # while decoding
     decoded = ingest.decode_all(files, camera, max_pixels=max_pixels)
     feats = np.array([d.features for d in decoded], dtype=np.float64)
-    return calibrate(
+    return new_calibration(
         session,
         ingest.modes_of(decoded),
         refs.levels,
@@ -167,7 +167,7 @@ def from_frames(
     if len(body.frame_ids) != len(refs.levels):
         raise Unprocessable(f"{len(body.frame_ids)} frames but {len(refs.levels)} reference values")
     stored = of_frames(session, body.frame_ids)
-    return calibrate(
+    return new_calibration(
         session,
         stored.modes,
         refs.levels,
@@ -362,7 +362,7 @@ def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:
     )
 
 
-def calibrate(
+def new_calibration(
     session: Session,
     modes: NDArray[np.float64],
     levels: Sequence[int],
@@ -403,7 +403,9 @@ def calibrate(
         unit, targets = reference if reference is not None else ("level", levels)
         regression = fit_regression(features, list(targets), unit=unit, groups=groups, table=table)
     try:
-        cal = airquality.calibrate(modes, levels, significance=significance, shrinkage=shrinkage)
+        cal = airquality.level_clusters(
+            modes, levels, significance=significance, shrinkage=shrinkage
+        )
     except hotelling.BaselineError as exc:
         if regression is None:
             raise Unprocessable(f"cannot calibrate: {exc}", code="bad_calibration") from None

@@ -1,4 +1,4 @@
-"""Camera calibration from checkerboard views (dissertation chapter 2 §IV, chapter 3 §I).
+"""Camera calibration from checkerboard views ([Fayed 2013] chapter 2 §IV, chapter 3 §I).
 
 The camera model is the pinhole with skew and the 5-term distortion k = [k1, k2, p1, p2, k3]
 (eqs. 2.6–2.13, the Bouguet / OpenCV model), world → camera P = R Pw + T (2.14). Parameters are
@@ -77,7 +77,7 @@ def find_corners(grey: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.fl
 
     The sector-based detector (``SB_FLAGS``) first, the classic one when it finds nothing; either
     way refined by ``cornerSubPix`` with a window sized to the board's smallest corner spacing
-    (``REFINE_SHARE``). Dissertation ch. 3 §I finds corners with Bouguet's toolbox; this is
+    (``REFINE_SHARE``). [Fayed 2013] ch. 3 §I finds corners with Bouguet's toolbox; this is
     OpenCV's equivalent at its most accurate. A large image is searched at ``DETECT_SIDE`` and
     the corners found refined at full resolution.
     """
@@ -190,7 +190,7 @@ def _normal_spread_deg(rvecs: list[NDArray[np.float64]]) -> float:
     return float(np.degrees(np.arccos(cos.min())))
 
 
-def calibrate(
+def fit_intrinsics(
     object_points: list[NDArray[np.float32]],
     image_points: list[NDArray[np.float32]],
     image_size: tuple[int, int],

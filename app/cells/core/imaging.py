@@ -1,4 +1,4 @@
-"""Image conditioning and part outlines: dissertation chapter 3 and chapter 4 §II.
+"""Image conditioning and part outlines: [Fayed 2013] chapter 3 and chapter 4 §II.
 
 Under poor light a part's grey levels span a narrow range and its cast shadow makes a false
 edge. The pipeline restores the range (stretch 4.1, equalisation 4.2–4.3), pushes the shadow
@@ -63,7 +63,7 @@ def stretch(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
 def equalize(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """Histogram equalisation Y = 255 · F(y) (eqs. 4.2–4.3, m = 256), F the empirical CDF.
 
-    Note: not ``cv2.equalizeHist``, which maps (F − F_min)/(1 − F_min); the dissertation's form
+    Note: not ``cv2.equalizeHist``, which maps (F − F_min)/(1 − F_min); [Fayed 2013]'s form
     leaves the darkest level at 255 · F(y_min), close to zero.
     """
     if image.ndim == 3:
@@ -102,7 +102,7 @@ BORDER = 0.03
 
 
 def part_is_light(image: Grey) -> bool:
-    """Whether the part is lighter than what it stands on. The dissertation's cells are dark
+    """Whether the part is lighter than what it stands on. [Fayed 2013]'s cells are dark
     parts on a light table, and every later step looks for the part among the dark levels; a
     light part on a dark conveyor was outlined as the table. What runs along the image's edges
     is background: the part is light when that band's median lies below Otsu's level."""
@@ -158,8 +158,8 @@ def part_level(image: Grey, sigma: float = 1.5) -> int | None:
     (``MAX_CONCAVITY``), stays off the border and covers less than half the image: the middle
     of that run's last plateau (after its last step), away from the blur of both
     neighbouring steps. When the shadow lies along the part, the two are one convex region and
-    cannot be told apart by levels; the shadow step then keeps the shadow's edge out. The
-    dissertation tunes the level by hand (chapter 3 §IV).
+    cannot be told apart by levels; the shadow step then keeps the shadow's edge out.
+    [Fayed 2013] tunes the level by hand (chapter 3 §IV).
     """
     _check_grey(image)
     smooth = np.asarray(cv2.GaussianBlur(image, (0, 0), sigma), dtype=np.uint8)
@@ -208,11 +208,11 @@ def suppress_shadow(
     one): the part is what lies at or below that level.
 
     The shift pushes the bright background and the lighter cast shadow to 255 together, so the
-    shadow's border is no longer an edge; the darker part stays. The dissertation tunes θ by
+    shadow's border is no longer an edge; the darker part stays. [Fayed 2013] tunes θ by
     hand; when ``theta`` is None everything lighter than the part saturates: θ = 255 − α · t,
     with t the part's level (``part``, else ``part_level``) carried through the first
     equalisation. This
-    assumes the dissertation's setting: a part darker than its shadow, on a light background.
+    assumes [Fayed 2013]'s setting: a part darker than its shadow, on a light background.
     """
     _check_grey(image)
     eq = equalize(image)
@@ -230,12 +230,12 @@ def suppress_shadow(
 @dataclass(frozen=True, slots=True)
 class CannyParams:
     sigma: float = 1.5
-    """Gaussian smoothing σ [px] (the dissertation: 1.5)."""
+    """Gaussian smoothing σ [px] ([Fayed 2013]: 1.5)."""
     high: float | None = 0.5
     """High threshold as a fraction of the largest gradient magnitude (MATLAB's 0–1 scale; the
     dissertation: 0.5). None: chosen from the gradient distribution (``auto_canny``)."""
     low_ratio: float = 0.4
-    """Low threshold as a fraction of the high one (MATLAB's default, the dissertation's 40 %)."""
+    """Low threshold as a fraction of the high one (MATLAB's default, [Fayed 2013]'s 40 %)."""
 
 
 def canny(
@@ -381,7 +381,7 @@ def collinear(a: Segment, b: Segment, *, max_angle: float = 5.0, max_lateral: fl
     """Two fragments of one line: |θ₁ − θ₂| ≤ 5° (eq. 3.2) and lateral distance ≤ 2 px (3.3).
 
     The lateral distance is that of the shorter fragment's endpoints from the longer one's
-    line. The dissertation's alternative, "the distance between the two farthest points is at
+    line. [Fayed 2013]'s alternative, "the distance between the two farthest points is at
     most the combined length plus the gap", holds for any two segments by the triangle
     inequality, so it cannot decide alone; the angle and lateral tests are used.
     """
@@ -583,7 +583,7 @@ class OutlineParams:
     max_residual: float = 1.0
     """Largest RMS distance of the edge pixels from the shape [px]."""
     part: Literal["auto", "dark", "light"] = "auto"
-    """A part darker than its background (the dissertation's), lighter, or told by
+    """A part darker than its background ([Fayed 2013]'s), lighter, or told by
     ``part_is_light``."""
 
 
@@ -727,7 +727,7 @@ def _chain_along(
     the nearest side within ``tol`` [px]; a side that owns fewer than ``min_points`` points is
     dropped (and ownership recounted), the rest are ordered by where their points lie.
 
-    Departs from the dissertation's nearest-endpoint chaining (§V.A, ``order_segments``),
+    Departs from [Fayed 2013]'s nearest-endpoint chaining (§V.A, ``order_segments``),
     which goes astray when a side is missing or a fragment cuts a blurred corner: the contour
     knows the order, and a chord across a corner owns only the few points of the rounding.
     Owning by the nearest side, rather than by any side within ``tol``, keeps a short side
@@ -953,7 +953,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     part_edges = np.zeros_like(edges)
     part_edges[y0 : y0 + box.shape[0], x0 : x0 + box.shape[1]] = canny(box, FIT_CANNY)[0]
     fit_edges = np.asarray(cv2.bitwise_and(part_edges, band), dtype=np.uint8)
-    # Hough on the conditioned image's edges along the contour (the dissertation's), joined
+    # Hough on the conditioned image's edges along the contour ([Fayed 2013]'s), joined
     # by those of the part itself: a face close to the table's level leaves a side the
     # conditioned image's Canny, scaled to its strongest edge, does not see
     outer_edges = np.asarray(

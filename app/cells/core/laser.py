@@ -40,7 +40,7 @@ _FIRST: dict[str, list[int]] = {"green": [1, 0, 2], "blue": [2, 1, 0]}
 
 def as_red(rgb: NDArray[np.uint8], colour: Colour) -> NDArray[np.uint8]:
     """The image with the laser's channel first, so that the dot's and the grid's steps,
-    written for the dissertation's red laser, read a green (532 nm) or blue one as red. The
+    written for [Fayed 2013]'s red laser, read a green (532 nm) or blue one as red. The
     other two stay the channels the excess is taken over."""
     if colour == "red":
         return rgb

@@ -1,7 +1,7 @@
 """The laser grid: surface area and volume of an irregular part (chapter 4, Applications).
 
 The laser's second mode projects a grid of squares; on the part each square lands as an
-irregular quadrilateral whose corners the cameras locate in 3-D. The dissertation stops at the
+irregular quadrilateral whose corners the cameras locate in 3-D. [Fayed 2013] stops at the
 idea ("divides the luggage into small sections and computes the volume of each small section");
 this module makes it a measurement:
 

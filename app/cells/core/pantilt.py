@@ -34,7 +34,7 @@ def rotation(theta: float, phi: float) -> NDArray[np.float64]:
 
 
 def perspective(f: float) -> NDArray[np.float64]:
-    """T of eq. 4.53: x = x_h/c_k = f x/(f − z) (eqs. 4.56–4.57), the dissertation's image plane
+    """T of eq. 4.53: x = x_h/c_k = f x/(f − z) (eqs. 4.56–4.57), [Fayed 2013]'s image plane
     with the lens at z = f. (The service's pinhole convention is u = cx + f X/Z instead.)"""
     m = np.eye(4)
     m[3, 2] = -1.0 / f

@@ -1,7 +1,7 @@
 """Locating points in 3-D from several calibrated views: the 4-camera cross (chapter 4) and any
 rig of 2+ calibrated cameras.
 
-The cross, in the contract's frame (the dissertation's Figure 4.3 with a pinhole at each lens)::
+The cross, in the contract's frame ([Fayed 2013]'s Figure 4.3 with a pinhole at each lens)::
 
             Y ↑            camera 3 (0, +ay/2)
               |                  ●
@@ -11,7 +11,7 @@ The cross, in the contract's frame (the dissertation's Figure 4.3 with a pinhole
                  camera 4 (0, −ay/2)
 
 All four look along +Z with focal length f [px]; a point (X, Y, Z) is seen by camera i at
-u = cx + f (X − Xᵢ)/Z, v = cy − f (Y − Yᵢ)/Z. The dissertation writes the image plane as
+u = cx + f (X − Xᵢ)/Z, v = cy − f (Y − Yᵢ)/Z. [Fayed 2013] writes the image plane as
 x = fX/(f − Z) (eq. 4.4) and gets Z = f(1 − A/(x₂ − x₁)) (4.14); with the pinhole above the same
 derivation gives Z = B/d: for cameras i, j and normalised coordinates xᵢ = (uᵢ − cx)/f,
 yᵢ = −(vᵢ − cy)/f, xᵢ − xⱼ = (Xⱼ − Xᵢ)/Z and yᵢ − yⱼ = (Yⱼ − Yᵢ)/Z. The pairs (1,2) and (3,4)
@@ -157,7 +157,7 @@ def triangulate_cross(
     """Points from cross observations (N, 4, 2) [px]; NaN for a missing view.
 
     method
-        ``mean``: the plain mean of the ten estimates (eq. 4.47, the dissertation's least squares
+        ``mean``: the plain mean of the ten estimates (eq. 4.47, [Fayed 2013]'s least squares
         over Ẑᵢ = Z + εᵢ, 4.42–4.46). ``weighted``: inverse-variance weights — with pixel noise σ
         each estimate's variance is ≈ 2σ²Z⁴/(f²B²), so the weight is B² (a short-baseline pair
         counts a quarter of a long one; the estimates share views, so this is the minimum-

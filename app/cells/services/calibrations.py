@@ -118,7 +118,7 @@ def calibrate_camera(
         )
     obj = calibration.board_points(board.cols, board.rows, board.square)
     try:
-        result = calibration.calibrate([obj] * len(points), points, size)
+        result = calibration.fit_intrinsics([obj] * len(points), points, size)
     except calibration.CalibrationError as exc:
         raise Unprocessable(str(exc), views_rejected=rejected) from None
     row = Calibration(
@@ -164,7 +164,7 @@ def calibrate_pair(
     cals = []
     for side, pts, size in (("left", lpts, lsize), ("right", rpts, rsize)):
         try:
-            cals.append(calibration.calibrate([obj] * len(pts), pts, size))
+            cals.append(calibration.fit_intrinsics([obj] * len(pts), pts, size))
         except calibration.CalibrationError as exc:
             raise Unprocessable(f"{side} camera: {exc}", views_rejected=lrej + rrej) from None
     lcal, rcal = cals

@@ -19,8 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform.auth import hash_token
 from app.platform.db.models import Camera
-from app.platform.frames import cameras as registry
-from app.platform.frames import rate_limit
+from app.platform.frames import cameras, rate_limit
 from app.platform.frames.camera_info import CameraInfo, TokenCache
 from app.platform.frames.cameras import FrameKey
 from app.platform.frames.kinds import KINDS
@@ -110,7 +109,7 @@ def _camera_by_id(request: Request, camera_id: str) -> CameraInfo | None:
         camera = session.get(Camera, camera_id)
         if camera is None:
             return None
-        registry.check_in_service(camera)  # a retired camera's own token no longer exists
+        cameras.check_in_service(camera)  # a retired camera's own token no longer exists
         return _info(session, camera)
 
 

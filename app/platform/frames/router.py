@@ -20,8 +20,7 @@ from sqlalchemy.orm.interfaces import ORMOption
 
 from app.platform.db.models import Camera, CameraKind, CameraSource, Frame
 from app.platform.db.session import release
-from app.platform.frames import cameras as registry
-from app.platform.frames import ingest, jpeg, regions, retention, sources
+from app.platform.frames import cameras, ingest, jpeg, regions, retention, sources
 from app.platform.frames.camera_info import TokenCache
 from app.platform.frames.deps import FrameCursor, UploadTargetDep, fresh_upload_target, link_next
 from app.platform.frames.kinds import frame_out
@@ -237,7 +236,7 @@ def _out(
 def _shown(session: Session, camera: Camera) -> CameraOut:
     """The camera as the API shows it, with its newest frame's capture time."""
     source = session.get(CameraSource, camera.id)
-    return _out(camera, registry.last_captured_at(session, camera.id), source)
+    return _out(camera, cameras.last_captured_at(session, camera.id), source)
 
 
 def _with_token(session: Session, camera: Camera, token: str) -> CameraCreated:
@@ -257,7 +256,7 @@ def create_camera(
     """Register a camera; the response carries its upload token, shown only this once. A
     ``source`` whose host resolves to an address sources may not reach is refused (422)."""
     sources.check_address(body.source, settings.source_allowed_networks)
-    camera, token = registry.create_camera(session, body)
+    camera, token = cameras.create_camera(session, body)
     return _with_token(session, camera, token)
 
 
@@ -286,7 +285,7 @@ def list_cameras(
     finds the cameras gone quiet, ``kind`` and ``panel_id`` those of a kind or watching a panel
     (404 when there is no such panel)."""
     since = None if silent_for is None else policy.now() - timedelta(seconds=silent_for)
-    rows = registry.cameras_seen(
+    rows = cameras.cameras_seen(
         session,
         limit=limit,
         offset=offset,
@@ -304,7 +303,7 @@ def list_cameras(
 )
 def get_camera(camera_id: CameraId, session: SessionDep, _: Admin) -> CameraOut:
     """One camera."""
-    return _shown(session, registry.get_camera(session, camera_id))
+    return _shown(session, cameras.get_camera(session, camera_id))
 
 
 @router.patch(
@@ -332,7 +331,7 @@ def update_camera(
     server process (each batch of frames checks its cameras again)."""
     sources.check_address(body.source, settings.source_allowed_networks)
     tokens: TokenCache = app_state(request).camera_tokens
-    return _shown(session, registry.update_camera(session, camera_id, body, tokens))
+    return _shown(session, cameras.update_camera(session, camera_id, body, tokens))
 
 
 @router.post(
@@ -347,7 +346,7 @@ def rotate_camera_token(
     (at once on this server process, within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s) on the
     others)."""
     tokens: TokenCache = app_state(request).camera_tokens
-    camera, token = registry.rotate_camera_token(session, camera_id, tokens)
+    camera, token = cameras.rotate_camera_token(session, camera_id, tokens)
     return _with_token(session, camera, token)
 
 
@@ -366,7 +365,7 @@ def retire_camera(
     shows it). Its frames, verdicts, readings and alerts stay readable until the retention
     removes them; its id stays taken. Retiring it again changes nothing."""
     tokens: TokenCache = app_state(request).camera_tokens
-    registry.retire_camera(session, camera_id, tokens, policy)
+    cameras.retire_camera(session, camera_id, tokens, policy)
     return Response(status_code=204)
 
 
@@ -388,7 +387,7 @@ def list_frames(
 ) -> list[FrameOut]:
     """A camera's frames with their verdicts, newest first; those taken in [since, until).
     A full page names the next in its ``Link: <…>; rel="next"`` header (a ``cursor``)."""
-    frames = registry.frames_of(
+    frames = cameras.frames_of(
         session,
         camera_id,
         since=span.since,

@@ -102,7 +102,7 @@ def channel_histograms(image: NDArray[np.uint8]) -> NDArray[np.int64]:
 def channel_stats(image: NDArray[np.uint8], roi: Roi | None = None) -> ChannelStats:
     """Histogram, mode and mean of each channel of ``image`` inside ``roi``.
 
-    The mode is the level 0–255 with the most pixels, ties to the lowest (the dissertation's
+    The mode is the level 0–255 with the most pixels, ties to the lowest ([Fayed 2013]'s
     x̂, chapter 5 §III); the mean is x̄.
     """
     hist = channel_histograms(crop(image, roi))

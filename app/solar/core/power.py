@@ -21,7 +21,7 @@ from scipy import optimize, stats
 
 DUST = np.array([170.0, 155.0, 135.0])
 """h: the colour of a brown-grey dust veil [level] (the dusty panels' haze in the
-dissertation's photos, chapter 5 Figure 5.2)."""
+photos of [Fayed 2013], chapter 5 Figure 5.2)."""
 
 POWER = 0.9
 """Probability with which the veil must be detected."""

@@ -1,0 +1,115 @@
+"""Robot-cell cases: the cross rig, rendered checkerboard views, calibrations."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.cells.core.triangulation import CrossRig, View
+from tests.cells.scenes import checkerboard_photo
+
+K_RENDER = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+
+
+RIG = CrossRig(f=800.0, ax=0.30, ay=0.20, cx=320.0, cy=240.0)
+
+
+def points(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack(
+        [rng.uniform(-0.5, 0.5, n), rng.uniform(-0.4, 0.4, n), rng.uniform(1.0, 5.0, n)]
+    )
+
+
+def calibrated_views() -> list[View]:
+    k = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    dist = np.array([-0.1, 0.01, 0.0, 0.0, 0.0])
+    views = []
+    for i in range(4):
+        r = cv2.Rodrigues(np.radians([0.0, (i - 1.5) * 8, 0.0]))[0]
+        centre = np.array([(i - 1.5) * 0.3, 0.05 * i, 0.0])
+        views.append(View(k, dist, r, -r @ centre))
+    return views
+
+
+def corner_error(found: np.ndarray, truth: np.ndarray) -> float:
+    """Largest distance between matched corners, over the rotations of the found cycle."""
+    if found.shape != truth.shape:
+        return float("inf")
+    return min(
+        float(np.linalg.norm(np.roll(found, -k, axis=0) - truth, axis=1).max())
+        for k in range(len(found))
+    )
+
+
+def rendered_board(width: int, height: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A 9×6-corner board (40 px squares, a white margin) warped in perspective onto a grey
+    width × height image, rendered at 4× and area-averaged down; and its 54 inner corners in
+    the image [px, pixel centres at integers], exact by construction."""
+    sq = 40
+    board = np.kron((np.indices((7, 10)).sum(0) % 2) * 255, np.ones((sq, sq))).astype(np.uint8)
+    board = cv2.copyMakeBorder(board, sq, sq, sq, sq, cv2.BORDER_CONSTANT, value=255)
+    h, w = board.shape
+    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    dst = np.float32(
+        [[0.2, 0.15], [0.8, 0.2], [0.75, 0.85], [0.25, 0.8]] * np.array([width, height])
+    )
+    m = cv2.getPerspectiveTransform(src, dst)
+    big = cv2.warpPerspective(
+        board, np.diag([4.0, 4.0, 1.0]) @ m, (4 * width, 4 * height), borderValue=128
+    )
+    image = cv2.resize(big, (width, height), interpolation=cv2.INTER_AREA)
+    image = cv2.add(image, np.random.default_rng(seed).integers(0, 6, image.shape, np.uint8))
+    # an inner corner lies between board pixels: at sq·k − 0.5 in pixel-centre coordinates; a
+    # 4× render area-averaged down moves pixel centres by −3/8
+    corners = np.array(
+        [[sq * (2 + i) - 0.5, sq * (2 + j) - 0.5] for j in range(6) for i in range(9)],
+        np.float32,
+    )
+    truth = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), m).reshape(-1, 2) - 0.375
+    return image, truth
+
+
+def rig_camera(client: TestClient, admin: dict[str, str]) -> dict[str, str]:
+    cam = client.post("/cameras", json={"id": "c", "kind": "rig"}, headers=admin).json()
+    return {"Authorization": f"Bearer {cam['token']}", "Content-Type": "image/jpeg"}
+
+
+def rendered_views(
+    n: int,
+    *,
+    size: tuple[int, int] = (640, 480),
+    k: np.ndarray = K_RENDER,
+    seed: int = 0,
+    noise_seed: int | None = None,
+    quality: int = 95,
+) -> list[bytes]:
+    """JPEGs of the 9 × 6 board at n poses drawn from ``seed`` through a known camera
+    (tests/core/scenes), with sensor noise drawn from ``noise_seed`` (default: ``seed``)."""
+    rng = np.random.default_rng(seed)
+    noise = seed if noise_seed is None else noise_seed
+    out = []
+    centre = np.array([100.0, 62.5, 0.0])  # of the 9 × 6 board of 25 mm squares
+    for i in range(n):
+        rvec = rng.normal(0, 0.3, 3)
+        r = cv2.Rodrigues(rvec)[0]
+        # turned about its centre, 60 cm ahead, ±3 cm aside: the whole board in the frame
+        tvec = -r @ centre + np.array([0.0, 0.0, 600.0]) + rng.normal(0, [30, 30, 60])
+        image = checkerboard_photo(k, rvec, tvec, size, seed=noise + i)
+        out.append(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes())
+    return out
+
+
+def upload(
+    client: TestClient, admin: dict[str, str], images: list[tuple[str, bytes]]
+) -> tuple[int, dict[str, Any]]:
+    r = client.post(
+        "/calibrations",
+        files=[("files", (name, data, "image/jpeg")) for name, data in images],
+        data={"pattern_cols": "9", "pattern_rows": "6", "square_size": "25"},
+        headers=admin,
+    )
+    return r.status_code, r.json()
