@@ -46,9 +46,9 @@ from app.platform.http.responses import DATABASE_UNAVAILABLE
 from app.platform.http.security import SecurityHeaders, tile_source
 from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
-from app.platform.policy import Policy
 from app.platform.settings import Settings, get_settings
 from app.platform.state import AppState
+from app.platform.timing import Timing
 from app.solar import kind as solar_kind
 from app.solar.router import router as solar_router
 from app.solar.services import events as solar_events
@@ -157,7 +157,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 def build_state(settings: Settings) -> AppState:
     """The service's long-lived parts: engines and sessions, the writer, the frame store, the
-    token hashes and caches, the clock and its policy, the public lanes' limits."""
+    token hashes and caches, the clock and its timing, the public lanes' limits."""
     state = AppState()
     state.settings = settings
     state.engine = make_engine(
@@ -192,7 +192,7 @@ def build_state(settings: Settings) -> AppState:
     # tokens of callers other than the admin and cameras: (role, owner id of a token hash)
     state.token_owners = (("robot", solar_kind.robot_of),)
     state.rate_budgets = rate_limit.LocalBudgets()
-    state.policy = Policy(
+    state.timing = Timing(
         debounce=settings.cleaning_debounce, lease=timedelta(seconds=settings.lease_seconds)
     )
     state.frame_store = frame_store(settings)
@@ -326,7 +326,7 @@ def background_loops(state: AppState) -> list[asyncio.Task[None]]:
             retention.run(
                 state.sessionmaker,
                 state.frame_store,
-                state.policy,
+                state.timing,
                 settings.frame_retention_days,
                 settings.retention_sweep_seconds,
                 settings.history_retention_days,
@@ -335,7 +335,7 @@ def background_loops(state: AppState) -> list[asyncio.Task[None]]:
         # the farm's events, to the receiver set through PUT /solar/webhook (none: kept)
         asyncio.create_task(
             outbox.run(
-                state.sessionmaker, solar_events.TOPIC, state.policy, settings.alert_poll_seconds
+                state.sessionmaker, solar_events.TOPIC, state.timing, settings.alert_poll_seconds
             )
         ),
     ]
@@ -347,7 +347,7 @@ def background_loops(state: AppState) -> list[asyncio.Task[None]]:
                 alert_webhook.run(
                     state.sessionmaker,
                     settings.alert_webhook_url,
-                    state.policy,
+                    state.timing,
                     settings.alert_poll_seconds,
                     timedelta(hours=settings.alert_retry_hours),
                     key=state.webhook_key,
@@ -369,7 +369,7 @@ def puller(state: AppState) -> sources.Puller:
         state.sessionmaker,
         state.writer,
         lambda: state.frame_store if settings.store_frames else None,
-        lambda: state.policy,
+        lambda: state.timing,
         threads=settings.pull_threads,
         timeout=settings.pull_timeout_seconds,
         max_pixels=settings.max_pixels,
@@ -377,7 +377,7 @@ def puller(state: AppState) -> sources.Puller:
         rate_limit=lambda camera_id: frame_deps.within_rate(
             state.sessionmaker,
             state.rate_budgets,
-            state.policy,
+            state.timing,
             settings.rate_limit_per_minute,
             camera_id,
         ),

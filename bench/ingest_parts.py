@@ -43,7 +43,7 @@ from app.platform.frames.jpeg import decode_rgb  # noqa: E402
 from app.platform.frames.stats import channel_stats  # noqa: E402
 from app.platform.frames.storage import DiskFrameStore  # noqa: E402
 from app.platform.frames.writer import GroupCommitWriter  # noqa: E402
-from app.platform.policy import Policy  # noqa: E402
+from app.platform.timing import Timing  # noqa: E402
 from bench.ingest import jpeg_640x480, prepare_pg, unique  # noqa: E402
 
 MAX_PIXELS = 40_000_000
@@ -88,7 +88,7 @@ def main() -> None:
         writer = GroupCommitWriter(sessions)
         writer.start()
         store = DiskFrameStore(Path(tmp))
-        policy = Policy()
+        timing = Timing()
         camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
         jpeg = jpeg_640x480()
         counter = iter(range(10**9))
@@ -108,7 +108,7 @@ def main() -> None:
             )
             if not use_db:
                 return prepared
-            return writer.run(partial(ingest.record, prepared=prepared, policy=policy))
+            return writer.run(partial(ingest.record, prepared=prepared, timing=timing))
 
         cases: dict[str, Callable[[bytes], object]] = {
             "bare": bare,

@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.platform.policy import Policy  # noqa: E402
+from app.platform.timing import Timing  # noqa: E402
 from app.solar.core.panel_state import PanelState  # noqa: E402
 from app.solar.services import panels  # noqa: E402
 from bench.air_trends import PG_ADMIN, analyze, database  # noqa: E402
@@ -65,27 +65,27 @@ def main() -> None:
     url = database(args.backend)
     migrate(url)
     engine = create_engine(url)
-    policy = Policy(clock=lambda: NOW)
+    timing = Timing(clock=lambda: NOW)
     try:
         ids = store_farm(engine, NOW, random_facts(args.panels), fleet=False)
         analyze(engine)
         some = ids[: args.one_by_one]
         with Session(engine) as session:
-            singles = {p: panels.panel_status(session, p, policy).state for p in some}
+            singles = {p: panels.panel_status(session, p, timing).state for p in some}
             listed = panels.listed_with_state(
-                session, policy, states=[], retired=False, limit=len(some), offset=0
+                session, timing, states=[], retired=False, limit=len(some), offset=0
             )
             assert {p.id: s for p, s in listed} == singles  # the same answers
             one_by_one, counts, page = [], [], []
             for _ in range(args.rounds):  # alternating, so that all see the machine alike
                 one_by_one += timed(
-                    lambda: [panels.panel_status(session, p, policy) for p in some], 1
+                    lambda: [panels.panel_status(session, p, timing) for p in some], 1
                 )
-                counts += timed(lambda: panels.state_counts(session, policy), 1)
+                counts += timed(lambda: panels.state_counts(session, timing), 1)
                 page += timed(
                     lambda: panels.listed_with_state(
                         session,
-                        policy,
+                        timing,
                         states=[PanelState.needs_cleaning],
                         retired=False,
                         limit=100,
@@ -93,7 +93,7 @@ def main() -> None:
                     ),
                     1,
                 )
-            tally = panels.state_counts(session, policy)
+            tally = panels.state_counts(session, timing)
     finally:
         engine.dispose()
         if args.backend == "postgresql":

@@ -29,7 +29,7 @@ from app.platform.frames import cameras as registry  # noqa: E402
 from app.platform.frames import ingest  # noqa: E402
 from app.platform.frames.camera_info import CameraInfo  # noqa: E402
 from app.platform.frames.writer import GroupCommitWriter, _Job  # noqa: E402
-from app.platform.policy import Policy  # noqa: E402
+from app.platform.timing import Timing  # noqa: E402
 from bench.ingest import PG_BENCH_URL, jpeg_640x480, unique  # noqa: E402
 from bench.ingest_parts import bench_database  # noqa: E402
 
@@ -67,7 +67,7 @@ def main() -> None:
         writer, extra = GroupCommitWriter(sessions), {}
     writer._holding = True  # as on the writer's own thread (a connection kept between batches)
     camera = CameraInfo(id="c", kind=CameraKind.rig, panel_id=None, roi=None)
-    policy = Policy()
+    timing = Timing()
     jpeg = jpeg_640x480()
     total = args.batch * args.batches * args.rounds
     prepared = iter(
@@ -89,7 +89,7 @@ def main() -> None:
         for _ in range(args.batches):
             batch = [
                 _Job(
-                    partial(ingest.record, prepared=next(prepared), policy=policy),
+                    partial(ingest.record, prepared=next(prepared), timing=timing),
                     Future(),
                     **extra,
                 )

@@ -101,7 +101,7 @@ def admin() -> dict[str, str]:
 def clock(app: Any) -> Clock:
     """The app's clock, moved by the test (``Clock.advance``)."""
     c = Clock()
-    app.state.policy = replace(app.state.policy, clock=c)
+    app.state.timing = replace(app.state.timing, clock=c)
     return c
 
 

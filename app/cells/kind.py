@@ -13,11 +13,11 @@ from app.platform.frames.kinds import (
     verdict_common,
 )
 from app.platform.frames.verdicts import stats_columns
-from app.platform.policy import Policy
 from app.platform.schemas import RigVerdictOut
+from app.platform.timing import Timing
 
 
-def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+def conclude(session: Session, prepared: Prepared, timing: Timing) -> Verdict:
     """A rig frame's verdict: its statistics only."""
     return Verdict(
         frame_id=prepared.frame.id,

@@ -23,9 +23,9 @@ from app.platform.frames import retention
 from app.platform.frames.storage import DiskFull, StoreUnavailable
 from app.platform.http.deps import Admin, MetricsReader, get_sessionmaker
 from app.platform.http.responses import AUTH_ERRORS
-from app.platform.policy import Policy
 from app.platform.schemas import Health
 from app.platform.state import app_state
+from app.platform.timing import Timing
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger("vantage.health")
@@ -102,18 +102,18 @@ def _sqlite_writes(request: Request) -> Literal["ok", "read_only", "full"]:
     return "ok"
 
 
-DbMetrics = Callable[[Session, Policy], Iterable[Metric]]
+DbMetrics = Callable[[Session, Timing], Iterable[Metric]]
 """What a domain reads from the database for /metrics when scraped (``app.state.db_metrics``)."""
 
 
 class _FromDatabase(Collector):
-    def __init__(self, sessions: sessionmaker[Session], policy: Policy, sources: list[DbMetrics]):
-        self.sessions, self.policy, self.sources = sessions, policy, sources
+    def __init__(self, sessions: sessionmaker[Session], timing: Timing, sources: list[DbMetrics]):
+        self.sessions, self.timing, self.sources = sessions, timing, sources
 
     def collect(self) -> Iterator[Metric]:
         with self.sessions() as session:
             for source in self.sources:
-                yield from source(session, self.policy)
+                yield from source(session, self.timing)
 
 
 @router.get("/metrics", include_in_schema=False)
@@ -132,7 +132,7 @@ def metrics(request: Request, _: MetricsReader) -> Response:
     if sources:
         shared = CollectorRegistry()
         shared.register(
-            _FromDatabase(get_sessionmaker(request), app_state(request).policy, sources)
+            _FromDatabase(get_sessionmaker(request), app_state(request).timing, sources)
         )
         body += generate_latest(shared)
     return Response(body, media_type=CONTENT_TYPE_LATEST)
@@ -145,7 +145,7 @@ def sweep_now(request: Request, _: Admin) -> dict[str, int]:
     swept = retention.sweep(
         app_state(request).sessionmaker,
         app_state(request).frame_store,
-        app_state(request).policy,
+        app_state(request).timing,
         settings.frame_retention_days,
         settings.history_retention_days,
     )

@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.platform import webhooks
 from app.platform.db.models import OutboxMessage, WebhookSubscription
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 RETRY_FOR = timedelta(hours=24)
 """How long an event is tried: a receiver down for a deploy or a night still gets it."""
@@ -82,7 +82,7 @@ def forget_old(sessions: sessionmaker[Session], now: datetime) -> int:
 def sweep(
     sessions: sessionmaker[Session],
     topic: str,
-    policy: Policy,
+    timing: Timing,
     *,
     retry_for: timedelta = RETRY_FOR,
     batch: int = 50,
@@ -101,7 +101,7 @@ def sweep(
         OutboxMessage,
         partial(_claim, sessions, topic, retry_for=retry_for),
         url,
-        policy.now,
+        timing.now,
         key=key,
         batch=batch,
         stopping=stopping,
@@ -133,8 +133,8 @@ def _claim(
     return claimed
 
 
-async def run(sessions: sessionmaker[Session], topic: str, policy: Policy, every: float) -> None:
+async def run(sessions: sessionmaker[Session], topic: str, timing: Timing, every: float) -> None:
     """Sweep ``topic`` forever (until cancelled), in a worker thread."""
     await webhooks.keep_sweeping(
-        lambda stopping: sweep(sessions, topic, policy, stopping=stopping), every, topic
+        lambda stopping: sweep(sessions, topic, timing, stopping=stopping), every, topic
     )

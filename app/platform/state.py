@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from app.platform.frames.writer import GroupCommitWriter
     from app.platform.health import DbMetrics
     from app.platform.http.crowds import Crowds
-    from app.platform.policy import Policy
     from app.platform.settings import Settings
+    from app.platform.timing import Timing
 
 TokenOwner = tuple[Literal["robot"], "Callable[[Session, str], str | None]"]
 """A role the domains add (``"robot"``) and how to find the id that owns a token's hash."""
@@ -45,7 +45,7 @@ class AppState(State):
     frame_store: FrameStore
     bounded_store: BoundedStore
     """The frame store with every call bounded in time (a hung mount is a 503)."""
-    policy: Policy
+    timing: Timing
     admin_token_hash: str
     metrics_token_hash: str | None
     camera_tokens: TokenCache

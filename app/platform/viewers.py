@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from app.platform.auth import hash_token, new_token
 from app.platform.db.models import SigninCode, ViewerToken
-from app.platform.http.deps import Admin, PolicyDep, RecordId, SessionDep
+from app.platform.http.deps import Admin, RecordId, SessionDep, TimingDep
 from app.platform.http.errors import Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.platform.lookup import get_or_404
@@ -113,11 +113,11 @@ def revoke_viewer(viewer_id: RecordId, session: SessionDep, _: Admin) -> Respons
 
 
 @router.post("/signin-codes", status_code=201, response_model=CodeOut, responses=AUTH_ERRORS)
-def post_code(body: CodeIn, session: SessionDep, policy: PolicyDep, _: Admin) -> CodeOut:
+def post_code(body: CodeIn, session: SessionDep, timing: TimingDep, _: Admin) -> CodeOut:
     """A one-time code for a kiosk's link: ``/farm#code=…`` signs the screen in as a new
     viewer token named ``name``; the link is useless once opened or after ``minutes``."""
     code = new_token("sc")
-    expires = policy.now() + timedelta(minutes=body.minutes)
+    expires = timing.now() + timedelta(minutes=body.minutes)
     session.add(SigninCode(code_hash=hash_token(code), name=body.name, expires_at=expires))
     return CodeOut(
         code=code, expires_at=expires, farm=f"/farm#code={code}", cells=f"/cells#code={code}"
@@ -130,8 +130,8 @@ def post_code(body: CodeIn, session: SessionDep, policy: PolicyDep, _: Admin) ->
     response_model=ViewerCreated,
     responses=UNPROCESSABLE,
 )
-async def redeem_code(body: RedeemIn, session: SessionDep, policy: PolicyDep) -> ViewerCreated:
+async def redeem_code(body: RedeemIn, session: SessionDep, timing: TimingDep) -> ViewerCreated:
     """Exchange a sign-in code for a viewer token of its own (public: the code is the
     credential, good once)."""
-    row, token = await run_in_threadpool(redeem, session, body.code, policy.now())
+    row, token = await run_in_threadpool(redeem, session, body.code, timing.now())
     return ViewerCreated(id=row.id, name=row.name, created_at=row.created_at, token=token)

@@ -27,15 +27,15 @@ from app.air.services import webhook as alert_webhook
 from app.platform import webhooks
 from app.platform.db.models import Camera
 from app.platform.db.session import make_engine, make_sessionmaker
-from app.platform.policy import Policy
 from app.platform.settings import Settings
+from app.platform.timing import Timing
 from tests.factories import recorder, served
 from tests.factories.air import T0, calibrate, seed_alerts, sky_jpeg
 
 
-def at(now: datetime) -> Policy:
-    """A policy whose clock stands at ``now``."""
-    return Policy(clock=lambda: now)
+def at(now: datetime) -> Timing:
+    """Timing whose clock stands at ``now``."""
+    return Timing(clock=lambda: now)
 
 
 def state(engine: Engine) -> dict[str, tuple[bool, int, str | None]]:
@@ -409,7 +409,7 @@ def test_an_alert_posted_late_in_a_long_sweep_is_not_due_for_another_process(
             due_elsewhere.append(alert.next_attempt_at <= clock[0])
 
     monkeypatch.setattr(webhooks, "post", post)
-    assert alert_webhook.sweep(sessions, "http://hook", Policy(clock=lambda: clock[0])) == 3
+    assert alert_webhook.sweep(sessions, "http://hook", Timing(clock=lambda: clock[0])) == 3
     assert due_elsewhere == [False, False, False]
 
 

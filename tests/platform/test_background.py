@@ -21,8 +21,8 @@ from app.main import create_app
 from app.platform import webhooks
 from app.platform.background import in_thread
 from app.platform.db.session import make_engine, make_sessionmaker
-from app.platform.policy import Policy
 from app.platform.settings import Settings
+from app.platform.timing import Timing
 from tests.factories.air import T0, seed_alerts
 
 
@@ -63,7 +63,7 @@ def test_shutdown_waits_for_a_webhook_sweep_holding_a_connection(
     started = threading.Event()
     events: list[str] = []
 
-    def slow_sweep(sessions: sessionmaker[Session], url: str, policy: Any, **_: Any) -> int:
+    def slow_sweep(sessions: sessionmaker[Session], url: str, timing: Any, **_: Any) -> int:
         with sessions() as session:
             session.execute(text("SELECT 1"))
             started.set()
@@ -128,8 +128,8 @@ def test_a_stopping_webhook_sweep_leaves_the_untried_alerts_for_the_next(
     app_engine = make_engine(database_url)
     try:
         sessions = make_sessionmaker(app_engine)
-        policy = Policy(clock=lambda: t0 + timedelta(minutes=1))
-        assert alert_webhook.sweep(sessions, "http://hook", policy, stopping=stopping) == 1
+        timing = Timing(clock=lambda: t0 + timedelta(minutes=1))
+        assert alert_webhook.sweep(sessions, "http://hook", timing, stopping=stopping) == 1
     finally:
         app_engine.dispose()
     assert posted == ["a0"]

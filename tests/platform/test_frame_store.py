@@ -150,7 +150,7 @@ def test_retention_and_orphan_sweep_delete_objects(
 ) -> None:
     client, s3_app = s3_client
     clock = Clock()
-    s3_app.state.policy = replace(s3_app.state.policy, clock=clock)
+    s3_app.state.timing = replace(s3_app.state.timing, clock=clock)
     headers = rig_camera(client, admin)
     old = [
         client.post("/cameras/c/frames", content=panel_jpeg(CLEAN_RGB, seed=s), headers=headers)
@@ -185,7 +185,7 @@ def test_history_retention_deletes_the_objects_and_keeps_the_rows(
     history = settings.model_copy(update={"history_retention_days": 365.0})
     s3_app = create_app(s3_settings(history, s3_url, bucket.name))
     clock = Clock()
-    s3_app.state.policy = replace(s3_app.state.policy, clock=clock)
+    s3_app.state.timing = replace(s3_app.state.timing, clock=clock)
     with TestClient(s3_app, raise_server_exceptions=False) as client:
         headers = rig_camera(client, admin)
         old = [

@@ -657,7 +657,7 @@ class TestRateLimit:
         from tests.factories import Clock
 
         clock = Clock()
-        app.state.policy = replace(app.state.policy, clock=clock)
+        app.state.timing = replace(app.state.timing, clock=clock)
         app.state.settings = app.state.settings.model_copy(update={"rate_limit_per_minute": 5})
         tokens = {
             cid: client.post("/cameras", json={"id": cid, "kind": "rig"}, headers=admin).json()[
@@ -697,7 +697,7 @@ class TestRateLimit:
         limited = settings.model_copy(update={"rate_limit_per_minute": 40})  # blocks of 2
         apps = [create_app(limited), create_app(limited)]
         for a in apps:
-            a.state.policy = replace(a.state.policy, clock=clock)
+            a.state.timing = replace(a.state.timing, clock=clock)
         before = table_counts(engine)["frames"]
         with TestClient(apps[0]) as one, TestClient(apps[1]) as two:
             token = one.post(

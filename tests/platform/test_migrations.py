@@ -201,7 +201,7 @@ def test_a_deploy_rolled_back_step_by_step_with_data_and_upgraded_again(
     admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
     app = create_app(settings)
     clock = factories.Clock()
-    app.state.policy = replace(app.state.policy, clock=clock)
+    app.state.timing = replace(app.state.timing, clock=clock)
     with TestClient(app) as client:
         assert client.post("/panels", json={"id": "p1"}, headers=admin).status_code == 201
         camera = {"id": "c1", "kind": "panel", "panel_id": "p1"}

@@ -21,7 +21,7 @@ def test_old_frames_go_frames_in_use_stay(
     from dataclasses import replace
 
     clock = Clock()
-    app.state.policy = replace(app.state.policy, clock=clock)
+    app.state.timing = replace(app.state.timing, clock=clock)
     client.post("/panels", json={"id": "p"}, headers=admin)
     cam = client.post(
         "/cameras", json={"id": "c", "kind": "panel", "panel_id": "p"}, headers=admin

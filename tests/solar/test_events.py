@@ -73,10 +73,10 @@ def test_a_task_s_life_reaches_the_receiver_signed(
         )
         assert r.status_code == 200, r.text
         assert r.json()["signed"] is True
-        policy = app.state.policy
-        outbox.sweep(app.state.sessionmaker, "solar", policy)
+        timing = app.state.timing
+        outbox.sweep(app.state.sessionmaker, "solar", timing)
         farm["clock"].advance(minutes=15)  # past the backoff
-        outbox.sweep(app.state.sessionmaker, "solar", policy)
+        outbox.sweep(app.state.sessionmaker, "solar", timing)
     bodies = [json.loads(body) for body, _ in got]
     # the first attempt of the first event failed; the others went on, then it was retried
     assert [b["type"] for b in bodies][:4] == [

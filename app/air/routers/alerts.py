@@ -20,10 +20,10 @@ from app.platform.http.deps import (
     Limit,
     Offset,
     OptionalPrincipal,
-    PolicyDep,
     SessionDep,
     SettingsDep,
     TimeRangeQuery,
+    TimingDep,
 )
 from app.platform.http.errors import (
     Conflict,
@@ -44,7 +44,7 @@ router = APIRouter(prefix="/air", tags=["air quality"])
     responses={**AUTH_ERRORS, 409: {"description": "No webhook is configured."}},
 )
 def try_alert_webhook(
-    request: Request, settings: SettingsDep, policy: PolicyDep, _: Admin
+    request: Request, settings: SettingsDep, timing: TimingDep, _: Admin
 ) -> WebhookTestOut:
     """POST a test alert (``kind: "test"``, recorded nowhere) to ``VANTAGE_ALERT_WEBHOOK_URL``
     now, signed as every alert is, and say whether the receiver took it (a 2xx) or why not: a
@@ -52,7 +52,7 @@ def try_alert_webhook(
     if settings.alert_webhook_url is None:
         raise Conflict("no webhook is configured: set VANTAGE_ALERT_WEBHOOK_URL", code="no_webhook")
     key = app_state(request).webhook_key
-    msg_id, error = webhooks.send_test(settings.alert_webhook_url, policy.now(), key=key)
+    msg_id, error = webhooks.send_test(settings.alert_webhook_url, timing.now(), key=key)
     return WebhookTestOut(
         webhook_id=msg_id, delivered=error is None, error=error, signed=key is not None
     )
@@ -66,7 +66,7 @@ def try_alert_webhook(
 def alerts(
     session: SessionDep,
     settings: SettingsDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     span: TimeRangeQuery,
     caller: OptionalPrincipal,
     camera_id: IdsFilter = None,
@@ -91,7 +91,7 @@ def alerts(
         until=span.until,
         kind=kind,
     )
-    now = policy.now()
+    now = timing.now()
     retry_for = timedelta(hours=settings.alert_retry_hours) if settings.alert_webhook_url else None
     return [
         AirAlertOut(

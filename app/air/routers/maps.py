@@ -19,7 +19,7 @@ from app.air.services.maps import MapQuery
 from app.platform.http.compression import accepts_gzip
 from app.platform.http.crowds import Crowds
 from app.platform.http.deps import (
-    PolicyDep,
+    TimingDep,
     UtcTime,
     get_principal,
     public_work,
@@ -188,7 +188,7 @@ MAP_RESPONSES: dict[int | str, dict[str, Any]] = {
     response_class=Response,
     responses={**MAP_RESPONSES, 200: {"content": {"application/geo+json": {}}}},
 )
-async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
+async def isopleths_geojson(request: Request, timing: TimingDep, q: MapQueryDep) -> Response:
     """City-wide category bands (RFC 7946 GeoJSON), one feature per category present: now,
     or as they were at ``at`` (``at`` in the answer says which).
 
@@ -196,9 +196,9 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     and its ETag answers ``If-None-Match`` with 304."""
 
     def compute(session: Session) -> bytes:
-        m = maps.field(session, policy, q)
+        m = maps.field(session, timing, q)
         off_map = maps.unplaced(session, since=m.since, until=m.at)
-        body = maps.geojson(m, off_map, policy.now(), q)
+        body = maps.geojson(m, off_map, timing.now(), q)
         return json.dumps(body, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
     return await _cached_map(
@@ -211,14 +211,14 @@ async def isopleths_geojson(request: Request, policy: PolicyDep, q: MapQueryDep)
     response_class=Response,
     responses={**MAP_RESPONSES, 200: {"content": {"image/png": {}}}},
 )
-async def isopleths_png(request: Request, policy: PolicyDep, q: MapQueryDep) -> Response:
+async def isopleths_png(request: Request, timing: TimingDep, q: MapQueryDep) -> Response:
     """The map drawn (matplotlib): a panel per island with its bands, the cameras labelled
     with name and level, coordinates, a scale bar, a legend with units and what blank means;
     without readings, why not. Kept as the GeoJSON is."""
     from app.air.services.map_picture import figure, png
 
     def compute(session: Session) -> bytes:
-        m = maps.field(session, policy, q)
+        m = maps.field(session, timing, q)
         off_map = maps.unplaced(session, since=m.since, until=m.at)
         return png(
             figure(

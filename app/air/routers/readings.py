@@ -24,9 +24,9 @@ from app.platform.http.deps import (
     IdsFilter,
     Limit,
     Offset,
-    PolicyDep,
     SessionDep,
     TimeRangeQuery,
+    TimingDep,
     image_work,
     public_read,
     public_work,
@@ -50,17 +50,17 @@ a city's readings is a cursor's job."""
 
 
 @router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
-def latest(camera_id: CameraId, session: SessionDep, policy: PolicyDep) -> AirLatest:
+def latest(camera_id: CameraId, session: SessionDep, timing: TimingDep) -> AirLatest:
     """A sky camera's latest reading: level, category, message, and the smoothed level; the
     message and the smoothed level only while the reading is current (taken in the last 3 h)."""
     place, found = sky_readings.latest_of(session, camera_id)
-    return sky_readings.latest_out(place, found, policy.now())
+    return sky_readings.latest_out(place, found, timing.now())
 
 
 @router.get("/latest", response_model=list[AirLatest], responses={**NOT_FOUND, **UNPROCESSABLE})
 async def latest_of_every_camera(
     request: Request,
-    policy: PolicyDep,
+    timing: TimingDep,
     camera_id: IdsFilter = None,
     limit: Limit = 1000,
     offset: Offset = 0,
@@ -72,7 +72,7 @@ async def latest_of_every_camera(
         request,
         partial(sky_readings.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id),
     )
-    now = policy.now()
+    now = timing.now()
     return [sky_readings.latest_out(place, found, now) for place, found in rows]
 
 

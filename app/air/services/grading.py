@@ -36,7 +36,7 @@ from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import (
     VantageError,
 )
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 
 def _levels_of(camera_id: str) -> Select[str, datetime, int | None, bool, float | None]:
@@ -55,7 +55,7 @@ def _levels_of(camera_id: str) -> Select[str, datetime, int | None, bool, float 
     )
 
 
-def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> SkyVerdict:
+def classify_frame(session: Session, prepared: Prepared, timing: Timing) -> SkyVerdict:
     """Grade a sky frame, smooth the camera's level, and raise an alert when it turns Poor
     (or clear the camera's last one when it is back to ``CLEAR_LEVEL``)."""
     camera, frame, decoded = prepared.camera, prepared.frame, prepared.decoded

@@ -22,7 +22,7 @@ from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.http.errors import (
     Unprocessable,
 )
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,8 +146,8 @@ def _window_start(at: datetime, window: int) -> datetime:
         return datetime.min.replace(tzinfo=UTC)
 
 
-def field(session: Session, policy: Policy, q: MapQuery) -> MapData:
-    now = policy.now()
+def field(session: Session, timing: Timing, q: MapQuery) -> MapData:
+    now = timing.now()
     if q.at is not None and q.at > now:
         raise Unprocessable(f"at {q.at.isoformat()} lies in the future", code="bad_time")
     at = q.at or now

@@ -37,7 +37,7 @@ from app.air.models import AirAlert
 from app.platform import webhooks
 from app.platform.db.models import Camera, Frame
 from app.platform.observability import ALERT_DELIVERIES
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 DEFAULT_RETRY_FOR = timedelta(hours=24)
 
@@ -63,7 +63,7 @@ def delivery(alert: AirAlert, now: datetime, *, retry_for: timedelta | None) -> 
 def sweep(
     sessions: sessionmaker[Session],
     url: str,
-    policy: Policy,
+    timing: Timing,
     *,
     retry_for: timedelta = DEFAULT_RETRY_FOR,
     batch: int = 20,
@@ -78,7 +78,7 @@ def sweep(
         AirAlert,
         partial(_claim, sessions, retry_for=retry_for),
         url,
-        policy.now,
+        timing.now,
         key=key,
         batch=batch,
         stopping=stopping,
@@ -138,7 +138,7 @@ def _claim(
 async def run(
     sessions: sessionmaker[Session],
     url: str,
-    policy: Policy,
+    timing: Timing,
     every: float,
     retry_for: timedelta = DEFAULT_RETRY_FOR,
     key: bytes | None = None,
@@ -146,7 +146,7 @@ async def run(
     """Sweep forever (until cancelled), in a worker thread so the event loop stays free."""
     await webhooks.keep_sweeping(
         lambda stopping: sweep(
-            sessions, url, policy, retry_for=retry_for, stopping=stopping, key=key
+            sessions, url, timing, retry_for=retry_for, stopping=stopping, key=key
         ),
         every,
         "air alerts",

@@ -15,11 +15,11 @@ from app.platform.http.deps import (
     Admin,
     Limit,
     Offset,
-    PolicyDep,
     Reader,
     RecordId,
     SessionDep,
     SettingsDep,
+    TimingDep,
     image_work,
 )
 from app.platform.http.errors import Unprocessable, UnsupportedMediaType
@@ -31,7 +31,7 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import content_type, read_form
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 router = APIRouter(prefix="/calibrations", tags=["stereo"])
 
@@ -80,9 +80,9 @@ def _board(form: Any, default: Board) -> Board:
     return Board(cols, rows, square)
 
 
-def _single(session: Session, files: Any, board: Board, max_pixels: int, policy: Policy) -> Any:
+def _single(session: Session, files: Any, board: Board, max_pixels: int, timing: Timing) -> Any:
     return calibrations.calibrate_camera(
-        session, files, board, max_pixels=max_pixels, now=policy.now()
+        session, files, board, max_pixels=max_pixels, now=timing.now()
     )
 
 
@@ -98,7 +98,7 @@ async def calibrate(
     request: Request,
     session: SessionDep,
     settings: SettingsDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: Admin,
     pattern_cols: Cols = 9,
     pattern_rows: Rows = 6,
@@ -113,16 +113,16 @@ async def calibrate(
         raise Unprocessable("no images in field files")
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
     row = await image_work(
-        request, partial(_single, session, files, board, settings.max_pixels, policy)
+        request, partial(_single, session, files, board, settings.max_pixels, timing)
     )
     return _body(row)
 
 
 def _pair(
-    session: Session, left: Any, right: Any, board: Board, max_pixels: int, policy: Policy
+    session: Session, left: Any, right: Any, board: Board, max_pixels: int, timing: Timing
 ) -> Any:
     return calibrations.calibrate_pair(
-        session, left, right, board, max_pixels=max_pixels, now=policy.now()
+        session, left, right, board, max_pixels=max_pixels, now=timing.now()
     )
 
 
@@ -138,7 +138,7 @@ async def calibrate_stereo(
     request: Request,
     session: SessionDep,
     settings: SettingsDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: Admin,
     pattern_cols: Cols = 9,
     pattern_rows: Rows = 6,
@@ -158,7 +158,7 @@ async def calibrate_stereo(
             form.files_of("right"),
             board,
             settings.max_pixels,
-            policy,
+            timing,
         ),
     )
     return _body(row)

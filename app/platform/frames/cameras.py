@@ -22,8 +22,8 @@ from app.platform.frames.kinds import KINDS
 from app.platform.frames.writer import Credential, Refusal
 from app.platform.http.errors import Conflict, NotFound, Unprocessable
 from app.platform.lookup import get_or_404
-from app.platform.policy import Policy
 from app.platform.schemas import CameraCreate, CameraUpdate
+from app.platform.timing import Timing
 
 
 class Identified(Protocol):
@@ -112,12 +112,12 @@ def check_in_service(row: Retirable) -> None:
         )
 
 
-def retire_row(row: Tokened, token_prefix: str, policy: Policy) -> bool:
+def retire_row(row: Tokened, token_prefix: str, timing: Timing) -> bool:
     """Mark the row retired and replace its token hash by that of a token nobody holds; False
     (and nothing changed) when it already was."""
     if row.retired_at is not None:
         return False
-    row.retired_at = policy.now()
+    row.retired_at = timing.now()
     row.token_hash = hash_token(new_token(token_prefix))
     return True
 
@@ -238,11 +238,11 @@ def rotate_camera_token(session: Session, camera_id: str, tokens: TokenCache) ->
     return camera, token
 
 
-def retire_camera(session: Session, camera_id: str, tokens: TokenCache, policy: Policy) -> None:
+def retire_camera(session: Session, camera_id: str, tokens: TokenCache, timing: Timing) -> None:
     """Take the camera out of service: its token stops working (replaced by the hash of one
     nobody holds), its frames are refused, and it leaves the air map and the default camera
     list. Its history stays. Retiring a retired camera changes nothing."""
-    if retire_row(get_camera(session, camera_id), "vc", policy):
+    if retire_row(get_camera(session, camera_id), "vc", timing):
         session.flush()
         _forget_on_commit(session, tokens, camera_id)
 

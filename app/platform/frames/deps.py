@@ -39,8 +39,8 @@ from app.platform.http.errors import (
     Unauthorized,
     Unprocessable,
 )
-from app.platform.policy import Policy
 from app.platform.state import app_state
+from app.platform.timing import Timing
 
 
 def _cursor(
@@ -187,8 +187,8 @@ async def _check_rate(request: Request, camera_id: str) -> None:
     limit: int = app_state(request).settings.rate_limit_per_minute
     if limit <= 0:
         return
-    policy: Policy = app_state(request).policy
-    now = policy.now()
+    timing: Timing = app_state(request).timing
+    now = timing.now()
     minute = rate_limit.minute_of(now)
     budgets: rate_limit.LocalBudgets = app_state(request).rate_budgets
     if budgets.take(camera_id, minute):
@@ -207,7 +207,7 @@ async def _check_rate(request: Request, camera_id: str) -> None:
 def within_rate(
     sessions: sessionmaker[Session],
     budgets: rate_limit.LocalBudgets,
-    policy: Policy,
+    timing: Timing,
     limit: int,
     camera_id: str,
 ) -> bool:
@@ -215,7 +215,7 @@ def within_rate(
     spending it: for the frames the service pulls, in a worker thread."""
     if limit <= 0:
         return True
-    minute = rate_limit.minute_of(policy.now())
+    minute = rate_limit.minute_of(timing.now())
     if budgets.take(camera_id, minute):
         return True
     with sessions.begin() as session:

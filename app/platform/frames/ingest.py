@@ -38,7 +38,7 @@ from app.platform.frames.stats import (
 )
 from app.platform.frames.storage import FrameStore, digest
 from app.platform.http.errors import Unprocessable, UnsupportedMediaType, VantageError
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 
 def scale_roi(roi: Roi, width: int, height: int, reduction: int) -> Roi:
@@ -163,7 +163,7 @@ def recording(
     *,
     captured_at: datetime | None,
     max_pixels: int,
-    policy: Policy,
+    timing: Timing,
     idempotency_key: str | None = None,
 ) -> Callable[[Session], Recorded]:
     """``prepare`` the frame (received now) and give back the writer's job that records it:
@@ -173,11 +173,11 @@ def recording(
         camera=camera,
         data=data,
         captured_at=captured_at,
-        received_at=policy.now(),
+        received_at=timing.now(),
         max_pixels=max_pixels,
         idempotency_key=idempotency_key,
     )
-    return partial(record, prepared=prepared, policy=policy)
+    return partial(record, prepared=prepared, timing=timing)
 
 
 def decode_all(
@@ -243,16 +243,16 @@ def check_same_frame(original: Frame, frame: Frame) -> None:
         )
 
 
-def conclude(session: Session, prepared: Prepared, policy: Policy) -> Verdict:
+def conclude(session: Session, prepared: Prepared, timing: Timing) -> Verdict:
     """The verdict on a prepared frame, by its camera's kind (``kinds.KindHandler.conclude``)."""
-    verdict = KINDS[prepared.camera.kind].conclude(session, prepared, policy)
+    verdict = KINDS[prepared.camera.kind].conclude(session, prepared, timing)
     verdict.roi = prepared.camera.region
     verdict.usable = prepared.decoded.quality is None
     return verdict
 
 
 def record(
-    session: Session, prepared: Prepared, policy: Policy, *, retry: bool = False
+    session: Session, prepared: Prepared, timing: Timing, *, retry: bool = False
 ) -> Recorded:
     """The database part: conclude the verdict and insert the frame and verdict rows, unless
     this is a retry of a stored frame, whose original rows are returned instead.
@@ -266,6 +266,6 @@ def record(
     if original is not None:
         check_same_frame(original[0], prepared.frame)
         return Recorded(*original, replay=True)
-    verdict = conclude(session, prepared, policy)
+    verdict = conclude(session, prepared, timing)
     insert_rows(session, prepared.frame, verdict)
     return Recorded(prepared.frame, verdict, replay=False)

@@ -22,8 +22,8 @@ from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.jpeg import JpegHeader
 from app.platform.frames.quality import DEFAULT_LIMITS, QualityLimits
 from app.platform.frames.stats import ChannelStats, Roi
-from app.platform.policy import Policy
 from app.platform.schemas import FrameOut
+from app.platform.timing import Timing
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +65,7 @@ class Pixels:
     stats: ChannelStats
 
 
-Classifier = Callable[[Session, Prepared, Policy], Verdict]
+Classifier = Callable[[Session, Prepared, Timing], Verdict]
 """The verdict on a prepared frame: runs on the group-commit writer, inside the batch's
 transaction (it may read its reference and update state rows) and returns an unsaved row.
 Anything CPU-heavy belongs in ``KindHandler.features``, which runs in parallel before."""

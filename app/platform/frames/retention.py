@@ -33,7 +33,7 @@ from app.platform.background import in_thread
 from app.platform.db.models import Frame, Verdict
 from app.platform.frames.kinds import KINDS
 from app.platform.frames.storage import FrameStore, pack_of
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 
 log = logging.getLogger("vantage.retention")
 
@@ -67,14 +67,14 @@ def kept_days(days: float, history_days: float | None) -> float:
 def sweep(
     sessions: sessionmaker[Session],
     store: FrameStore,
-    policy: Policy,
+    timing: Timing,
     days: float,
     history_days: float | None = None,
 ) -> Swept:
     """Delete frames received more than ``history_days`` (default ``days``) ago, their files,
     the images of those received more than ``days`` ago, the expired packs, and webhook events
     older than ``outbox.KEEP_FOR``."""
-    now = policy.now()
+    now = timing.now()
     cutoff = now - timedelta(days=kept_days(days, history_days))
     frames, files = _in_batches(sessions, store, [Frame.received_at < cutoff], _delete_rows)
     images = 0
@@ -88,7 +88,7 @@ def sweep(
         )
         files += dropped
     if packs := store.expired_packs(cutoff):
-        _move_kept(sessions, store, policy, set(packs), cutoff)
+        _move_kept(sessions, store, timing, set(packs), cutoff)
         store.delete_packs(packs)
         files += len(packs)
     outbox.forget_old(sessions, now)  # webhook events: kept 30 days, delivered or not
@@ -144,7 +144,7 @@ def _in_batches(
 def _move_kept(
     sessions: sessionmaker[Session],
     store: FrameStore,
-    policy: Policy,
+    timing: Timing,
     packs: set[str],
     cutoff: datetime,
 ) -> None:
@@ -158,7 +158,7 @@ def _move_kept(
             )
         ).all()
     moves = []
-    now = policy.now()
+    now = timing.now()
     for frame_id, path, sha256 in rows:
         if path is None or pack_of(path) not in packs:
             continue
@@ -234,7 +234,7 @@ def _any_referenced(sessions: sessionmaker[Session], locators: Generator[str, No
 async def run(
     sessions: sessionmaker[Session],
     store: FrameStore,
-    policy: Policy,
+    timing: Timing,
     days: float,
     every: float,
     history_days: float | None = None,
@@ -243,7 +243,7 @@ async def run(
     while True:
         await asyncio.sleep(every)
         try:
-            swept = await in_thread(sweep, sessions, store, policy, days, history_days)
+            swept = await in_thread(sweep, sessions, store, timing, days, history_days)
             if swept.frames or swept.images:
                 log.info(
                     "retention sweep",

@@ -31,12 +31,12 @@ from app.platform.http.deps import (
     IdFilter,
     Limit,
     Offset,
-    PolicyDep,
     Reader,
     RecordId,
     SessionDep,
     SettingsDep,
     TimeRangeQuery,
+    TimingDep,
     UtcTime,
     image_work,
 )
@@ -152,7 +152,7 @@ async def post_frame(
     request: Request,
     target: UploadTargetDep,
     settings: SettingsDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     captured_at: Annotated[
         UtcTime | None,
         Query(description="When the frame was taken (RFC 3339; default: when received)."),
@@ -171,10 +171,10 @@ async def post_frame(
     A retried upload gets the original frame and verdict, with ``Idempotent-Replay: true``.
     """
     start = time.perf_counter()
-    when = _captured_at(captured_at, policy.now(), settings)
+    when = _captured_at(captured_at, timing.now(), settings)
     upload = await read_jpeg(request, settings.max_body_bytes)
     if upload.captured_at is not None:
-        when = _form_captured_at(upload.captured_at, when, policy.now(), settings)
+        when = _form_captured_at(upload.captured_at, when, timing.now(), settings)
     data = upload.data
     store = app_state(request).frame_store if settings.store_frames else None
     writer: GroupCommitWriter = app_state(request).writer
@@ -185,7 +185,7 @@ async def post_frame(
         data=data,
         captured_at=when,
         max_pixels=settings.max_pixels,
-        policy=policy,
+        timing=timing,
         idempotency_key=idempotency_key,
     )
 
@@ -263,7 +263,7 @@ def create_camera(
 @router.get("/cameras", response_model=list[CameraOut], responses={**AUTH_ERRORS, **NOT_FOUND})
 def list_cameras(
     session: SessionDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: Admin,
     limit: Limit = 100,
     offset: Offset = 0,
@@ -284,7 +284,7 @@ def list_cameras(
     """List cameras, ordered by id, each with when its newest frame was taken; ``silent_for``
     finds the cameras gone quiet, ``kind`` and ``panel_id`` those of a kind or watching a panel
     (404 when there is no such panel)."""
-    since = None if silent_for is None else policy.now() - timedelta(seconds=silent_for)
+    since = None if silent_for is None else timing.now() - timedelta(seconds=silent_for)
     rows = cameras.cameras_seen(
         session,
         limit=limit,
@@ -357,7 +357,7 @@ def rotate_camera_token(
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
 def retire_camera(
-    camera_id: CameraId, session: SessionDep, policy: PolicyDep, _: Admin, request: Request
+    camera_id: CameraId, session: SessionDep, timing: TimingDep, _: Admin, request: Request
 ) -> Response:
     """Retire a camera taken out of service. Its token stops working (at once on this server
     process, within ``VANTAGE_CAMERA_CACHE_SECONDS`` (10 s) on the others), frames for it are
@@ -365,7 +365,7 @@ def retire_camera(
     shows it). Its frames, verdicts, readings and alerts stay readable until the retention
     removes them; its id stays taken. Retiring it again changes nothing."""
     tokens: TokenCache = app_state(request).camera_tokens
-    cameras.retire_camera(session, camera_id, tokens, policy)
+    cameras.retire_camera(session, camera_id, tokens, timing)
     return Response(status_code=204)
 
 

@@ -33,8 +33,8 @@ from app.platform.frames.storage import FrameStore
 from app.platform.frames.writer import GroupCommitWriter
 from app.platform.http.errors import Unprocessable, VantageError
 from app.platform.observability import FRAMES_RECEIVED
-from app.platform.policy import Policy
 from app.platform.schemas import SourceIn, SourceOut
+from app.platform.timing import Timing
 
 log = logging.getLogger("vantage.sources")
 
@@ -183,7 +183,7 @@ class Puller:
         sessions: sessionmaker[Session],
         writer: GroupCommitWriter,
         store: Callable[[], FrameStore | None],
-        policy: Callable[[], Policy],
+        timing: Callable[[], Timing],
         *,
         threads: int,
         timeout: float,
@@ -196,7 +196,7 @@ class Puller:
         (the budget its posted frames spend too); None: no limit. ``allowed_networks``: CIDRs
         sources may reach although the address rule refuses them (``addresses``)."""
         self.allowed = addresses.networks(allowed_networks)
-        self.sessions, self.writer, self.store, self.policy = sessions, writer, store, policy
+        self.sessions, self.writer, self.store, self.timing = sessions, writer, store, timing
         self.rate_limit = rate_limit
         self.owner = uuid.uuid4().hex
         self.threads, self.timeout, self.max_pixels, self.tick = threads, timeout, max_pixels, tick
@@ -236,7 +236,7 @@ class Puller:
 
     def _claim(self, limit: int) -> list[Lease]:
         with self.sessions() as session:
-            return claim(session, self.owner, self.policy().now(), limit=limit, lease=self.lease)
+            return claim(session, self.owner, self.timing().now(), limit=limit, lease=self.lease)
 
     async def _pull(self, lease: Lease) -> None:
         loop = asyncio.get_running_loop()
@@ -272,8 +272,8 @@ class Puller:
 
     async def _store(self, lease: Lease, data: bytes) -> tuple[str, datetime]:
         """The frame through the ingest path of a posted one; its id and capture time."""
-        policy = self.policy()
-        taken = policy.now()
+        timing = self.timing()
+        taken = timing.now()
         prepare = partial(
             ingest.recording,
             self.store(),
@@ -281,7 +281,7 @@ class Puller:
             data,
             captured_at=taken,
             max_pixels=self.max_pixels,
-            policy=policy,
+            timing=timing,
         )
         done: Any = await self.writer.submit_after(prepare, credential=lease.camera.credential)
         FRAMES_RECEIVED.labels(lease.camera.id).inc()
@@ -291,4 +291,4 @@ class Puller:
         self, lease: Lease, frame: tuple[str, datetime] | None, error: tuple[str, str] | None
     ) -> None:
         with self.sessions() as session:
-            finish(session, self.owner, lease, self.policy().now(), frame=frame, error=error)
+            finish(session, self.owner, lease, self.timing().now(), frame=frame, error=error)

@@ -27,9 +27,9 @@ from app.platform.http.errors import (
     Unauthorized,
     Unprocessable,
 )
-from app.platform.policy import Policy
 from app.platform.settings import Settings
 from app.platform.state import app_state
+from app.platform.timing import Timing
 
 ID_PATTERN = r"^[A-Za-z0-9._-]{1,64}$"
 
@@ -67,16 +67,16 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
             session.close()
 
 
-async def get_policy(request: Request) -> Policy:
-    policy: Policy = app_state(request).policy
-    return policy
+async def get_timing(request: Request) -> Timing:
+    timing: Timing = app_state(request).timing
+    return timing
 
 
 # scope="function": the commit ends the route's work, before the response is sent. (With the
 # default request scope it would run after: a client could see 201 and another process not yet
 # find the row, or a failed commit would follow a success already sent.)
 SessionDep = Annotated[Session, Depends(get_session, scope="function")]
-PolicyDep = Annotated[Policy, Depends(get_policy)]
+TimingDep = Annotated[Timing, Depends(get_timing)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 

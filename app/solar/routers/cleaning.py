@@ -12,10 +12,10 @@ from app.platform.http.deps import (
     IdFilter,
     Limit,
     Offset,
-    PolicyDep,
     RecordId,
     RobotAuth,
     SessionDep,
+    TimingDep,
 )
 from app.platform.http.responses import AUTH_ERRORS, CONFLICT, NOT_FOUND
 from app.solar.models import CleaningTask
@@ -33,10 +33,10 @@ TaskId = RecordId
     response_model=ClaimOut,
     responses={204: {"description": "Nothing to clean"}, **AUTH_ERRORS},
 )
-def claim_next(session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> ClaimOut | Response:
+def claim_next(session: SessionDep, timing: TimingDep, robot: RobotAuth) -> ClaimOut | Response:
     """Take the oldest waiting task, under a lease; 204 when there is none."""
     assert robot.id is not None
-    task = cleaning.claim_next(session, robot.id, policy)
+    task = cleaning.claim_next(session, robot.id, timing)
     if task is None:
         return Response(status_code=204)
     return _claimed(session, task)
@@ -47,10 +47,10 @@ def claim_next(session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> Clai
     response_model=ClaimOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **CONFLICT},
 )
-def claim(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> ClaimOut:
+def claim(task_id: TaskId, session: SessionDep, timing: TimingDep, robot: RobotAuth) -> ClaimOut:
     """Claim this task (or renew one's own lease on it); 409 when another robot holds it."""
     assert robot.id is not None
-    task = cleaning.claim(session, task_id, robot.id, policy)
+    task = cleaning.claim(session, task_id, robot.id, timing)
     return _claimed(session, task)
 
 
@@ -71,11 +71,11 @@ def _claimed(session: Session, task: CleaningTask) -> ClaimOut:
     response_model=TaskOut,
     responses={**AUTH_ERRORS, **NOT_FOUND, **CONFLICT},
 )
-def complete(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: RobotAuth) -> TaskOut:
+def complete(task_id: TaskId, session: SessionDep, timing: TimingDep, robot: RobotAuth) -> TaskOut:
     """The panel is cleaned; its next frames confirm it. Idempotent."""
     assert robot.id is not None
-    task = cleaning.complete(session, task_id, robot.id, policy)
-    return TaskOut(**task_view(task, policy.now()))
+    task = cleaning.complete(session, task_id, robot.id, timing)
+    return TaskOut(**task_view(task, timing.now()))
 
 
 @router.post(
@@ -86,21 +86,21 @@ def complete(task_id: TaskId, session: SessionDep, policy: PolicyDep, robot: Rob
 def fail(
     task_id: TaskId,
     session: SessionDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     robot: RobotAuth,
     body: Annotated[FailIn | None, Body()] = None,
 ) -> TaskOut:
     """The robot could not clean the panel. Idempotent."""
     assert robot.id is not None
     reason = body.reason if body else None
-    task = cleaning.fail(session, task_id, robot.id, policy, reason)
-    return TaskOut(**task_view(task, policy.now()))
+    task = cleaning.fail(session, task_id, robot.id, timing, reason)
+    return TaskOut(**task_view(task, timing.now()))
 
 
 @router.get("/tasks", response_model=list[TaskOut], responses={**AUTH_ERRORS, **NOT_FOUND})
 def list_tasks(
     session: SessionDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: AnyReader,
     panel_id: IdFilter = None,
     robot_id: IdFilter = None,
@@ -115,7 +115,7 @@ def list_tasks(
     offset: Offset = 0,
 ) -> list[TaskOut]:
     """Cleaning tasks, newest first: a panel's, a robot's, of the statuses given."""
-    now = policy.now()
+    now = timing.now()
     rows = cleaning.list_tasks(
         session,
         panel_id=panel_id,
@@ -129,6 +129,6 @@ def list_tasks(
 
 
 @router.get("/tasks/{task_id}", response_model=TaskOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_task(task_id: TaskId, session: SessionDep, policy: PolicyDep, _: AnyReader) -> TaskOut:
+def get_task(task_id: TaskId, session: SessionDep, timing: TimingDep, _: AnyReader) -> TaskOut:
     """One cleaning task."""
-    return TaskOut(**task_view(cleaning.get_task(session, task_id), policy.now()))
+    return TaskOut(**task_view(cleaning.get_task(session, task_id), timing.now()))

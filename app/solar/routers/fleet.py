@@ -18,11 +18,11 @@ from app.platform.http.deps import (
     Admin,
     Limit,
     Offset,
-    PolicyDep,
     Reader,
     RecordId,
     SessionDep,
     SettingsDep,
+    TimingDep,
     image_work,
 )
 from app.platform.http.errors import NotFound, Unprocessable, UnsupportedMediaType
@@ -34,9 +34,9 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import content_type, read_form, read_json
-from app.platform.policy import Policy
 from app.platform.schemas import Schema
 from app.platform.state import app_state
+from app.platform.timing import Timing
 from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
 from app.solar.services import labels as labels_service
 from app.solar.services import panels, training
@@ -53,7 +53,7 @@ def _train(
     groups: list[str] | None,
     stored: list[tuple[labels_service.Stored, bytes]],
     max_pixels: int,
-    policy: Policy,
+    timing: Timing,
 ) -> FleetModelOut:
     """The model from the uploaded photos and the farm's labelled stored frames (each measured
     in its camera's region, grouped by its panel). Mixed with stored frames, uploaded photos
@@ -68,7 +68,7 @@ def _train(
     if stored:
         named = groups or [f"upload-{i}" for i in range(len(files))]
         groups = [*named, *(s.group for s, _ in stored)]
-    row = training.fit_fleet(features, labels, now=policy.now(), groups=groups)
+    row = training.fit_fleet(features, labels, now=timing.now(), groups=groups)
     session.add(row)
     session.flush()
     return FleetModelOut.model_validate(row)
@@ -82,7 +82,7 @@ def _train(
     openapi_extra=multipart_body(files="files", labels="texts", groups="texts"),
 )
 async def train(
-    request: Request, session: SessionDep, settings: SettingsDep, policy: PolicyDep, _: Admin
+    request: Request, session: SessionDep, settings: SettingsDep, timing: TimingDep, _: Admin
 ) -> FleetModelOut:
     """Train the fleet model from labelled photos of many panels: ≥ 5 clean and ≥ 5 needing
     cleaning (dust or bird_drop); snow photos teach it snow (a snow-covered panel is reported
@@ -126,7 +126,7 @@ async def train(
     stored = await _stored(request, session, frame_ids)
     return await image_work(
         request,
-        partial(_train, session, files, labels, groups, stored, settings.max_pixels, policy),
+        partial(_train, session, files, labels, groups, stored, settings.max_pixels, timing),
     )
 
 
@@ -195,12 +195,12 @@ def doubts(
     "/labels/{frame_id}", response_model=LabelOut, responses={**AUTH_ERRORS, **UNPROCESSABLE}
 )
 def put_label(
-    frame_id: RecordId, body: LabelIn, session: SessionDep, policy: PolicyDep, _: Admin
+    frame_id: RecordId, body: LabelIn, session: SessionDep, timing: TimingDep, _: Admin
 ) -> LabelOut:
     """What a panel frame truly shows (clean, dust, bird_drop, snow), as the operator says;
     replaces any label it had. The frame is kept past retention, to learn from."""
     row = labels_service.set_label(
-        session, frame_id, body.label, source="operator", now=policy.now()
+        session, frame_id, body.label, source="operator", now=timing.now()
     )
     return LabelOut.model_validate(row)
 

@@ -18,7 +18,6 @@ from app.platform.http.deps import (
     Admin,
     AnyReader,
     PanelId,
-    PolicyDep,
     Reader,
     RobotOrAdmin,
     SessionDep,
@@ -26,6 +25,7 @@ from app.platform.http.deps import (
     Shrinkage,
     Significance,
     TimeRangeQuery,
+    TimingDep,
     image_work,
 )
 from app.platform.http.errors import Forbidden, NotFound, Unprocessable, UnsupportedMediaType
@@ -40,7 +40,7 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import content_type, read_files, read_form, read_json
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 from app.solar.core.panel_state import PanelState
 from app.solar.kind import verdict_out
 from app.solar.models import Baseline, Panel
@@ -70,7 +70,7 @@ _FILES_BODY = multipart_body(json=BaselineFromFrames, files="files")
 
 
 def _out(
-    session: Session, policy: Policy, panel: Panel, state: PanelState | None = None
+    session: Session, timing: Timing, panel: Panel, state: PanelState | None = None
 ) -> PanelOut:
     return PanelOut(
         id=panel.id,
@@ -80,10 +80,10 @@ def _out(
         location=panel.location,
         created_at=panel.created_at,
         retired_at=panel.retired_at,
-        state=state if state is not None else panels.state_now(session, panel, policy),
+        state=state if state is not None else panels.state_now(session, panel, timing),
         last_clean=panel.last_clean,
         dirty_streak=panel.dirty_streak,
-        streak_needed=policy.debounce,
+        streak_needed=timing.debounce,
         doubted=panel.last_doubted_at is not None
         and (panel.last_judged_at is None or panel.last_doubted_at > panel.last_judged_at),
     )
@@ -95,15 +95,15 @@ def _out(
     response_model=PanelOut,
     responses={**AUTH_ERRORS, **CONFLICT, **UNPROCESSABLE},
 )
-def create_panel(body: PanelCreate, session: SessionDep, policy: PolicyDep, _: Admin) -> PanelOut:
+def create_panel(body: PanelCreate, session: SessionDep, timing: TimingDep, _: Admin) -> PanelOut:
     """Register a solar panel."""
-    return _out(session, policy, registry.create_panel(session, body))
+    return _out(session, timing, registry.create_panel(session, body))
 
 
 @router.get("/panels", response_model=list[PanelOut], responses=AUTH_ERRORS)
 def list_panels(
     session: SessionDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: Reader,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
@@ -121,21 +121,21 @@ def list_panels(
 ) -> list[PanelOut]:
     """List panels, ordered by id, each with its state now."""
     rows = panels.listed_with_state(
-        session, policy, states=state or [], retired=retired, limit=limit, offset=offset
+        session, timing, states=state or [], retired=retired, limit=limit, offset=offset
     )
-    return [_out(session, policy, p, s) for p, s in rows]
+    return [_out(session, timing, p, s) for p, s in rows]
 
 
 @router.get("/panels/{panel_id}", response_model=PanelOut, responses={**AUTH_ERRORS, **NOT_FOUND})
 def get_panel(
-    panel_id: PanelId, session: SessionDep, policy: PolicyDep, caller: AnyReader
+    panel_id: PanelId, session: SessionDep, timing: TimingDep, caller: AnyReader
 ) -> PanelOut:
     """One panel. A robot may read the panel of a task it holds (claimed, lease running)."""
     if caller.role == "robot" and not cleaning.holds_task_on(
-        session, caller.id or "", panel_id, policy.now()
+        session, caller.id or "", panel_id, timing.now()
     ):
         raise Forbidden("a robot may read only the panel of a cleaning task it holds")
-    return _out(session, policy, lookup.get_panel(session, panel_id))
+    return _out(session, timing, lookup.get_panel(session, panel_id))
 
 
 @router.patch(
@@ -144,20 +144,20 @@ def get_panel(
     responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_RETIRED, **UNPROCESSABLE},
 )
 def update_panel(
-    panel_id: PanelId, body: PanelUpdate, session: SessionDep, policy: PolicyDep, _: Admin
+    panel_id: PanelId, body: PanelUpdate, session: SessionDep, timing: TimingDep, _: Admin
 ) -> PanelOut:
     """Change a panel's name or location (JSON merge: fields left out keep their value,
     ``null`` clears one)."""
-    return _out(session, policy, registry.update_panel(session, panel_id, body))
+    return _out(session, timing, registry.update_panel(session, panel_id, body))
 
 
 @router.get("/panel-states", response_model=PanelStateCounts, responses=AUTH_ERRORS)
-def panel_states(session: SessionDep, policy: PolicyDep, _: Reader) -> PanelStateCounts:
+def panel_states(session: SessionDep, timing: TimingDep, _: Reader) -> PanelStateCounts:
     """The farm at a glance: how many panels in service are in each state now (one query, for
     tens of thousands of panels; ``GET /panels?state=`` lists those of a state)."""
-    counts = panels.state_counts(session, policy)
+    counts = panels.state_counts(session, timing)
     return PanelStateCounts(
-        counted_at=policy.now(),
+        counted_at=timing.now(),
         total=sum(counts.values()),
         states={s.value: n for s, n in counts.items()},
     )
@@ -169,14 +169,14 @@ def panel_states(session: SessionDep, policy: PolicyDep, _: Reader) -> PanelStat
     response_class=Response,
     responses={**AUTH_ERRORS, **NOT_FOUND, **PANEL_IN_USE},
 )
-def retire_panel(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: Admin) -> Response:
+def retire_panel(panel_id: PanelId, session: SessionDep, timing: TimingDep, _: Admin) -> Response:
     """Retire a panel removed from the farm. Its open cleaning task is cancelled (outcome
     ``panel_retired``: no robot is sent to it, and one holding the task can neither complete
     nor fail it), no camera may be attached to it nor baseline trained for it (409
     ``panel_retired``), and it leaves the panel list (``?retired=true`` shows it). Its
     verdicts, baselines and tasks stay readable, and its id stays taken. Refused (409
     ``panel_in_use``) while cameras in service watch it. Retiring it again changes nothing."""
-    registry.retire_panel(session, panel_id, policy)
+    registry.retire_panel(session, panel_id, timing)
     return Response(status_code=204)
 
 
@@ -188,7 +188,7 @@ def _train_from_files(
     significance: float,
     shrinkage: float,
     max_pixels: int,
-    policy: Policy,
+    timing: Timing,
 ) -> BaselineOut:
     registry.panel_in_service(session, panel_id)
     camera = training.panel_camera(session, panel_id, camera_id)
@@ -204,7 +204,7 @@ def _train_from_files(
         shrinkage=shrinkage,
         frame_ids=None,
         roi=camera.region,
-        now=policy.now(),
+        now=timing.now(),
     )
     return baseline_out(row)
 
@@ -215,7 +215,7 @@ def _train_from_frames(
     frame_ids: list[str],
     significance: float,
     shrinkage: float,
-    policy: Policy,
+    timing: Timing,
 ) -> BaselineOut:
     registry.panel_in_service(session, panel_id)
     modes, region = training.modes_of_frames(session, panel_id, frame_ids)
@@ -227,7 +227,7 @@ def _train_from_frames(
         shrinkage=shrinkage,
         frame_ids=frame_ids,
         roi=region,
-        now=policy.now(),
+        now=timing.now(),
     )
     return baseline_out(row)
 
@@ -244,7 +244,7 @@ async def train_baseline(
     request: Request,
     session: SessionDep,
     settings: SettingsDep,
-    policy: PolicyDep,
+    timing: TimingDep,
     _: Admin,
     significance: Significance = 0.05,
     shrinkage: Shrinkage = 0.0,
@@ -269,7 +269,7 @@ async def train_baseline(
             significance,
             shrinkage,
             settings.max_pixels,
-            policy,
+            timing,
         )
     if kind == "application/json":
         body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
@@ -280,7 +280,7 @@ async def train_baseline(
             body.frame_ids,
             significance,
             shrinkage,
-            policy,
+            timing,
         )
     raise UnsupportedMediaType("send multipart/form-data (files) or application/json (frame_ids)")
 
@@ -325,13 +325,13 @@ def baseline_out(row: Baseline | None) -> BaselineOut:
     return out.model_copy(update={"warnings": [] if unfit is None else [warning_out(unfit)]})
 
 
-def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
+def status_out(status: panels.Status, timing: Timing) -> PanelStatus:
     last = None
     if status.last is not None:
         frame, verdict = status.last
         base: dict[str, Any] = verdict_out(verdict).model_dump()
         last = PanelVerdictSummary(**base, frame_id=frame.id, captured_at=frame.captured_at)
-    now = policy.now()
+    now = timing.now()
     return PanelStatus(
         panel_id=status.panel.id,
         state=status.state.value,
@@ -339,7 +339,7 @@ def status_out(status: panels.Status, policy: Policy) -> PanelStatus:
         open_task=TaskOut(**panels.task_view(status.task, now)) if status.task else None,
         ineffective=status.panel.ineffective,
         dirty_streak=status.panel.dirty_streak,
-        streak_needed=policy.debounce,
+        streak_needed=timing.debounce,
         retired_at=status.panel.retired_at,
         baseline_id=status.panel.baseline_id,
         trend=TrendOut.model_validate(status.trend),
@@ -380,10 +380,10 @@ def panel_history(
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
 def panel_status(
-    panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: AnyReader
+    panel_id: PanelId, session: SessionDep, timing: TimingDep, _: AnyReader
 ) -> PanelStatus:
     """The panel's state, last verdict, open task and soiling trend."""
-    return status_out(panels.panel_status(session, panel_id, policy), policy)
+    return status_out(panels.panel_status(session, panel_id, timing), timing)
 
 
 @router.get(
@@ -391,13 +391,13 @@ def panel_status(
     response_model=Trigger,
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
-def trigger(panel_id: PanelId, session: SessionDep, policy: PolicyDep, _: RobotOrAdmin) -> Trigger:
+def trigger(panel_id: PanelId, session: SessionDep, timing: TimingDep, _: RobotOrAdmin) -> Trigger:
     """Polled by the panel's cleaning mechanism: should it clean now? Read only."""
     lookup.get_panel(session, panel_id)
     task = panels.open_task(session, panel_id)
     if task is None:
         return Trigger(panel_id=panel_id, clean_now=False, task_id=None)
-    phase = panels.task_view(task, policy.now())["status"]
+    phase = panels.task_view(task, timing.now())["status"]
     return Trigger(panel_id=panel_id, clean_now=phase in ("pending", "claimed"), task_id=task.id)
 
 

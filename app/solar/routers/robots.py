@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query
 from fastapi.responses import Response
 
 from app.platform.frames import cameras
-from app.platform.http.deps import Admin, Limit, Offset, PolicyDep, RobotId, SessionDep
+from app.platform.http.deps import Admin, Limit, Offset, RobotId, SessionDep, TimingDep
 from app.platform.http.responses import (
     AUTH_ERRORS,
     CONFLICT,
@@ -77,9 +77,9 @@ def rotate_robot_token(robot_id: RobotId, session: SessionDep, _: Admin) -> Robo
     response_class=Response,
     responses={**AUTH_ERRORS, **NOT_FOUND},
 )
-def retire_robot(robot_id: RobotId, session: SessionDep, policy: PolicyDep, _: Admin) -> Response:
+def retire_robot(robot_id: RobotId, session: SessionDep, timing: TimingDep, _: Admin) -> Response:
     """Retire a robot taken out of service. Its token stops working at once, and the tasks it
     holds go back to the queue: another robot can claim them now rather than when their lease
     runs out. Its tasks' history stays; its id stays taken. Retiring it again changes nothing."""
-    registry.retire_robot(session, robot_id, policy)
+    registry.retire_robot(session, robot_id, timing)
     return Response(status_code=204)

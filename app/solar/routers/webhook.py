@@ -12,7 +12,7 @@ from sqlalchemy import select
 
 from app.platform import outbox
 from app.platform.db.models import OutboxMessage, WebhookSubscription
-from app.platform.http.deps import Admin, Limit, PolicyDep, SessionDep
+from app.platform.http.deps import Admin, Limit, SessionDep, TimingDep
 from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.http.responses import AUTH_ERRORS, NOT_FOUND, UNPROCESSABLE
 from app.platform.schemas import Out, Schema
@@ -55,12 +55,12 @@ def _out(row: WebhookSubscription) -> WebhookOut:
 
 
 @router.put("/webhook", response_model=WebhookOut, responses={**AUTH_ERRORS, **UNPROCESSABLE})
-def set_webhook(body: WebhookIn, session: SessionDep, policy: PolicyDep, _: Admin) -> WebhookOut:
+def set_webhook(body: WebhookIn, session: SessionDep, timing: TimingDep, _: Admin) -> WebhookOut:
     """Send the farm's events (tasks opened, claimed, completed, failed; cleanings effective
     or ineffective; baselines too broad) to ``url`` as Standard Webhooks, retried with backoff
     for 24 h. Events kept while no receiver was set are sent too, if not older than that."""
     try:
-        row = outbox.subscribe(session, TOPIC, body.url, body.secret, policy.now())
+        row = outbox.subscribe(session, TOPIC, body.url, body.secret, timing.now())
     except ValueError as exc:
         raise Unprocessable(str(exc), code="bad_webhook") from None
     return _out(row)

@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session
 
 from app.platform.http.errors import Conflict
 from app.platform.lookup import get_or_404
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 from app.solar.core.panel_state import TaskPhase, task_phase
 from app.solar.models import OPEN_TASK_STATUSES, CleaningTask, TaskStatus
 from app.solar.services import events
@@ -30,20 +30,20 @@ def _claimable(now: datetime) -> ColumnElement[bool]:
     )
 
 
-def _grant(session: Session, task: CleaningTask, robot_id: str, policy: Policy) -> CleaningTask:
-    now = policy.now()
+def _grant(session: Session, task: CleaningTask, robot_id: str, timing: Timing) -> CleaningTask:
+    now = timing.now()
     task.status = TaskStatus.claimed
     task.robot_id = robot_id
     task.claimed_at = now
-    task.lease_expires_at = now + policy.lease
+    task.lease_expires_at = now + timing.lease
     task.attempts += 1
     events.task_event(session, task, "task.claimed", now)
     return task
 
 
-def claim_next(session: Session, robot_id: str, policy: Policy) -> CleaningTask | None:
+def claim_next(session: Session, robot_id: str, timing: Timing) -> CleaningTask | None:
     """Give the oldest claimable task (pending, or its lease expired) to ``robot_id``."""
-    now = policy.now()
+    now = timing.now()
     task = session.scalars(
         select(CleaningTask)
         .where(_claimable(now))
@@ -51,25 +51,25 @@ def claim_next(session: Session, robot_id: str, policy: Policy) -> CleaningTask 
         .limit(1)
         .with_for_update(skip_locked=True)
     ).first()
-    return _grant(session, task, robot_id, policy) if task is not None else None
+    return _grant(session, task, robot_id, timing) if task is not None else None
 
 
 def _locked(session: Session, task_id: str) -> CleaningTask:
     return get_or_404(session, CleaningTask, task_id, "cleaning task", lock=True)
 
 
-def claim(session: Session, task_id: str, robot_id: str, policy: Policy) -> CleaningTask:
+def claim(session: Session, task_id: str, robot_id: str, timing: Timing) -> CleaningTask:
     """Claim a given task. Claiming one's own claimed task again renews the lease."""
     task = _locked(session, task_id)
-    phase = task_phase(task.status, task.lease_expires_at, policy.now())
+    phase = task_phase(task.status, task.lease_expires_at, timing.now())
     if phase is TaskPhase.pending or (phase is TaskPhase.claimed and task.robot_id == robot_id):
-        return _grant(session, task, robot_id, policy)
+        return _grant(session, task, robot_id, timing)
     if phase is TaskPhase.claimed:
         raise Conflict(f"task {task_id} is claimed by another robot", code="claimed_by_other")
     raise Conflict(f"task {task_id} is {task.status.value}; it cannot be claimed", code="closed")
 
 
-def complete(session: Session, task_id: str, robot_id: str, policy: Policy) -> CleaningTask:
+def complete(session: Session, task_id: str, robot_id: str, timing: Timing) -> CleaningTask:
     """The robot has cleaned the panel. Idempotent for the robot that did it.
 
     A robot whose lease ran out may still complete the task unless another robot has claimed it
@@ -83,14 +83,14 @@ def complete(session: Session, task_id: str, robot_id: str, policy: Policy) -> C
     if task.status is not TaskStatus.claimed:
         raise Conflict(f"task {task_id} is {task.status.value}; it cannot be completed")
     task.status = TaskStatus.completed
-    task.completed_at = policy.now()
+    task.completed_at = timing.now()
     task.lease_expires_at = None
     events.task_event(session, task, "task.completed", task.completed_at)
     return task
 
 
 def fail(
-    session: Session, task_id: str, robot_id: str, policy: Policy, reason: str | None
+    session: Session, task_id: str, robot_id: str, timing: Timing, reason: str | None
 ) -> CleaningTask:
     """The robot could not clean the panel: the task closes as failed. Idempotent.
 
@@ -106,17 +106,17 @@ def fail(
     task.status = TaskStatus.failed
     task.outcome = "failed"
     task.fail_reason = reason
-    task.closed_at = policy.now()
+    task.closed_at = timing.now()
     task.open_panel_id = None
     task.lease_expires_at = None
     events.task_event(session, task, "task.failed", task.closed_at)
     return task
 
 
-def release_all(session: Session, robot_id: str, policy: Policy) -> int:
+def release_all(session: Session, robot_id: str, timing: Timing) -> int:
     """End the leases of the tasks the robot holds: they can be claimed by another robot at
     once (as when a lease runs out). Returns how many."""
-    now = policy.now()
+    now = timing.now()
     held = session.scalars(
         select(CleaningTask)
         .where(

@@ -9,16 +9,16 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 from app.solar.models import CleaningTask
 from app.solar.services import panels
 
 
-def collect(session: Session, policy: Policy) -> Iterable[Metric]:
+def collect(session: Session, timing: Timing) -> Iterable[Metric]:
     states = GaugeMetricFamily(
         "vantage_panels", "Panels in service, by state now.", labels=["state"]
     )
-    for state, n in panels.state_counts(session, policy).items():
+    for state, n in panels.state_counts(session, timing).items():
         states.add_metric([state.value], n)
     yield states
     tasks = CounterMetricFamily(

@@ -19,7 +19,7 @@ from app.platform.frames.verdicts import stats_columns
 from app.platform.http.errors import NotFound
 from app.platform.lookup import get_or_404
 from app.platform.memo import ById
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 from app.solar.core import power
 from app.solar.core.fleet import Head, KernelModel, LogisticModel
 from app.solar.core.panel_state import (
@@ -86,11 +86,11 @@ def state_column(now: datetime, *, debounce: int, fleet_available: bool) -> Colu
     return case(*whens, else_=PanelState.clean)
 
 
-def _with_state(session: Session, policy: Policy) -> tuple[Select[Panel, str], ColumnElement[str]]:
+def _with_state(session: Session, timing: Timing) -> tuple[Select[Panel, str], ColumnElement[str]]:
     """Panels left-joined to their open task, with their state now (``state_column``)."""
     state = state_column(
-        policy.now(),
-        debounce=policy.debounce,
+        timing.now(),
+        debounce=timing.debounce,
         fleet_available=latest_fleet_model(session) is not None,
     ).label("state")
     q = select(Panel, state).outerjoin(CleaningTask, CleaningTask.open_panel_id == Panel.id)
@@ -99,7 +99,7 @@ def _with_state(session: Session, policy: Policy) -> tuple[Select[Panel, str], C
 
 def listed_with_state(
     session: Session,
-    policy: Policy,
+    timing: Timing,
     *,
     states: Sequence[PanelState],
     retired: bool,
@@ -107,7 +107,7 @@ def listed_with_state(
     offset: int,
 ) -> list[tuple[Panel, PanelState]]:
     """Panels by id, each with its state now; only those in ``states`` when given."""
-    q, state = _with_state(session, policy)
+    q, state = _with_state(session, timing)
     if not retired:
         q = q.where(Panel.retired_at.is_(None))
     if states:
@@ -116,15 +116,15 @@ def listed_with_state(
     return [(panel, PanelState(s)) for panel, s in rows]
 
 
-def state_now(session: Session, panel: Panel, policy: Policy) -> PanelState:
+def state_now(session: Session, panel: Panel, timing: Timing) -> PanelState:
     """One panel's state now (as its status reads)."""
-    q, _ = _with_state(session, policy)
+    q, _ = _with_state(session, timing)
     return PanelState(session.execute(q.where(Panel.id == panel.id)).one()[1])
 
 
-def state_counts(session: Session, policy: Policy) -> dict[PanelState, int]:
+def state_counts(session: Session, timing: Timing) -> dict[PanelState, int]:
     """How many panels in service are in each state now (every state, zeros included)."""
-    q, state = _with_state(session, policy)
+    q, state = _with_state(session, timing)
     counted = (
         q.with_only_columns(state, func.count()).where(Panel.retired_at.is_(None)).group_by(state)
     )
@@ -219,13 +219,13 @@ def apply_verdict(
     task: CleaningTask | None,
     clean: bool,
     now: datetime,
-    policy: Policy,
+    timing: Timing,
     *,
     fleet_available: bool,
 ) -> CleaningTask | None:
     """Run the state machine for one usable verdict; returns the panel's open task after it."""
     before = facts(panel, task, now, fleet_available=fleet_available)
-    t = on_verdict(before, clean, debounce=policy.debounce)
+    t = on_verdict(before, clean, debounce=timing.debounce)
     panel.dirty_streak, panel.last_clean, panel.ineffective = (
         t.dirty_streak,
         t.last_clean,
@@ -336,7 +336,7 @@ def baseline_unfit(row: Baseline) -> Unfit | None:
     return None
 
 
-def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> PanelVerdict:
+def classify_frame(session: Session, prepared: Prepared, timing: Timing) -> PanelVerdict:
     """A panel camera's verdict: the panel's own T² baseline of the camera's view (region),
     else the fleet model.
 
@@ -407,13 +407,13 @@ def classify_frame(session: Session, prepared: Prepared, policy: Policy) -> Pane
         panel.last_judged_at = frame.captured_at
         held = task
         task = apply_verdict(
-            session, panel, task, verdict.clean, now, policy, fleet_available=fleet_available
+            session, panel, task, verdict.clean, now, timing, fleet_available=fleet_available
         )
         if held is not None and held.outcome == "effective" and held.completed_at is not None:
             # the robot's cleaning teaches the fleet model: before it dirty, after it clean
             labels.learn_from_cleaning(session, panel.id, held.completed_at, frame, now)
     after = facts(panel, task, now, fleet_available=fleet_available)
-    verdict.state = state_of(after, debounce=policy.debounce).value
+    verdict.state = state_of(after, debounce=timing.debounce).value
     return verdict
 
 
@@ -473,9 +473,9 @@ def views(session: Session, panel: Panel, now: datetime) -> list[View]:
     return out
 
 
-def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
+def panel_status(session: Session, panel_id: str, timing: Timing) -> Status:
     panel = get_or_404(session, Panel, panel_id, "panel")
-    now = policy.now()
+    now = timing.now()
     task = open_task(session, panel_id)
     newest = session.get(Baseline, panel.baseline_id) if panel.baseline_id else None
     unfit = baseline_unfit(newest) if newest is not None else None
@@ -483,7 +483,7 @@ def panel_status(session: Session, panel_id: str, policy: Policy) -> Status:
         session
     ) is not None
     state = state_of(
-        facts(panel, task, now, fleet_available=fleet_available), debounce=policy.debounce
+        facts(panel, task, now, fleet_available=fleet_available), debounce=timing.debounce
     )
     seen = views(session, panel, now)
     warnings = {u.baseline_id: u for u in [unfit, *(v.unfit for v in seen)] if u is not None}

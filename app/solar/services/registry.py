@@ -9,7 +9,7 @@ from app.platform.auth import hash_token, new_token
 from app.platform.db.models import Camera
 from app.platform.frames.cameras import check_in_service, check_located, insert_new, retire_row
 from app.platform.http.errors import Conflict
-from app.platform.policy import Policy
+from app.platform.timing import Timing
 from app.solar.models import Panel, Robot, TaskStatus
 from app.solar.schemas import PanelCreate, PanelUpdate, RobotCreate
 from app.solar.services import cleaning, panels
@@ -40,7 +40,7 @@ def update_panel(session: Session, panel_id: str, data: PanelUpdate) -> Panel:
     return panel
 
 
-def retire_panel(session: Session, panel_id: str, policy: Policy) -> None:
+def retire_panel(session: Session, panel_id: str, timing: Timing) -> None:
     """Take a panel out of service (removed from the farm): its open cleaning task is cancelled
     (a robot holding it can neither complete nor fail it), and it leaves the default panel
     list. Its history stays and its id stays taken. Refused (409 ``panel_in_use``) while
@@ -61,7 +61,7 @@ def retire_panel(session: Session, panel_id: str, policy: Policy) -> None:
             "/cameras/{id} with panel_id) or retire them first",
             code="panel_in_use",
         )
-    now = policy.now()
+    now = timing.now()
     task = panels.open_task(session, panel_id, lock=True)
     if task is not None:
         panels.close_task(task, TaskStatus.cancelled, "panel_retired", now)
@@ -87,9 +87,9 @@ def rotate_robot_token(session: Session, robot_id: str) -> tuple[Robot, str]:
     return robot, token
 
 
-def retire_robot(session: Session, robot_id: str, policy: Policy) -> None:
+def retire_robot(session: Session, robot_id: str, timing: Timing) -> None:
     """Take the robot out of service: its token stops working, and the tasks it holds go back
     to the queue for the other robots. Its history stays. Retiring it again changes nothing."""
-    if retire_row(get_robot(session, robot_id), "vr", policy):
-        cleaning.release_all(session, robot_id, policy)
+    if retire_row(get_robot(session, robot_id), "vr", timing):
+        cleaning.release_all(session, robot_id, timing)
         session.flush()

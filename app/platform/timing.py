@@ -1,4 +1,5 @@
-"""Operational parameters the services need from the settings, and the clock."""
+"""When things happen: the clock, and the cleaning queue's two rules of time (after how many
+dirty verdicts a task opens, how long a robot's claim lasts), read from the settings once."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from app.platform.db.base import utcnow
 
 
 @dataclass(frozen=True, slots=True)
-class Policy:
+class Timing:
+    """The service's clock and the cleaning queue's timing rules, handed to every service."""
+
     debounce: int = 3
     """Consecutive dirty verdicts that open a cleaning task."""
     lease: timedelta = timedelta(minutes=10)
@@ -19,4 +22,5 @@ class Policy:
     """Now, in UTC; tests substitute a controllable clock."""
 
     def now(self) -> datetime:
+        """Now, in UTC (the clock's)."""
         return self.clock()
