@@ -9,23 +9,17 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.factories import Clock, bearer
+from tests.factories import bearer
 from tests.factories.solar import CLEAN_RGB, DUST, clean_set, post_frame, train
 
 
 @pytest.fixture
-def farm(client: TestClient, admin: dict[str, str], clock: Clock) -> dict[str, Any]:
-    body = {"id": "p1", "name": "A-7", "lat": 37.1, "lon": -2.3, "location": "row 3, string B"}
-    assert client.post("/panels", json=body, headers=admin).status_code == 201
+def farm(farm: dict[str, Any], client: TestClient, admin: dict[str, str]) -> dict[str, Any]:
+    """The solar tests' farm, its panel p1 named and placed, and a second panel p2."""
+    body = {"name": "A-7", "lat": 37.1, "lon": -2.3, "location": "row 3, string B"}
+    assert client.patch("/panels/p1", json=body, headers=admin).status_code == 200
     assert client.post("/panels", json={"id": "p2"}, headers=admin).status_code == 201
-    cam = client.post(
-        "/cameras", json={"id": "c1", "kind": "panel", "panel_id": "p1"}, headers=admin
-    ).json()
-    robots = {
-        rid: client.post("/robots", json={"id": rid}, headers=admin).json()["token"]
-        for rid in ("r1", "r2")
-    }
-    return {"camera": cam["token"], "robots": robots, "clock": clock}
+    return farm
 
 
 def test_the_streak_toward_the_trigger_is_shown(
