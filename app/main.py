@@ -47,7 +47,7 @@ from app.platform.http.security import SecurityHeaders, tile_source
 from app.platform.http.uploads import BodyLimitMiddleware
 from app.platform.observability import RequestIdMiddleware, configure_logging
 from app.platform.settings import Settings, get_settings
-from app.platform.state import AppState
+from app.platform.state import AppState, state_of
 from app.platform.timing import Timing
 from app.solar import kind as solar_kind
 from app.solar.router import router as solar_router
@@ -232,21 +232,15 @@ def add_middleware(app: FastAPI, settings: Settings) -> None:
     )
     app.add_middleware(CompressedReads)  # inside HEAD: a HEAD's Content-Length is its GET's
     app.add_middleware(HeadAsGet)  # inside the request log, which records HEAD as sent
-    app.add_middleware(AnonymousLimit, crowds=app_state_of(app).crowds)
+    app.add_middleware(AnonymousLimit, crowds=state_of(app).crowds)
     app.add_middleware(RequestIdMiddleware)  # outermost: it logs the 413s too
-
-
-def app_state_of(app: FastAPI) -> AppState:
-    state = app.state
-    assert isinstance(state, AppState)
-    return state
 
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Start: the data directory and the schema checked, orphans swept, the writer and the
     background loops started. Stop: the loops cancelled, the writer drained, all closed."""
-    state = app_state_of(app)
+    state = state_of(app)
     log.info("vantage %s starting", __version__, extra={"database": state.engine.dialect.name})
     await prepare_storage(state)
     state.writer.start()

@@ -69,21 +69,10 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
     )
 
 
-_OPENAPI: dict[str, Any] = {}
-"""The OpenAPI document, built by the first app of this worker: every app create_app makes
-has the same routes, and building the document (~0.4 s) for each test's app, as the query
-checks and the request log read it, was a tenth of the suite's time."""
-
-
 @pytest.fixture
 def app(settings: Settings, engine: Engine) -> Any:
     empty_tables(engine)
-    made = create_app(settings)
-    if "document" in _OPENAPI:
-        made.openapi_schema = _OPENAPI["document"]
-    else:
-        _OPENAPI["document"] = made.openapi()
-    return made
+    return create_app(settings)
 
 
 @pytest.fixture

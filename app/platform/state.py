@@ -60,8 +60,13 @@ class AppState(State):
     not name a room's types."""
 
 
-def app_state(conn: HTTPConnection) -> AppState:
-    """The state of the application serving ``conn``."""
-    state = conn.app.state
+def state_of(app: Any) -> AppState:
+    """The state of ``app`` (a FastAPI application made by ``create_app``)."""
+    state = app.state
     assert isinstance(state, AppState), "the app was not made by create_app"
     return state
+
+
+def app_state(conn: HTTPConnection) -> AppState:
+    """The state of the application serving ``conn``."""
+    return state_of(conn.app)

@@ -125,6 +125,13 @@ class Form:
     def files_of(self, field: str) -> list[tuple[str | None, bytes]]:
         return [(name, data) for f, name, data in self.files if f == field]
 
+    def required_files(self, field: str) -> list[tuple[str | None, bytes]]:
+        """``files_of(field)``; Unprocessable (``no_file``) when there is none."""
+        files = self.files_of(field)
+        if not files:
+            raise Unprocessable(f"multipart body has no file in field {field!r}", code="no_file")
+        return files
+
     def groups_of(self, files: int) -> list[str] | None:
         """The optional ``groups`` field: one name per file (a photo's day or panel), stripped
         as cut from a CSV; None when not sent. A count that differs from ``files`` or an empty
@@ -194,10 +201,7 @@ async def read_files(
 ) -> list[tuple[str | None, bytes]]:
     """The files of a multipart body's (repeated) ``field``: [(filename, bytes), ...]."""
     form = await read_form(request, limit, max_files=max_files, parts=(field,))
-    files = form.files_of(field)
-    if not files:
-        raise Unprocessable(f"multipart body has no file in field {field!r}", code="no_file")
-    return files
+    return form.required_files(field)
 
 
 RAW_JPEG_TYPES = frozenset({"image/jpeg", "image/jpg", "image/pjpeg", "application/octet-stream"})

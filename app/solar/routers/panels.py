@@ -39,7 +39,7 @@ from app.platform.http.responses import (
     UNPROCESSABLE,
     multipart_body,
 )
-from app.platform.http.uploads import content_type, read_files, read_form, read_json
+from app.platform.http.uploads import content_type, images_or_frames, read_form
 from app.platform.timing import Timing
 from app.solar.core.panel_state import PanelState
 from app.solar.kind import verdict_out
@@ -256,33 +256,37 @@ async def train_baseline(
 
     Multipart with repeated field ``files``, or JSON ``{"frame_ids": [...]}`` of stored frames.
     """
-    kind = content_type(request)
-    if kind == "multipart/form-data":
-        files = await read_files(request, "files", settings.max_upload_bytes, max_files=1000)
-        return await image_work(
-            request,
-            _train_from_files,
-            session,
-            panel_id,
-            camera_id,
-            files,
-            significance,
-            shrinkage,
-            settings.max_pixels,
-            timing,
-        )
-    if kind == "application/json":
-        body = await read_json(request, BaselineFromFrames, settings.max_body_bytes)
+    given = await images_or_frames(
+        request,
+        BaselineFromFrames,
+        upload_limit=settings.max_upload_bytes,
+        body_limit=settings.max_body_bytes,
+        max_files=1000,
+        parts=("files",),
+        expected="multipart/form-data (files) or application/json (frame_ids)",
+    )
+    if isinstance(given, BaselineFromFrames):
         return await run_in_threadpool(  # stored modes, no image: no image_work
             _train_from_frames,
             session,
             panel_id,
-            body.frame_ids,
+            given.frame_ids,
             significance,
             shrinkage,
             timing,
         )
-    raise UnsupportedMediaType("send multipart/form-data (files) or application/json (frame_ids)")
+    return await image_work(
+        request,
+        _train_from_files,
+        session,
+        panel_id,
+        camera_id,
+        given.required_files("files"),
+        significance,
+        shrinkage,
+        settings.max_pixels,
+        timing,
+    )
 
 
 @router.get(
