@@ -36,22 +36,17 @@ def _features(pixels: Pixels) -> NDArray[np.float64]:
     return airquality.sky_features(pixels.region, below, pixels.stats.histograms)
 
 
-NOT_SURE = "Not sure: the camera cannot judge the air with confidence from this frame"
-
-
-def category_message(category: str | None) -> str | None:
-    """The public message of a category (ch. 6: the screen below the camera)."""
-    return f"Today's Air Quality is {category}" if category else None
+NOT_SURE = "Not sure: the sky in this frame is unlike what the camera was calibrated on"
 
 
 def verdict_message(verdict: SkyVerdict) -> str | None:
-    """A frame's message: its category's, or that it is not sure (never a doubted guess),
-    naming the categories it is torn between when its interval spans them."""
-    if not verdict.uncertain:
-        return category_message(verdict.category)
-    if verdict.span:
-        return f"Not sure: the air is {airquality.span_words(verdict.span)}"
-    return NOT_SURE
+    """A frame's message (ch. 6: the screen below the camera): its category, "likely" when the
+    regression's probability of it is below ``public.SURE``; not sure only outside what was
+    calibrated (no category then)."""
+    if verdict.category is None:
+        return NOT_SURE if verdict.uncertain else None
+    likely = "likely " if verdict.uncertain else ""
+    return f"Today's Air Quality is {likely}{verdict.category}"
 
 
 def verdict_out(verdict: Verdict) -> SkyVerdictOut:
@@ -63,6 +58,7 @@ def verdict_out(verdict: Verdict) -> SkyVerdictOut:
         message=verdict_message(verdict),
         calibration_id=verdict.calibration_id,
         uncertain=bool(verdict.uncertain),
+        probability=verdict.probability,
         span=verdict.span,
         estimate=estimate_out(verdict),
         **verdict_common(verdict),

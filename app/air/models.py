@@ -35,8 +35,19 @@ class SkyVerdict(Verdict):
     smoothed_level: Mapped[float | None] = mapped_column(Float)
     """The camera's NowCast-style level after this frame (``airquality.nowcasts``)."""
     uncertain: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
-    """The regression doubted its level (``reason`` says why): the frame has no level and does
-    not move the camera's public one."""
+    """The regression doubted its category (``reason`` says why): its probability is below
+    ``public.SURE``, or the frame lies outside the calibration (no level then)."""
+    probability: Mapped[float | None] = mapped_column(Float)
+    """The probability of its category under the regression's predictive distribution."""
+    smoothed_estimate: Mapped[float | None] = mapped_column(Float)
+    smoothed_low: Mapped[float | None] = mapped_column(Float)
+    smoothed_high: Mapped[float | None] = mapped_column(Float)
+    """The camera's smoothed estimate after this frame and its range (``public.smooth``), in
+    ``estimate_unit``."""
+    smoothed_probability: Mapped[float | None] = mapped_column(Float)
+    """The probability of the smoothed level's category."""
+    poor_probability: Mapped[float | None] = mapped_column(Float)
+    """The smoothed probability of Poor or worse: what alerts follow."""
     estimate: Mapped[float | None] = mapped_column(Float)
     """The regression's estimate in ``estimate_unit`` (PM2.5 µg/m³, US AQI or level)."""
     estimate_low: Mapped[float | None] = mapped_column(Float)
@@ -104,6 +115,9 @@ class AirAlert(Base):
     """``raised`` or ``cleared``."""
     smoothed_level: Mapped[float] = mapped_column(Float)
     category: Mapped[str] = mapped_column(String(16))
+    probability: Mapped[float | None] = mapped_column(Float)
+    """The smoothed probability of Poor or worse that raised or cleared it (null: the
+    clusters' levels did)."""
     """The category entered (raised), or the category the air is back in (cleared)."""
     delivered: Mapped[bool] = mapped_column(Boolean, default=False)
     attempts: Mapped[int] = mapped_column(Integer, default=0)

@@ -77,6 +77,17 @@ class AirRegressionOut(Out):
         "one at a time to choose α and measure σ; null when images were left out.",
     )
     interval: float | None = Field(default=None, description="Coverage of its intervals.")
+    dof: float | None = Field(
+        default=None,
+        description="Degrees of freedom of its predictive t (n − tr(H)): with sigma, the "
+        "probabilities of its verdicts' categories.",
+    )
+    day_share: float | None = Field(
+        default=None,
+        description="The share of its held-out errors' variance that a day's frames have in "
+        "common (1: all of it, as assumed when images were left out): how much a camera's "
+        "smoothed range narrows as its frames accrue.",
+    )
     features: list[str] = Field(
         default_factory=list,
         description="The sky features it was fitted on, in order: a calibration made before "
@@ -107,46 +118,64 @@ class AirLatest(Out):
     lat: float | None = None
     lon: float | None = None
     level: int | None = Field(
-        description="The camera's public level: its smoothed level (NowCast-style weighted "
-        "average of the last 12 hours, as the map and the alerts use it) rounded, not the "
-        "latest frame's alone (frame_level). Null without a graded reading in the 3 hours "
-        "before the latest one."
+        description="The camera's public level: its smoothed reading (NowCast-style over the "
+        "last 12 hours, as the map and the alerts use it), not the latest frame's alone "
+        "(frame_level). Graded by a regression, the level of the most probable category's "
+        "estimate. Null without a graded reading in the 3 hours before the latest one."
     )
-    category: str | None = Field(description="The category of the public level.")
+    category: str | None = Field(
+        description="The public category: the most probable under the camera's smoothed "
+        "predictive distribution (a regression), else that of the smoothed level."
+    )
     message: str | None = Field(
-        description='Today\'s Air Quality is <category>; "No current reading: …" when the '
-        "latest frames are uncertain; null when the latest reading is not current."
+        description="What the public screen says, in public words: \"Today's Air Quality is "
+        'Fair", "… is likely Fair" when the category\'s probability is below 0.8, "Air '
+        'quality not measured here yet", or that there is no recent reading.'
     )
     captured_at: datetime | None = Field(description="When the latest reading was taken.")
     smoothed_level: float | None = Field(
         description="The public level unrounded; null when the latest reading is not current."
     )
     smoothed_category: str | None
+    probability: float | None = Field(
+        default=None,
+        description="The probability of the public category (a regression's readings); null "
+        "when not current or graded by the clusters.",
+    )
+    poor_probability: float | None = Field(
+        default=None,
+        description="The smoothed probability that the air is Poor or worse (what alerts follow).",
+    )
+    smoothed_estimate: SkyEstimate | None = Field(
+        default=None,
+        description="The camera's smoothed estimate (PM2.5 or AQI, the calibration's unit) "
+        'and its 80 % range: the screen\'s "PM2.5 about 22 µg/m³, 15–31".',
+    )
     frame_level: int | None = Field(
-        description="The latest frame's own grade (null when it could not be graded: reason; "
-        "when uncertain, the estimate's level, which the public level does not follow)."
+        description="The latest frame's own grade (null when it could not be graded, or lies "
+        "outside the calibration: reason)."
     )
     frame_category: str | None = Field(
-        description="The latest frame's category; null when ungraded or uncertain."
+        description="The latest frame's own most probable category; null when ungraded."
     )
     uncertain: bool = Field(
         default=False,
-        description="The latest frame was uncertain (reason says why): it left the public "
-        "level as it was.",
+        description="The public category's probability is below 0.8 (the message says "
+        '"likely"); without one, the latest frame was doubted (reason).',
     )
     span: list[str] | None = Field(
         default=None,
         description="[clearest, worst]: the categories the latest frame's interval spans when "
-        "it is uncertain for that reason and current (the message names them).",
+        "they differ and it is current.",
     )
     estimate: SkyEstimate | None = Field(
         default=None, description="The latest frame's regression estimate, if any."
     )
     reason: str | None
     current: bool = Field(
-        description="The latest reading was taken in the last 3 hours. When not, the level and"
-        " category are those of that reading's time (see captured_at), and message and the"
-        " smoothed level are null: they would speak of today's air."
+        description="The latest reading was taken in the last 3 hours (before at, when given). "
+        "When not, the level and category are those of that reading's time (see captured_at), "
+        "and the smoothed figures are null: they would speak of the air now."
     )
 
 
@@ -160,8 +189,9 @@ class AirReading(Out):
     reason: str | None
     uncertain: bool = Field(
         default=False,
-        description="The regression doubted this frame (reason): its level, if any, is the "
-        "estimate's, left out of the smoothed level, the aggregates and the map.",
+        description="The regression doubted this frame (reason): its category's probability "
+        "is below 0.8 (it counts, with that probability), or it lies outside the calibration "
+        "(no level: it counts nowhere).",
     )
     estimate: float | None = Field(
         default=None, description="The regression's estimate, in estimate_unit."
@@ -171,6 +201,20 @@ class AirReading(Out):
     estimate_unit: str | None = Field(default=None, description="pm25 [µg/m³], aqi or level.")
     calibration_id: str | None = Field(
         default=None, description="The calibration that graded it (re-grading changes it)."
+    )
+    probability: float | None = Field(
+        default=None, description="The probability of its category (a regression's)."
+    )
+    smoothed_estimate: float | None = Field(
+        default=None, description="The camera's smoothed estimate after it, in estimate_unit."
+    )
+    smoothed_low: float | None = Field(default=None, description="Its 80 % range's low end.")
+    smoothed_high: float | None = Field(default=None, description="Its high end.")
+    smoothed_probability: float | None = Field(
+        default=None, description="The probability of the smoothed level's category."
+    )
+    poor_probability: float | None = Field(
+        default=None, description="The smoothed probability of Poor or worse."
     )
 
 

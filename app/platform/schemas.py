@@ -290,16 +290,16 @@ class SkyVerdictOut(VerdictBase):
     kind: Literal["sky"] = "sky"
     level: int | None = Field(
         description="The frame's level 1–10; null when it could not be graded (reason) or lies "
-        "outside what the regression was calibrated on. When uncertain, the level of the "
-        "estimate, which the public level does not follow."
+        "outside what the regression was calibrated on."
     )
     category: str | None = Field(
-        description="The level's category; null when uncertain (the category is what is in "
-        "doubt) or ungraded."
+        description="The level's category: a regression's most probable one (see probability);"
+        " null when ungraded or outside the calibration."
     )
     message: str | None = Field(
-        description='"Today\'s Air Quality is <category>"; when uncertain, that the camera is '
-        "not sure, not the category (naming the categories of span when it has one)."
+        description='"Today\'s Air Quality is <category>", "… is likely <category>" when its '
+        "probability is below 0.8; that the camera is not sure when the frame lies outside "
+        "its calibration."
     )
     calibration_id: str | None = Field(
         default=None,
@@ -308,15 +308,20 @@ class SkyVerdictOut(VerdictBase):
     )
     uncertain: bool = Field(
         default=False,
-        description="The regression doubts this frame (reason says why): outside what it was "
-        "calibrated on (no level), or an 80 % interval across categories (the estimate's "
-        "level, to weigh with the interval). Either way the camera's public level, its "
-        "history and the map do not move.",
+        description="The regression doubts this frame (reason says why): its category's "
+        "probability is below 0.8 (it counts, with that probability, in the camera's public "
+        "reading, history and map), or it lies outside what it was calibrated on (no level: "
+        "it counts nowhere).",
+    )
+    probability: float | None = Field(
+        default=None,
+        description="The probability of category under the regression's predictive "
+        "distribution (null for the T² clusters).",
     )
     span: list[str] | None = Field(
         default=None,
-        description="[clearest, worst]: the categories an uncertain frame's 80 % interval "
-        'spans ("Not sure: the air is Good or Fair"); null otherwise.',
+        description="[clearest, worst]: the categories the frame's 80 % interval spans when "
+        "they differ; null otherwise.",
     )
     estimate: SkyEstimate | None = Field(
         default=None, description="The regression's estimate (null for the T² clusters)."

@@ -8,6 +8,7 @@ by ``npm ci`` into ``node_modules`` and served from there (no CDN at run time)."
 
 from __future__ import annotations
 
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -15,13 +16,14 @@ from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from pydantic import TypeAdapter, ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from app.air.core import airquality, isopleths
-from app.air.services import cameras
+from app.air.services import cameras, readings
 from app.air.services.map_picture import COLOURS
-from app.platform.http.deps import get_sessionmaker
-from app.platform.http.errors import NotFound
+from app.platform.http.deps import UtcTime, get_sessionmaker
+from app.platform.http.errors import NotFound, Unprocessable
 from app.platform.state import app_state
 
 HERE = Path(__file__).resolve().parent
@@ -39,6 +41,7 @@ VENDOR = {"leaflet": "leaflet/dist", "chart.js": "chart.js/dist"}
 
 templates = Jinja2Templates(directory=HERE / "templates")
 router = APIRouter(include_in_schema=False)
+_MOMENT: TypeAdapter[datetime] = TypeAdapter(UtcTime)
 
 
 def mount_static(app: FastAPI) -> None:
@@ -87,9 +90,20 @@ def city_map(request: Request) -> HTMLResponse:
 
 
 @router.get("/display/{camera_id}", response_class=HTMLResponse)
-async def display(request: Request, camera_id: str) -> HTMLResponse:
-    """The screen below a sky camera (ch. 6): today's category for people passing by. An
-    unknown camera is a page that says so (404)."""
+async def display(request: Request, camera_id: str, at: str | None = None) -> HTMLResponse:
+    """The screen below a sky camera (ch. 6): today's category for people passing by; with
+    ``at`` (RFC 3339, within the history kept), the screen as it was then. An unknown camera
+    is a page that says so (404), a moment the service cannot show one too (422)."""
+    if at is not None:
+        try:
+            moment = _MOMENT.validate_python(at)
+            state = app_state(request)
+            readings.check_moment(moment, state.timing.now(), readings.kept_days_of(state.settings))
+        except (ValidationError, Unprocessable) as exc:
+            why = exc.detail if isinstance(exc, Unprocessable) else "it is not an RFC 3339 time"
+            return _page(
+                request, "missing.html", status=422, title="No such moment", message=f"at: {why}"
+            )
 
     def find() -> str | None:
         with get_sessionmaker(request)() as session:
@@ -108,7 +122,7 @@ async def display(request: Request, camera_id: str) -> HTMLResponse:
             title="No such camera",
             message=f"There is no sky camera {camera_id!r}.",
         )
-    config = {"camera_id": camera_id, "name": name, "fresh_hours": _fresh_hours()}
+    config = {"camera_id": camera_id, "name": name, "fresh_hours": _fresh_hours(), "at": at}
     return _page(request, "display.html", title=f"Air quality — {name}", config=config)
 
 

@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
-from app.air.core import airquality, breakpoints
+from app.air.core import airquality, breakpoints, public
 
 SKY_ROWS = 50
 ROI = [0, 0, 160, SKY_ROWS]
@@ -120,8 +120,13 @@ def test_a_verdict_carries_pm25_with_its_interval(
             assert v["reason"].startswith("uncertain: ")
         if v["uncertain"] and "outside the calibration" in v["reason"]:
             assert v["level"] is None
-        else:  # sure, or doubted for an interval across categories: the estimate's level
-            assert v["level"] == breakpoints.level_of_pm25(e["value"])
+        else:  # the estimate's level, within the most probable category
+            own = breakpoints.level_of_pm25(e["value"])
+            assert airquality.category(v["level"]) == v["category"]
+            if airquality.category(own) == v["category"]:
+                assert v["level"] == own
+            else:  # the category's level nearest the estimate's
+                assert abs(v["level"] - own) == 1
     assert inside >= 4
 
 
@@ -129,8 +134,8 @@ def test_a_regression_grades_by_its_own_table(
     client: TestClient, admin: dict[str, str], station: dict[str, Any]
 ) -> None:
     """Calibrated with the European bands, it keeps them: a frame it is sure of gets the
-    European level of its estimate; one it doubts inside its range has an interval across two
-    of the index's categories."""
+    European level of its estimate; one it doubts inside its range names the likeliest of
+    the index's categories its interval reaches."""
     cal = calibrate(client, admin, station, table="eu_eaqi")
     assert cal["regression"]["breakpoints"] == "eu_eaqi"
     sure = []
@@ -141,8 +146,12 @@ def test_a_regression_grades_by_its_own_table(
         value = v["estimate"]["value"]
         if v["uncertain"] and "outside the calibration" not in v["reason"]:
             low, high = v["estimate"]["low"], v["estimate"]["high"]
-            cats = {(breakpoints.level_of_pm25(x, "eu_eaqi") + 1) // 2 for x in (low, high)}
-            assert len(cats) == 2, v  # its interval spans two of the index's categories
+            reached = {
+                airquality.category(breakpoints.level_of_pm25(x, "eu_eaqi"))
+                for x in (low, value, high)
+            }
+            assert v["probability"] < 0.8
+            assert v["category"] in reached, v
         elif not v["uncertain"]:
             assert v["level"] == breakpoints.level_of_pm25(value, "eu_eaqi")
             sure.append(value)
@@ -157,13 +166,16 @@ TRUTHS = (6.0, 8.0, 17.0, 30.0, 45.0, 55.0, 12.0, 25.0)
 """PM2.5 of the frames a doubted level is tested on [µg/m³]."""
 
 
-def test_a_doubted_level_is_said_but_moves_nothing(
+def test_a_doubted_frame_names_its_likeliest_category_and_counts(
     client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
 ) -> None:
-    """A frame whose interval spans two categories keeps the estimate's level, flagged
-    uncertain, with a message that is not sure; the smoothed levels, the hourly history and
-    the map are those of the sure frames alone."""
-    calibrate(client, admin, station, table="eu_eaqi")  # narrow categories: many doubts
+    """Every frame inside the calibration names its most probable category with its
+    probability, "likely" below 0.8; all of them count: the smoothed reading is the
+    predictive distributions' NowCast (``public.smooth``), the hourly history and the map take
+    every graded frame, and a doubted frame alone, hours later, still speaks on the screen."""
+    cal = calibrate(client, admin, station, table="eu_eaqi")  # narrow categories: doubts
+    reg = cal["regression"]
+    shape = public.Shape(reg["dof"], "pm25", "eu_eaqi", reg["day_share"])
     clock.now = START + timedelta(days=20)
     first = clock.now - timedelta(hours=2)
     verdicts = []
@@ -171,68 +183,75 @@ def test_a_doubted_level_is_said_but_moves_nothing(
         taken = first + timedelta(minutes=12 * k)
         v = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), taken)["verdict"]
         verdicts.append((taken, v))
-    doubted = [
-        v for _, v in verdicts if v["uncertain"] and "outside the calibration" not in v["reason"]
-    ]
-    sure = [(t, v) for t, v in verdicts if not v["uncertain"]]
+    graded = [(t, v) for t, v in verdicts if v["level"] is not None]
+    doubted = [v for _, v in graded if v["uncertain"]]
     assert doubted
-    assert len(sure) >= 2
-    for v in doubted:
-        assert v["level"] == breakpoints.level_of_pm25(v["estimate"]["value"], "eu_eaqi")
-        assert v["category"] is None  # the category is what is in doubt
-        # it names the categories its interval's ends fall in, clearest first
-        ends = [breakpoints.level_of_pm25(v["estimate"][k], "eu_eaqi") for k in ("low", "high")]
-        assert v["span"] == [airquality.category(ends[0]), airquality.category(ends[1])]
-        assert v["message"] == f"Not sure: the air is {airquality.span_words(v['span'])}"
-    assert all(v["span"] is None for _, v in sure)
-    expected = airquality.nowcasts(
-        [t for t, _ in sure], [float(v["level"]) for _, v in sure], [t for t, _ in verdicts]
-    )
+    assert len(graded) >= 6
+    for _, v in graded:
+        e = v["estimate"]
+        p = public.public(public.predictive_of(e["value"], e["low"], e["high"], shape))
+        assert v["category"] == p.category
+        assert v["probability"] == pytest.approx(p.probability, abs=1e-6)
+        assert v["uncertain"] is (p.probability < public.SURE)
+        likely = "likely " if v["uncertain"] else ""
+        assert v["message"] == f"Today's Air Quality is {likely}{v['category']}"
+    reads = [
+        public.Read(t, p.loc, p.scale)
+        for t, v in graded
+        for p in (public.predictive_of(*(v["estimate"][k] for k in ("value", "low", "high")), shape),)
+    ]
+    expected = [public.smooth(reads, t, shape) for t, _ in verdicts]
     readings = client.get(
         "/air/readings", params={"camera_id": "m", "since": first.isoformat(), "limit": 100}
     ).json()
     by_time = {datetime.fromisoformat(r["captured_at"]): r for r in readings}
-    for (taken, _), smoothed in zip(verdicts, expected, strict=True):
-        assert by_time[taken]["smoothed_level"] == pytest.approx(smoothed, rel=1e-12)
+    for (taken, _), p in zip(verdicts, expected, strict=True):
+        assert p is not None
+        said = public.public(p)
+        r = by_time[taken]
+        assert r["smoothed_estimate"] == pytest.approx(said.value, rel=1e-9)
+        assert (r["smoothed_low"], r["smoothed_high"]) == pytest.approx((said.low, said.high))
+        assert r["smoothed_probability"] == pytest.approx(said.probability, abs=1e-9)
+        assert r["poor_probability"] == pytest.approx(said.poor, abs=1e-9)
+        assert airquality.category(r["smoothed_level"]) == said.category
     hourly = client.get(
         "/air/readings",
         params={"camera_id": "m", "since": first.isoformat(), "aggregate": "hourly"},
     ).json()
-    assert sum(h["n"] for h in hourly) == len(sure)
-    assert sum(h["mean_level"] * h["n"] for h in hourly) == pytest.approx(
-        sum(v["level"] for _, v in sure)
-    )
-    # on the map: the newest reading's smoothed level; a doubted frame alone, hours later,
-    # with no sure reading before it to smooth with, does not put the camera on it
+    assert sum(h["n"] for h in hourly) == len(graded)  # the doubted ones count
+    # on the map: the newest reading's smoothed level
     place = {"lat": 45.46, "lon": 9.19}
     assert client.patch("/cameras/m", json=place, headers=admin).status_code == 200
     shown = client.get("/air/isopleths", params={"window": 3 * 3600}).json()["cameras"]
     assert [c["camera_id"] for c in shown] == ["m"]
-    assert shown[0]["level"] == pytest.approx(expected[-1], rel=1e-12)
-    k, _ = next((k, v) for k, (_, v) in enumerate(verdicts) if v in doubted)
-    clock.now += timedelta(hours=6)
-    truth = TRUTHS[k]
-    late = post(client, station["token"], hazy_jpeg(truth, seed=9100 + k), clock.now)
+    assert shown[0]["level"] == pytest.approx(by_time[verdicts[-1][0]]["smoothed_level"])
+    # a doubted frame alone, hours later: the screen names its likeliest category
+    k = next(k for k, (_, v) in enumerate(verdicts) if v in doubted)
+    clock.now += timedelta(hours=13)  # past the 12 hours smoothing weighs
+    late = post(client, station["token"], hazy_jpeg(TRUTHS[k], seed=9100 + k), clock.now)
     assert late["verdict"]["uncertain"] is True
-    assert late["verdict"]["level"] is not None
-    # the screen has no sure reading to show, and says which categories it is torn between
     latest = client.get("/air/cameras/m/latest").json()
-    assert (latest["level"], latest["current"]) == (None, True)
-    assert latest["span"] == late["verdict"]["span"]
-    assert latest["message"] == (
-        "No current reading: the camera is not sure whether the air is "
-        + airquality.span_words(latest["span"])
+    assert latest["current"] is True
+    assert latest["category"] == late["verdict"]["category"]
+    assert latest["probability"] == pytest.approx(late["verdict"]["probability"], abs=1e-6)
+    assert latest["uncertain"] is True
+    assert latest["message"] == f"Today's Air Quality is likely {latest['category']}"
+    e = latest["smoothed_estimate"]
+    assert e["unit"] == "pm25"
+    assert e["value"] == pytest.approx(late["verdict"]["estimate"]["value"], rel=1e-9)
+    assert (e["low"], e["high"]) == pytest.approx(
+        (late["verdict"]["estimate"]["low"], late["verdict"]["estimate"]["high"])
     )
     shown = client.get("/air/isopleths", params={"window": 3600}).json()["cameras"]
-    assert shown == []
+    assert [c["camera_id"] for c in shown] == ["m"]
 
 
 def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(
     client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
 ) -> None:
-    """A red sky the calibration never saw: uncertain (outside the calibration), no level;
-    the camera's public level is what the frames before it made it, and the message does
-    not guess when nothing sure is left."""
+    """A red sky the calibration never saw: uncertain (outside the calibration), no level
+    nor category; with nothing else recent, the screen says the camera cannot judge the air
+    now, in public words."""
     calibrate(client, admin, station)
     clock.now = START + timedelta(days=20)
     taken = clock.now - timedelta(minutes=5)
@@ -241,21 +260,22 @@ def test_a_frame_unlike_the_calibration_is_uncertain_and_moves_nothing(
     v = post(client, station["token"], hazy_jpeg(6.0, seed=2, sky=(230, 60, 40)), taken)
     odd = v["verdict"]
     assert odd["uncertain"] is True
-    assert odd["level"] is None
+    assert (odd["level"], odd["category"], odd["probability"]) == (None, None, None)
     assert odd["reason"].startswith("uncertain: outside the calibration")
+    assert odd["message"].startswith("Not sure")
     latest = client.get("/air/cameras/m/latest").json()
     assert latest["uncertain"] is True
     assert latest["frame_level"] is None
-    # the sure frame is 4 h old: not current, so no public level; the message says so
-    assert sure["verdict"]["uncertain"] is False
+    assert sure["verdict"]["level"] is not None
     assert before["current"] is False
     assert latest["level"] is None
     assert latest["message"] == (
-        "No current reading: the camera cannot judge the air with confidence now"
+        "The camera cannot judge the air now: its sky is unlike what it was calibrated on"
     )
+    assert "POST" not in latest["message"]
     assert odd["span"] is None  # outside: no categories offered
     assert latest["span"] is None
-    # an uncertain frame changes no smoothed level: it has the camera's, from before it
+    # it changes no smoothed reading: it has none (nothing graded in the 3 hours before)
     reading = client.get("/air/readings", params={"camera_id": "m", "limit": 1}).json()[0]
     assert reading["uncertain"] is True
     assert reading["smoothed_level"] is None

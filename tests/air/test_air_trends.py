@@ -309,7 +309,8 @@ def test_readings_and_their_means_as_csv(client: TestClient, engine: Engine) -> 
     assert list(rows[0]) == [
         "camera_id", "frame_id", "captured_at", "level", "category", "smoothed_level", "reason",
         "uncertain", "estimate", "estimate_low", "estimate_high", "estimate_unit",
-        "calibration_id",
+        "calibration_id", "probability", "smoothed_estimate", "smoothed_low", "smoothed_high",
+        "smoothed_probability", "poor_probability",
     ]  # fmt: skip
     assert rows == cells(first_json.json())
     assert [r["frame_id"] for r in rows] == ["f0000006", "f0000005", "f0000004", "f0000003"]

@@ -82,16 +82,21 @@ def test_regression_calibration(
         assert abs(e["value"] - level) <= 0.5
         assert e["low"] < e["value"] < e["high"]
         low, high = airquality.category(e["low"]), airquality.category(e["high"])
-        assert v["uncertain"] is (low != high)
-        # an interval across categories doubts the level, but still says the estimate's
-        assert v["level"] == round(e["value"])
-        if low == high:
+        # the most probable category, said plainly from a probability of 0.8
+        assert 0 < v["probability"] <= 1
+        assert v["uncertain"] is (v["probability"] < 0.8)
+        assert v["category"] in {low, high, airquality.category(e["value"])}
+        assert airquality.category(v["level"]) == v["category"]
+        assert abs(v["level"] - e["value"]) <= 1.5
+        if low == high:  # an interval within one category: that category, sure
+            assert v["category"] == low
+            assert v["uncertain"] is False
+        if v["uncertain"]:
+            assert v["reason"].startswith(f"uncertain: likely {v['category']}, probability")
+            assert v["message"] == f"Today's Air Quality is likely {v['category']}"
+        else:
             assert v["reason"] is None
             assert v["message"] == f"Today's Air Quality is {v['category']}"
-        else:
-            assert v["reason"].startswith("uncertain: the 80% interval")
-            assert v["category"] is None
-            assert v["message"].startswith("Not sure")
     # too few images for a regression
     r = client.post(
         "/air/calibration",

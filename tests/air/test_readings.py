@@ -101,7 +101,8 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
 ) -> None:
     """A camera's latest reading, hours old, keeps its level and time but no longer says
     "Today's Air Quality is ..." nor gives a smoothed level (NowCast wants a reading in the
-    last 3 hours). Before, a week-old reading read as today's."""
+    last 3 hours): the screen says, in its words, how old it is. Before, a week-old reading
+    read as today's."""
     calibrate(client, admin)
     post(client, city, "sky2", 10, seed=1)
     city["clock"].advance(hours=2, minutes=59)
@@ -115,7 +116,7 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
     assert quiet["current"] is False
     assert (quiet["level"], quiet["category"]) == (10, "Very Good")
     assert quiet["captured_at"] == fresh["captured_at"]
-    assert quiet["message"] is None
+    assert quiet["message"] == "No reading in the last 3 hours (the latest was taken 3 h ago)"
     assert quiet["smoothed_level"] is None
     assert quiet["smoothed_category"] is None
     assert quiet["reason"] == "no reading in the last 3 hours: the latest was taken 3 h ago"
@@ -129,3 +130,4 @@ def test_a_camera_gone_quiet_does_not_speak_of_today(
     nothing = client.get("/air/cameras/sky3/latest").json()
     assert nothing["current"] is False
     assert nothing["reason"] == "no frames yet"
+    assert nothing["message"] == "Air quality not measured here yet"

@@ -477,7 +477,7 @@ def groups_left_out(groups: Sequence[str] | None) -> int | None:
 
 
 @lru_cache(maxsize=256)
-def _t_quantile(dof: float) -> float:
+def t_quantile(dof: float) -> float:
     """Student's t quantile of the ``INTERVAL`` interval: one per calibration, not one SciPy
     call (~0.1 ms) per frame."""
     return float(t_dist.ppf((1 + INTERVAL) / 2, dof))
@@ -512,7 +512,11 @@ class Estimate:
     not an estimate with a wide interval."""
     span: tuple[str, str] | None = None
     """The clearest and the worst category of the interval when they differ (inside the
-    calibration): what the frame can say instead of a category."""
+    calibration)."""
+    loc: float = 0.0
+    scale: float | None = None
+    """The predictive t's centre and scale in the fitted unit (ln(1 + unit), or levels):
+    ŷ and σ·√(1 + 1/n + h); None for a model without an interval."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -538,6 +542,10 @@ class Regression:
     rest is extrapolation."""
     table: str = "us_epa"
     """The breakpoint table (``breakpoints.TABLES``) its PM2.5 estimates become levels by."""
+    day_share: float = 1.0
+    """The share of the held-out residuals' variance common to a day's frames (1 − the
+    within-day variance over the total; 1 when images, not days, were left out): how much
+    averaging a day's frames narrows an estimate's range (``public.smooth``)."""
     columns: tuple[int, ...] | None = None
     """Positions in a ``SKY_FEATURES`` vector of the features it was fitted on, in its order,
     when those are fewer (made before features were added); None: all of them."""
@@ -568,10 +576,10 @@ class Regression:
         value = self._out(y)
         level = level_of(value, self.unit, self.table)
         if self.gram_inv is None or self.sigma is None or self.max_leverage is None:
-            return Estimate(level, value, None, None, None, None)
+            return Estimate(level, value, None, None, None, None, loc=y)
         h = float(z @ self.gram_inv @ z)
-        half = _t_quantile(max(self.dof, 1.0)) * self.sigma
-        half *= float(np.sqrt(1 + 1 / max(self.n, 1) + h))
+        scale = self.sigma * float(np.sqrt(1 + 1 / max(self.n, 1) + h))
+        half = t_quantile(max(self.dof, 1.0)) * scale
         low, high = sorted((self._out(y - half), self._out(y + half)))
         uncertain = None
         outside = not np.isfinite(h) or h > self.max_leverage
@@ -585,7 +593,7 @@ class Regression:
         if not outside and category(worst) != category(clearest):
             span = (category(clearest), category(worst))
             uncertain = f"the {INTERVAL:.0%} interval spans {span[1]} to {span[0]}"
-        return Estimate(level, value, low, high, h, uncertain, outside, span)
+        return Estimate(level, value, low, high, h, uncertain, outside, span, y, scale)
 
 
 def fit_regression(
@@ -638,7 +646,14 @@ def fit_regression(
             m = RidgeCV(alphas=[alpha]).fit(z[~out], y[~out])
             held[out] = m.predict(z[out])
         residuals = y - held
+        within = sum(
+            float(((residuals[g == d] - residuals[g == d].mean()) ** 2).sum())
+            for d in set(g.tolist())
+        )
+        total = float(((residuals - residuals.mean()) ** 2).sum())
+        day_share = float(np.clip(1 - within / total, 0.0, 1.0)) if total > 0 else 1.0
     else:
+        day_share = 1.0
         # the closed-form leave-one-out residual (hat value with the intercept's 1/n)
         residuals = (y - fitted) / np.maximum(1 - lev - 1 / n, 1e-6)
     dof = max(n - 1 - float(lev.sum()), 1.0)
@@ -654,5 +669,6 @@ def fit_regression(
         dof=dof,
         max_leverage=float(np.max(lev / np.maximum(1 - lev - 1 / n, 1e-6))),
         table=table,
+        day_share=day_share,
     )
     return reg, alpha

@@ -13,12 +13,13 @@ from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
 from app.air.core import isopleths
-from app.air.services import maps
+from app.air.services import maps, readings
 from app.air.services.map_cache import MapCache
 from app.air.services.maps import MapQuery
 from app.platform.http.compression import accepts_gzip
 from app.platform.http.crowds import Crowds
 from app.platform.http.deps import (
+    SettingsDep,
     TimingDep,
     UtcTime,
     get_principal,
@@ -101,6 +102,8 @@ ANONYMOUS_WINDOW = 86_400
 
 def _map_query(
     request: Request,
+    timing: TimingDep,
+    settings: SettingsDep,
     bbox: Bbox = None,
     window: Window = 3600,
     method: Method = "idw",
@@ -116,6 +119,8 @@ def _map_query(
     window to the minute, max_distance to 100 m, the resolution to a multiple of 16. A
     token given must be valid (401)."""
     box = _bbox(bbox)
+    if at is not None:  # within the history kept (422 otherwise)
+        readings.check_moment(at, timing.now(), readings.kept_days_of(settings))
     crowds: Crowds = app_state(request).crowds
     anonymous = crowds.anonymous(request.scope)
     if anonymous and request.headers.get("authorization"):

@@ -25,8 +25,10 @@ from app.platform.http.deps import (
     Limit,
     Offset,
     SessionDep,
+    SettingsDep,
     TimeRangeQuery,
     TimingDep,
+    UtcTime,
     image_work,
     public_read,
     public_work,
@@ -49,31 +51,60 @@ PUBLIC_MAX_OFFSET = 100_000
 a city's readings is a cursor's job."""
 
 
-@router.get("/cameras/{camera_id}/latest", response_model=AirLatest, responses=NOT_FOUND)
-def latest(camera_id: CameraId, session: SessionDep, timing: TimingDep) -> AirLatest:
-    """A sky camera's latest reading: level, category, message, and the smoothed level; the
-    message and the smoothed level only while the reading is current (taken in the last 3 h)."""
-    place, found = sky_readings.latest_of(session, camera_id)
-    return sky_readings.latest_out(place, found, timing.now())
+Moment = Annotated[
+    UtcTime | None,
+    Query(
+        description="The reading as it was at this moment (RFC 3339), within the history kept "
+        "(422 before it or in the future). Default: now."
+    ),
+]
+
+
+@router.get(
+    "/cameras/{camera_id}/latest",
+    response_model=AirLatest,
+    responses={**NOT_FOUND, **UNPROCESSABLE},
+)
+def latest(
+    camera_id: CameraId,
+    session: SessionDep,
+    timing: TimingDep,
+    settings: SettingsDep,
+    at: Moment = None,
+) -> AirLatest:
+    """A sky camera's public reading: the most probable category, its probability, the
+    estimate and its range, and what the screen says; the smoothed figures only while the
+    latest reading is current (taken in the 3 h before now, or before ``at``)."""
+    moment = sky_readings.check_moment(at, timing.now(), sky_readings.kept_days_of(settings))
+    place, found = sky_readings.latest_of(session, camera_id, at)
+    return sky_readings.latest_out(place, found, moment)
 
 
 @router.get("/latest", response_model=list[AirLatest], responses={**NOT_FOUND, **UNPROCESSABLE})
 async def latest_of_every_camera(
     request: Request,
     timing: TimingDep,
+    settings: SettingsDep,
     camera_id: IdsFilter = None,
     limit: Limit = 1000,
     offset: Offset = 0,
+    at: Moment = None,
 ) -> list[AirLatest]:
     """Every sky camera in service, by id, with its latest reading as ``/cameras/{id}/latest``
     gives it (a dashboard's list of the city's cameras in one request, not one per camera);
-    with ``camera_id``, those cameras (a district's)."""
+    with ``camera_id``, those cameras (a district's); with ``at``, as they were then."""
+    moment = sky_readings.check_moment(at, timing.now(), sky_readings.kept_days_of(settings))
     rows = await public_read(
         request,
-        partial(sky_readings.latest_of_every, limit=limit, offset=offset, camera_ids=camera_id),
+        partial(
+            sky_readings.latest_of_every,
+            limit=limit,
+            offset=offset,
+            camera_ids=camera_id,
+            at=at,
+        ),
     )
-    now = timing.now()
-    return [sky_readings.latest_out(place, found, now) for place, found in rows]
+    return [sky_readings.latest_out(place, found, moment) for place, found in rows]
 
 
 @router.get(
@@ -106,7 +137,9 @@ CSV_CONTENT = {
     "text/csv": {
         "schema": {"type": "string"},
         "example": "camera_id,frame_id,captured_at,level,category,smoothed_level,reason,"
-        "uncertain,estimate,estimate_low,estimate_high,estimate_unit,calibration_id\r\n",
+        "uncertain,estimate,estimate_low,estimate_high,estimate_unit,calibration_id,"
+        "probability,smoothed_estimate,smoothed_low,smoothed_high,smoothed_probability,"
+        "poor_probability\r\n",
     }
 }
 

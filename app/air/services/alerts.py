@@ -8,20 +8,30 @@ from datetime import datetime
 
 from sqlalchemy import (
     Row,
+    and_,
+    or_,
     select,
 )
 from sqlalchemy.orm import Session
 
-from app.air.core import airquality
+from app.air.core import airquality, public
 from app.air.models import AirAlert, SkyVerdict
 from app.air.services.cameras import sky_cameras
 from app.platform.db.models import Frame
 
 
 def alert_row(
-    camera_id: str, frame_id: str, at: datetime, kind: str, level: float, category: str
+    camera_id: str,
+    frame_id: str,
+    at: datetime,
+    kind: str,
+    level: float,
+    category: str,
+    *,
+    probability: float | None = None,
 ) -> AirAlert:
     return AirAlert(
+        probability=probability,
         id=str(uuid.uuid4()),
         camera_id=camera_id,
         frame_id=frame_id,
@@ -35,12 +45,20 @@ def alert_row(
 
 
 def public_level_changed(
-    session: Session, camera_id: str, reading_id: str, level: float, at: datetime
+    session: Session,
+    camera_id: str,
+    reading_id: str,
+    level: float,
+    at: datetime,
+    *,
+    poor: float | None = None,
 ) -> list[AirAlert]:
     """The alert called for when a camera's public level (its newest reading's smoothed level)
     becomes ``level`` through a reading taken before it that arrived after it (a backlog sent
     newest first): raised when the level is in an alert category that no open episode has
-    raised yet (as bad or worse), cleared when it is back to ``CLEAR_LEVEL`` in an open one.
+    raised yet (as bad or worse), cleared when it is back to ``CLEAR_LEVEL`` in an open one;
+    by the smoothed probability of Poor or worse, ``poor``, when a regression grades it
+    (``public.ALERT_RAISE``, ``public.ALERT_CLEAR``).
     The late reading's own hours are history and raise nothing; without this, a backlog sent
     newest first whose newest frame alone read Fair, the hours before it Poor, left the camera
     public Poor with no alert ever raised."""
@@ -48,6 +66,13 @@ def public_level_changed(
     last = _last_alert(session, camera_id)
     episode = last if last is not None and last.kind == "raised" else None  # still open
     severity = airquality.ALERT_CATEGORIES.index
+    if poor is not None:
+        if poor >= public.ALERT_RAISE and episode is None:
+            worse = name if name in airquality.ALERT_CATEGORIES else "Poor"
+            return [alert_row(camera_id, reading_id, at, "raised", level, worse, probability=poor)]
+        if poor <= public.ALERT_CLEAR and episode is not None:
+            return [alert_row(camera_id, reading_id, at, "cleared", level, name, probability=poor)]
+        return []
     if name in airquality.ALERT_CATEGORIES:
         if episode is not None and severity(episode.category) >= severity(name):
             return []
@@ -71,8 +96,9 @@ def _last_alert(session: Session, camera_id: str) -> Row[str, str, datetime] | N
 
 
 def in_episode(session: Session, frame: Frame) -> bool:
-    """Whether the camera's last alert was raised and no reading at ``CLEAR_LEVEL`` has been
-    taken since (before ``frame``): an episode of bad air not yet cleared. (Without the
+    """Whether the camera's last alert was raised and no clear reading (at ``CLEAR_LEVEL``,
+    or, with a probability of Poor or worse, at ``public.ALERT_CLEAR``) has been taken since
+    (before ``frame``): an episode of bad air not yet cleared. (Without the
     second test, alerts raised before cleared ones existed would each be cleared by the next
     clean frame, months after their air had cleared.)"""
     last = _last_alert(session, frame.camera_id)
@@ -85,7 +111,13 @@ def in_episode(session: Session, frame: Frame) -> bool:
             Frame.camera_id == frame.camera_id,
             Frame.captured_at > last.captured_at,
             Frame.captured_at < frame.captured_at,
-            SkyVerdict.smoothed_level >= airquality.CLEAR_LEVEL,
+            or_(
+                SkyVerdict.poor_probability <= public.ALERT_CLEAR,
+                and_(
+                    SkyVerdict.poor_probability.is_(None),
+                    SkyVerdict.smoothed_level >= airquality.CLEAR_LEVEL,
+                ),
+            ),
         )
         .limit(1)
     )

@@ -321,6 +321,7 @@ def fit_regression(
         "sigma": model.sigma,
         "dof": model.dof,
         "max_leverage": model.max_leverage,
+        "day_share": model.day_share,
         "interval": airquality.INTERVAL,
         "sigma_from": "images left out" if left_out is None else "days left out",
         "groups": left_out,
@@ -358,6 +359,7 @@ def _read_regression(r: dict[str, Any] | None) -> airquality.Regression | None:
         dof=float(r.get("dof", 1.0)),
         max_leverage=r.get("max_leverage"),
         table=str(r.get("breakpoints", "us_epa")),  # made before the choice: the EPA's
+        day_share=float(r.get("day_share", 1.0)),  # made before it was measured: all shared
         columns=None if fitted_on == names else tuple(names.index(n) for n in fitted_on),
     )
 

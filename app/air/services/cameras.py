@@ -8,7 +8,6 @@ from dataclasses import dataclass
 from sqlalchemy import (
     ColumnElement,
     Select,
-    and_,
     select,
 )
 from sqlalchemy.orm import Session
@@ -62,14 +61,15 @@ class Place:
 Reading = tuple[Frame, SkyVerdict]
 
 
-TRUSTED = and_(SkyVerdict.level.is_not(None), SkyVerdict.uncertain.is_(False))
-"""A reading whose level counts: graded, and not doubted. An uncertain reading's level is
-shown with it but moves neither the camera's public level, its history nor the map."""
+TRUSTED = SkyVerdict.level.is_not(None)
+"""A reading whose level counts: graded (a frame outside its calibration has no level). A
+reading the regression is unsure of counts with its probability: doubt is said, not
+silenced."""
 
 
-def trusted(level: int | None, uncertain: bool | None) -> bool:
+def trusted(level: int | None) -> bool:
     """``TRUSTED`` for a row already read."""
-    return level is not None and not uncertain
+    return level is not None
 
 
 def with_verdicts(which: ColumnElement[bool]) -> Select[Frame, SkyVerdict]:

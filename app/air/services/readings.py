@@ -18,38 +18,71 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import QueryableAttribute, Session
 
-from app.air.core import airquality
+from app.air.core import airquality, public
 from app.air.models import SkyVerdict
 from app.air.schemas import (
     AirLatest,
     AirReading,
 )
 from app.air.services.cameras import TRUSTED, Place, Reading, sky_camera, sky_cameras, with_verdicts
+from app.air.services.grading import NOT_CALIBRATED
 from app.platform.db.base import time_slot
 from app.platform.db.models import Camera, CameraKind, Frame
+from app.platform.frames import retention
 from app.platform.frames.cameras import NEWEST_FIRST, FrameKey, after, taken_in
+from app.platform.http.errors import Unprocessable
 from app.platform.schemas import SkyEstimate
+from app.platform.settings import Settings
 
 
-def latest_of(session: Session, camera_id: str) -> tuple[Place, Reading | None]:
-    """The sky camera (404 when there is none) and its latest reading, if any."""
+def kept_days_of(settings: Settings) -> float:
+    """How far back the service keeps readings [d] (``retention.kept_days``)."""
+    return retention.kept_days(settings.frame_retention_days, settings.history_retention_days)
+
+
+def check_moment(at: datetime | None, now: datetime, kept_days: float) -> datetime:
+    """The moment a public reading is asked of (``?at=``): now by default; 422 ``bad_time``
+    for one in the future or before the history kept (``kept_days``)."""
+    if at is None:
+        return now
+    if at > now:
+        raise Unprocessable(f"at {at.isoformat()} lies in the future", code="bad_time")
+    if at < now - timedelta(days=kept_days):
+        raise Unprocessable(
+            f"at {at.isoformat()} is more than {kept_days:g} days ago, before the history "
+            "this service keeps",
+            code="bad_time",
+        )
+    return at
+
+
+def latest_of(
+    session: Session, camera_id: str, at: datetime | None = None
+) -> tuple[Place, Reading | None]:
+    """The sky camera (404 when there is none) and its latest reading (taken at or before
+    ``at``, when given), if any."""
     camera = sky_camera(session, camera_id)
     place = Place(camera.id, camera.name, camera.lat, camera.lon)
     row = session.execute(
-        with_verdicts(Frame.id == _newest_reading(camera_id).scalar_subquery())
+        with_verdicts(Frame.id == _newest_reading(camera_id, at).scalar_subquery())
     ).first()
     return place, ((row[0], row[1]) if row else None)
 
 
 def latest_of_every(
-    session: Session, *, limit: int, offset: int, camera_ids: Sequence[str] | None = None
+    session: Session,
+    *,
+    limit: int,
+    offset: int,
+    camera_ids: Sequence[str] | None = None,
+    at: datetime | None = None,
 ) -> list[tuple[Place, Reading | None]]:
     """Each sky camera in service (by id, a page of them), or each of ``camera_ids`` (retired
     ones too: they were asked for), with its latest reading, if any: one statement, an index
     lookup per camera for its newest graded frame; then those frames. 404 for ids in
     ``camera_ids`` that name no sky camera."""
     sky_cameras(session, camera_ids)
-    newest = _newest_reading(Camera.id).correlate(Camera).scalar_subquery()
+    newest = _newest_reading(Camera.id, at).correlate(Camera).scalar_subquery()
     which = Camera.retired_at.is_(None) if camera_ids is None else Camera.id.in_(camera_ids)
     page = session.execute(
         select(Camera.id, Camera.name, Camera.lat, Camera.lon, newest)
@@ -63,15 +96,16 @@ def latest_of_every(
     return [(Place(cid, name, lat, lon), found.get(cid)) for cid, name, lat, lon, _ in page]
 
 
-def _newest_reading(camera_id: str | QueryableAttribute[str]) -> Select[str]:
-    """The id of the camera's newest graded frame (the (camera_id, captured_at) index)."""
-    return (
-        select(Frame.id)
-        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
-        .where(Frame.camera_id == camera_id)
-        .order_by(Frame.captured_at.desc(), Frame.received_at.desc())
-        .limit(1)
-    )
+def _newest_reading(
+    camera_id: str | QueryableAttribute[str], at: datetime | None = None
+) -> Select[str]:
+    """The id of the camera's newest graded frame, taken at or before ``at`` when given (the
+    (camera_id, captured_at) index)."""
+    q = select(Frame.id).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+    q = q.where(Frame.camera_id == camera_id)
+    if at is not None:
+        q = q.where(Frame.captured_at <= at)
+    return q.order_by(Frame.captured_at.desc(), Frame.received_at.desc()).limit(1)
 
 
 def readings(
@@ -101,6 +135,12 @@ def readings(
         SkyVerdict.estimate_high,
         SkyVerdict.estimate_unit,
         SkyVerdict.calibration_id,
+        SkyVerdict.probability,
+        SkyVerdict.smoothed_estimate,
+        SkyVerdict.smoothed_low,
+        SkyVerdict.smoothed_high,
+        SkyVerdict.smoothed_probability,
+        SkyVerdict.poor_probability,
     ).join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
     q = q.where(*taken_in(camera_ids, since, until), *after(cursor))
     return session.execute(q.order_by(*NEWEST_FIRST).limit(limit).offset(offset)).all()
@@ -134,6 +174,12 @@ def reading_out(r: Any) -> AirReading:
         estimate_high=r.estimate_high,
         estimate_unit=r.estimate_unit,
         calibration_id=r.calibration_id,
+        probability=r.probability,
+        smoothed_estimate=r.smoothed_estimate,
+        smoothed_low=r.smoothed_low,
+        smoothed_high=r.smoothed_high,
+        smoothed_probability=r.smoothed_probability,
+        poor_probability=r.poor_probability,
     )
 
 
@@ -267,6 +313,9 @@ def _fixed(t: datetime) -> datetime:
 
 
 def latest_out(place: Place, found: tuple[Frame, SkyVerdict] | None, now: datetime) -> AirLatest:
+    """The camera's public reading at ``now`` from its latest reading (``found``): the
+    smoothed reading while current (taken in the last ``airquality.FRESH``), with its
+    probability and range; what the screen says (``message``) in public words."""
     if found is None:
         return AirLatest(
             camera_id=place.camera_id,
@@ -275,7 +324,7 @@ def latest_out(place: Place, found: tuple[Frame, SkyVerdict] | None, now: dateti
             lon=place.lon,
             level=None,
             category=None,
-            message=None,
+            message=NOT_MEASURED,
             captured_at=None,
             smoothed_level=None,
             smoothed_category=None,
@@ -290,9 +339,10 @@ def latest_out(place: Place, found: tuple[Frame, SkyVerdict] | None, now: dateti
     # the public level is the smoothed one (the map's and the alerts'), not the latest
     # frame's: one hazy frame said "Today's Air Quality is Poor" while the map, from the
     # same readings, drew the camera Fair
-    public = v.smoothed_level
-    level = airquality.rounded(public) if public is not None else None
-    category = airquality.category(public) if public is not None else None
+    level_now = v.smoothed_level
+    level = airquality.rounded(level_now) if level_now is not None else None
+    category = airquality.category(level_now) if level_now is not None else None
+    probability = v.smoothed_probability if level_now is not None else None
     return AirLatest(
         camera_id=place.camera_id,
         name=place.name,
@@ -300,13 +350,16 @@ def latest_out(place: Place, found: tuple[Frame, SkyVerdict] | None, now: dateti
         lon=place.lon,
         level=level,
         category=category,
-        message=_message(category, current, v),
+        message=_message(category, probability, current, v, age),
         captured_at=frame.captured_at,
-        smoothed_level=public if current else None,
+        smoothed_level=level_now if current else None,
         smoothed_category=category if current else None,
+        probability=probability if current else None,
+        poor_probability=v.poor_probability if current else None,
+        smoothed_estimate=_smoothed_estimate(v) if current else None,
         frame_level=v.level,
         frame_category=v.category,
-        uncertain=v.uncertain,
+        uncertain=(probability < public.SURE) if probability is not None else bool(v.uncertain),
         span=v.span if current else None,
         estimate=estimate_out(v),
         reason=v.reason
@@ -316,26 +369,44 @@ def latest_out(place: Place, found: tuple[Frame, SkyVerdict] | None, now: dateti
     )
 
 
+def _smoothed_estimate(v: SkyVerdict) -> SkyEstimate | None:
+    """The camera's smoothed estimate with its range, if a regression grades it."""
+    if v.smoothed_estimate is None or v.estimate_unit is None:
+        return None
+    return SkyEstimate(
+        unit=v.estimate_unit, value=v.smoothed_estimate, low=v.smoothed_low, high=v.smoothed_high
+    )
+
+
 def _ago(age: timedelta) -> str:
     """How long ago, as a person says it: hours up to two days, then days."""
     hours = age / timedelta(hours=1)
     return f"{hours:.0f} h ago" if hours < 48 else f"{age / timedelta(days=1):.0f} days ago"
 
 
-def _message(category: str | None, current: bool, v: SkyVerdict) -> str | None:
-    """The public message: today's category; when the camera has no current public level
-    because its latest frames are uncertain, that it is not sure, not a guess, and which
-    categories its latest frame is torn between."""
-    if current and category:
-        return airquality.message(category)
-    if current and v.uncertain and v.span:
-        return (
-            "No current reading: the camera is not sure whether the air is "
-            f"{airquality.span_words(v.span)}"
-        )
-    if current and v.uncertain:
-        return "No current reading: the camera cannot judge the air with confidence now"
-    return None
+NOT_MEASURED = "Air quality not measured here yet"
+"""What the screen of a camera without a calibration, or without frames, says."""
+
+
+def _message(
+    category: str | None,
+    probability: float | None,
+    current: bool,
+    v: SkyVerdict,
+    age: timedelta,
+) -> str:
+    """What the public screen says, in its words (never the API's): today's category, "likely"
+    when its probability is below ``public.SURE``; that the air is not measured yet (no
+    calibration); that the camera cannot judge it now (every recent frame outside what it was
+    calibrated on, or unusable); or that it has no reading in the last hours."""
+    if not current:
+        return f"No reading in the last 3 hours (the latest was taken {_ago(age)})"
+    if category is not None:
+        likely = "likely " if probability is not None and probability < public.SURE else ""
+        return f"Today's Air Quality is {likely}{category}"
+    if v.calibration_id is None and v.reason == NOT_CALIBRATED:
+        return NOT_MEASURED
+    return "The camera cannot judge the air now: its sky is unlike what it was calibrated on"
 
 
 SKY_WIDTH = 480
