@@ -195,11 +195,12 @@ def test_a_doubted_frame_names_its_likeliest_category_and_counts(
         assert v["uncertain"] is (p.probability < public.SURE)
         likely = "likely " if v["uncertain"] else ""
         assert v["message"] == f"Today's Air Quality is {likely}{v['category']}"
-    reads = [
-        public.Read(t, p.loc, p.scale)
-        for t, v in graded
-        for p in (public.predictive_of(*(v["estimate"][k] for k in ("value", "low", "high")), shape),)
-    ]
+
+    def read(taken: datetime, e: dict[str, float]) -> public.Read:
+        p = public.predictive_of(e["value"], e["low"], e["high"], shape)
+        return public.Read(taken, p.loc, p.scale)
+
+    reads = [read(t, v["estimate"]) for t, v in graded]
     expected = [public.smooth(reads, t, shape) for t, _ in verdicts]
     readings = client.get(
         "/air/readings", params={"camera_id": "m", "since": first.isoformat(), "limit": 100}
