@@ -303,7 +303,7 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     column = args.column or args.reference
     paths, values, groups = _labelled(args.folder, args.labels, column, args.groups)
     data = {args.reference: values, **({"groups": groups} if groups else {})}
-    params: dict[str, Any] = {"method": args.method}
+    params: dict[str, Any] = {"method": args.method} if args.method else {}
     if args.breakpoints:
         params["breakpoints"] = args.breakpoints
     if args.applies_to:
@@ -320,10 +320,17 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
     body = r.json()
     _warn(body)
     graded = ", ".join(body.get("camera_ids") or []) or "every sky camera without its own"
+    chosen = body.get("selection")
+    why = ""
+    if chosen:
+        scores = ", ".join(
+            f"{m} {v:.2f}" if v is not None else f"{m} unfit" for m, v in chosen["scores"].items()
+        )
+        why = f"; chosen by {chosen['score']}: {scores}"
     _say(
         args,
         f"calibration {body['id']} ({body['method']}) from {body['n_images']} images, "
-        f"grading {graded}",
+        f"grading {graded}{why}",
         body,
     )
 
@@ -486,7 +493,12 @@ def _training_commands(sub: Any) -> None:
         "out at a time to choose its penalty and measure its interval (near-duplicate photos "
         "of one day otherwise make it too narrow)",
     )
-    a.add_argument("--method", choices=["clusters", "regression"], default="clusters")
+    a.add_argument(
+        "--method",
+        choices=["clusters", "regression"],
+        help="default: for pm25 or aqi, the one that grades days left out best (the service "
+        "compares them); for levels, the clusters",
+    )
     a.add_argument(
         "--breakpoints",
         choices=["us_epa", "eu_eaqi"],

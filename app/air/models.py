@@ -76,6 +76,9 @@ class AirCalibration(Base):
     """How frames are graded: the T² clusters ([Fayed 2013]) or the regression."""
     regression: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """{mean, scale, coef, intercept} of the ridge regression on the sky features."""
+    selection: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    """How the method was chosen when none was asked for: {chosen, scores, score, folds}
+    (``selection.Selection.kept``)."""
     frame_ids: Mapped[list[str] | None] = mapped_column(JSON)
     city_wide: Mapped[bool] = mapped_column(Boolean, default=True, server_default=true())
     """Made for no camera in particular: it grades every camera without one of its own."""

@@ -95,6 +95,18 @@ class AirRegressionOut(Out):
     )
 
 
+class AirSelectionOut(Out):
+    chosen: str = Field(description="The method that grades: regression or clusters.")
+    scores: dict[str, float | None] = Field(
+        description="Each method's score (lower is better; null: it could not be fitted)."
+    )
+    score: str = Field(
+        description="What the score is: the mean absolute category error on days (or, without "
+        "days, images) left out; a frame a method cannot grade counts as 2."
+    )
+    folds: int = Field(description="Groups of days left out in turn.")
+
+
 class AirCalibrationOut(Out):
     id: str
     created_at: datetime
@@ -109,6 +121,12 @@ class AirCalibrationOut(Out):
     camera_ids: list[str] = Field(description="The sky cameras it was made for and still grades.")
     regression: AirRegressionOut | None = Field(
         default=None, description="The regression (method regression), else null."
+    )
+    selection: AirSelectionOut | None = Field(
+        default=None,
+        description="How the method was chosen when none was asked for (reference values): "
+        "both scored on days left out, the better kept. Null when method was given, or for "
+        "levels (the clusters, the dissertation's method).",
     )
 
 
@@ -242,11 +260,18 @@ class AirAlertOut(Out):
     frame_id: str
     created_at: datetime
     kind: Literal["raised", "cleared"] = Field(
-        description="raised: the smoothed level entered ``category`` (Poor or Very Poor); "
-        "cleared: after an alert, it is back in ``category``, clear of Poor (5.0 or better)."
+        description="raised: the camera's smoothed probability of Poor or worse reached 0.4 "
+        "(a regression grades it), or its smoothed level entered ``category`` (Poor or Very "
+        "Poor; the clusters); cleared: after an alert, that probability fell to 0.2, or the "
+        "level is back in ``category``, clear of Poor (5.0 or better)."
     )
     smoothed_level: float
     category: str
+    probability: float | None = Field(
+        default=None,
+        description="The smoothed probability of Poor or worse that raised or cleared it "
+        "(null when the clusters' levels did).",
+    )
     delivered: bool
     attempts: int
     delivery: Literal["delivered", "pending", "gave_up", "no_webhook"] = Field(

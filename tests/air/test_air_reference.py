@@ -317,7 +317,7 @@ def test_regrading_makes_the_history_speak_one_calibration(
     second = client.post(
         "/air/calibration",
         json={"frame_ids": station["frames"], "pm25": station["pm25"]},
-        params={"applies_to": "m"},
+        params={"applies_to": "m", "method": "clusters"},
         headers=admin,
     ).json()
     again = client.post("/air/cameras/m/regrade", params={"since": since}, headers=admin)
@@ -325,6 +325,64 @@ def test_regrading_makes_the_history_speak_one_calibration(
     rows = client.get("/air/readings", params=params).json()
     assert {r["calibration_id"] for r in rows} == {second["id"]}
     assert all(r["estimate"] is None for r in rows)  # the clusters estimate nothing
+
+
+def test_without_a_method_the_better_one_on_days_left_out_grades(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """Reference values without ``method``: both methods scored on days left out, the one
+    with the smaller category error kept, the choice and both scores in the calibration; the
+    same scores as ``selection.choose`` gives on the same data. Levels keep the clusters."""
+    r = client.post(
+        "/air/calibration",
+        json={"frame_ids": station["frames"], "pm25": station["pm25"]},
+        params={"applies_to": "m", "breakpoints": "us_epa"},
+        headers=admin,
+    )
+    assert r.status_code == 201, r.text
+    cal = r.json()
+    chosen = cal["selection"]
+    assert chosen["score"] == "mean absolute category error on days left out"
+    assert chosen["folds"] == 7  # 8 days, at most 7 groups of them
+    assert set(chosen["scores"]) == {"regression", "clusters"}
+    best = min(chosen["scores"], key=lambda m: chosen["scores"][m])
+    assert cal["method"] == chosen["chosen"] == best == "regression"
+    assert chosen["scores"]["regression"] < chosen["scores"]["clusters"]
+    forced = calibrate(client, admin, station)
+    assert forced["selection"] is None  # method given: no choice made
+    levels = [breakpoints.level_of_pm25(v) for v in station["pm25"]]
+    by_levels = client.post(
+        "/air/calibration",
+        json={"frame_ids": station["frames"], "levels": levels},
+        params={"applies_to": "m"},
+        headers=admin,
+    ).json()
+    assert (by_levels["method"], by_levels["selection"]) == ("clusters", None)
+
+
+def test_references_that_cannot_calibrate_are_refused(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """All equal, or frames of fewer than three days: 422 that says so, nothing made."""
+    frames = station["frames"]
+    equal = client.post(
+        "/air/calibration",
+        json={"frame_ids": frames, "pm25": [12.0] * len(frames)},
+        headers=admin,
+    )
+    assert equal.status_code == 422
+    assert equal.json()["code"] == "references_all_equal"
+    assert "all equal" in equal.json()["detail"]
+    two_days = client.post(
+        "/air/calibration",
+        json={"frame_ids": frames[:12], "pm25": station["pm25"][:12]},
+        params={"method": "regression"},
+        headers=admin,
+    )
+    assert two_days.status_code == 422
+    assert two_days.json()["code"] == "too_few_days"
+    assert "cover 2 days" in two_days.json()["detail"]
+    assert client.get("/air/calibrations").json() == []
 
 
 def test_regrade_refuses_bad_requests(

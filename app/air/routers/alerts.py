@@ -102,6 +102,7 @@ def alerts(
             kind=a.kind,
             smoothed_level=a.smoothed_level,
             category=a.category,
+            probability=a.probability,
             delivered=a.delivered,
             attempts=a.attempts,
             delivery=alert_webhook.delivery(a, now, retry_for=retry_for),

@@ -69,10 +69,12 @@ AppliesTo = Annotated[
     ),
 ]
 Method = Annotated[
-    Literal["clusters", "regression"],
+    Literal["clusters", "regression"] | None,
     Query(
         description="Grade by the T² level clusters (the dissertation, eqs. 6.19–6.22) or "
-        "by a ridge regression on richer sky features (better on real photos)."
+        "by a ridge regression on richer sky features. Default: for reference values (pm25, "
+        "aqi) the one with the smaller category error on days left out (both scores kept in "
+        "selection); for levels, the clusters."
     ),
 ]
 BreakpointsTable = Annotated[
@@ -116,7 +118,7 @@ async def calibrate(
     shrinkage: Shrinkage = 0.0,
     camera_id: UploadsCamera = None,
     applies_to: AppliesTo = None,
-    method: Method = "clusters",
+    method: Method = None,
     breakpoints_table: BreakpointsTable = None,
 ) -> AirCalibrationOut:
     """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.

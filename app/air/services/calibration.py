@@ -19,7 +19,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session, selectinload
 
-from app.air.core import airquality, breakpoints
+from app.air.core import airquality, breakpoints, selection
 from app.air.models import AirCalibration, AirCalibrationCamera, SkyVerdict
 from app.air.schemas import (
     AirCalibrationFromFrames,
@@ -122,7 +122,7 @@ def from_uploads(
     shrinkage: float,
     max_pixels: int,
     now: datetime,
-    method: str,
+    method: str | None,
     applies_to: list[str],
     groups: list[str] | None,
 ) -> AirCalibration:
@@ -157,7 +157,7 @@ def from_frames(
     significance: float,
     shrinkage: float,
     now: datetime,
-    method: str,
+    method: str | None,
     applies_to: list[str],
     table: str | None,
 ) -> AirCalibration:
@@ -373,7 +373,7 @@ def new_calibration(
     shrinkage: float,
     frame_ids: list[str] | None,
     now: datetime,
-    method: str = "clusters",
+    method: str | None = "clusters",
     features: NDArray[np.float64] | None = None,
     camera_ids: Sequence[str] = (),
     warnings: Sequence[str] = (),
@@ -386,7 +386,10 @@ def new_calibration(
     fitted to ``reference`` (unit "pm25" or "aqi", one value per image) when given, so its
     verdicts carry an estimate in that unit, made a level by the breakpoint ``table``; else to
     the levels. ``groups``: each image's capture day, for the regression's out-of-sample
-    residuals.
+    residuals. ``method=None``: the one that measures best on days left out
+    (``selection.choose``) for reference values, the clusters for levels; the choice and both
+    scores are kept (``selection``). Reference values all equal, or of fewer than three
+    days, are refused (422).
 
     ``warnings`` are kept in the model beside its own (levels pooled for want of images).
     ``regions``: (frame, camera, region) of stored frames it is made from; a camera it is made
@@ -398,6 +401,12 @@ def new_calibration(
     cameras = sorted(set(camera_ids))
     sky = _sky_cameras_named(session, cameras)
     _check_regions(sky, regions)
+    _check_references(reference, groups)
+    chosen = None
+    if method is None and reference is not None:
+        chosen = _choose(modes, features, levels, reference, groups, table, significance, shrinkage)
+        method = chosen.chosen
+    method = method or "clusters"
     regression = None
     if method == "regression":
         if features is None:
@@ -428,12 +437,69 @@ def new_calibration(
         frame_ids=frame_ids,
         method=method,
         regression=regression,
+        selection=None if chosen is None else chosen.kept(),
         city_wide=not cameras,
         cameras=[AirCalibrationCamera(camera_id=c, roi=region_now(sky[c])) for c in cameras],
     )
     session.add(row)
     session.flush()
     return row
+
+
+def _check_references(
+    reference: tuple[str, Sequence[float]] | None, groups: Sequence[str] | None
+) -> None:
+    """Refuse reference values that cannot calibrate: all equal (nothing to learn the air's
+    changes from), or, their days known, of fewer than ``airquality.MIN_GROUPS`` days (a
+    day's frames share their weather: fewer days cannot show how a method does on a new
+    one)."""
+    if reference is None:
+        return
+    unit, values = reference
+    if len(set(values)) < 2:
+        raise Unprocessable(
+            f"the reference {unit} values are all equal ({values[0]:g}): a calibration needs "
+            "the air to vary among its images",
+            code="references_all_equal",
+        )
+    days = len(set(groups)) if groups is not None else None
+    if days is not None and days < airquality.MIN_GROUPS:
+        raise Unprocessable(
+            f"the images cover {days} day{'s' if days != 1 else ''}: a calibration from "
+            f"reference values needs at least {airquality.MIN_GROUPS}, so that it is judged "
+            "on days it was not fitted to",
+            code="too_few_days",
+        )
+
+
+def _choose(
+    modes: NDArray[np.float64],
+    features: NDArray[np.float64] | None,
+    levels: Sequence[int],
+    reference: tuple[str, Sequence[float]],
+    groups: Sequence[str] | None,
+    table: str,
+    significance: float,
+    shrinkage: float,
+) -> selection.Selection:
+    """The method that grades the reference's images best on days left out."""
+    ok = features is not None and features.ndim == 2
+    ok = ok and features is not None and features.shape[1] == len(airquality.SKY_FEATURES)
+    unit, values = reference
+    try:
+        return selection.choose(
+            modes,
+            features if ok else None,
+            levels,
+            values,
+            unit=unit,
+            table=table,
+            groups=groups,
+            significance=significance,
+            shrinkage=shrinkage,
+        )
+    except ValueError as exc:
+        raise Unprocessable(f"cannot calibrate: {exc}", code="bad_calibration") from None
 
 
 def _sky_cameras_named(session: Session, cameras: Sequence[str]) -> dict[str, Camera]:

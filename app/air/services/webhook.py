@@ -125,6 +125,7 @@ def _claim(
                 "kind": alert.kind,
                 "smoothed_level": alert.smoothed_level,
                 "category": alert.category,
+                "probability": alert.probability,
                 "message": airquality.message(alert.category),
             }
         ).encode()

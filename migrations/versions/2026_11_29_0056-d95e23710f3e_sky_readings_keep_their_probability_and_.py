@@ -1,10 +1,11 @@
-"""Sky readings keep their probability and smoothed range
+"""Sky readings keep their probability and smoothed range; calibrations their choice
 
-Revision ID: 3d32a9fdbc1e
+Revision ID: d95e23710f3e
 Revises: 3c4fff4e598d
-Create Date: 2026-11-29 00:43:56.370726
+Create Date: 2026-11-29 00:56:12.983239
 
 Readings graded before have none (null): their public reading is their smoothed level.
+Calibrations made before chose no method (null).
 """
 
 from collections.abc import Sequence
@@ -13,7 +14,7 @@ import sqlalchemy as sa
 from alembic import op
 
 
-revision: str = '3d32a9fdbc1e'
+revision: str = 'd95e23710f3e'
 down_revision: str | None = '3c4fff4e598d'
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
@@ -22,6 +23,9 @@ depends_on: str | Sequence[str] | None = None
 def upgrade() -> None:
     with op.batch_alter_table('air_alerts', schema=None) as batch_op:
         batch_op.add_column(sa.Column('probability', sa.Float(), nullable=True))
+
+    with op.batch_alter_table('air_calibrations', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('selection', sa.JSON(), nullable=True))
 
     with op.batch_alter_table('sky_verdicts', schema=None) as batch_op:
         batch_op.add_column(sa.Column('probability', sa.Float(), nullable=True))
@@ -40,6 +44,9 @@ def downgrade() -> None:
         batch_op.drop_column('smoothed_low')
         batch_op.drop_column('smoothed_estimate')
         batch_op.drop_column('probability')
+
+    with op.batch_alter_table('air_calibrations', schema=None) as batch_op:
+        batch_op.drop_column('selection')
 
     with op.batch_alter_table('air_alerts', schema=None) as batch_op:
         batch_op.drop_column('probability')
