@@ -599,3 +599,107 @@ def test_days_are_the_sun_s_days_at_the_camera(
     )
     assert r.status_code == 201, r.text
     assert r.json()["regression"]["groups"] == 8
+
+
+def test_alerts_follow_the_probability_of_poor_or_worse(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """A regression's camera raises an alert when its smoothed probability of Poor or worse
+    reaches ``public.ALERT_RAISE``, once for the episode, and clears it when that probability
+    falls to ``public.ALERT_CLEAR``; each alert carries the probability."""
+    calibrate(client, admin, station, table="eu_eaqi")  # Poor: above 25 µg/m³
+    clock.now = START + timedelta(days=20)
+    t = clock.now
+
+    def frame(truth: float, seed: int) -> Any:
+        nonlocal t
+        t += timedelta(minutes=30)
+        clock.now = t
+        return post(client, station["token"], hazy_jpeg(truth, seed=seed), t)["verdict"]
+
+    for k in range(4):
+        frame(6.0, 7000 + k)
+    assert client.get("/air/alerts").json() == []
+    for k in range(6):
+        frame(45.0, 7100 + k)
+    raised = client.get("/air/alerts").json()
+    assert [a["kind"] for a in raised] == ["raised"]
+    assert raised[0]["probability"] >= public.ALERT_RAISE
+    assert raised[0]["category"] in airquality.ALERT_CATEGORIES
+    latest = client.get("/air/cameras/m/latest").json()
+    assert latest["poor_probability"] >= public.ALERT_RAISE
+    for k in range(24):  # clean air for up to 12 hours: the smoothed probability falls
+        frame(6.0, 7200 + k)
+        if len(client.get("/air/alerts").json()) == 2:
+            break
+    cleared, first = client.get("/air/alerts").json()
+    assert first["id"] == raised[0]["id"]
+    assert cleared["kind"] == "cleared"
+    assert cleared["probability"] <= public.ALERT_CLEAR
+
+
+def test_an_archive_is_imported_in_its_own_time_and_shown_as_it_was(
+    client: TestClient,
+    admin: dict[str, str],
+    station: dict[str, Any],
+    settings: Any,
+    clock: Any,
+) -> None:
+    """With a year of history kept, an admin imports last season's frames (backfill=true):
+    graded and smoothed in their own time, raising no alert; the camera's own upload of them
+    is refused with the way to do it; ``/latest?at=`` and the display show the moment, and
+    without ``at`` the screen says how old the reading is. A moment before the history
+    kept is a 422, on the page too."""
+    from app.main import create_app
+
+    calibrate(client, admin, station, table="eu_eaqi")
+    year = create_app(settings.model_copy(update={"history_retention_days": 365.0}))
+    now = datetime.now(UTC)
+    taken = now - timedelta(days=200)
+    with TestClient(year, raise_server_exceptions=False) as archive:
+        live = archive.post(
+            "/cameras/m/frames",
+            content=hazy_jpeg(45.0, seed=1),
+            headers={"Authorization": f"Bearer {station['token']}", "Content-Type": "image/jpeg"},
+            params={"captured_at": taken.isoformat()},
+        )
+        assert (live.status_code, live.json()["code"]) == (422, "bad_time")
+        assert "backfill=true" in live.json()["detail"]
+        verdicts = []
+        for k in range(4):
+            r = archive.post(
+                "/cameras/m/frames",
+                content=hazy_jpeg(35.0, seed=50 + k),
+                headers={**admin, "Content-Type": "image/jpeg"},
+                params={
+                    "captured_at": (taken + timedelta(minutes=20 * k)).isoformat(),
+                    "backfill": "true",
+                },
+            )
+            assert r.status_code == 201, r.text
+            verdicts.append(r.json()["verdict"])
+        assert all(v["level"] is not None for v in verdicts), verdicts
+        assert archive.get("/air/alerts").json() == []  # history, not news
+        rows = archive.get("/air/readings", params={"camera_id": "m", "limit": 4}).json()
+        assert all(r["smoothed_estimate"] is not None for r in rows)
+        assert rows[0]["poor_probability"] >= public.ALERT_RAISE  # an alert, had it been live
+        then = taken + timedelta(minutes=70)
+        past = archive.get("/air/cameras/m/latest", params={"at": then.isoformat()}).json()
+        assert past["current"] is True
+        assert past["captured_at"] == rows[0]["captured_at"]
+        assert past["category"] in airquality.ALERT_CATEGORIES
+        assert past["message"].startswith("Today's Air Quality is")
+        today = archive.get("/air/cameras/m/latest").json()
+        assert today["current"] is False
+        assert today["message"].startswith("No reading in the last 3 hours")
+        assert today["message"].endswith("days ago)")
+        everyone = archive.get("/air/latest", params={"at": then.isoformat()}).json()
+        assert [c["category"] for c in everyone] == [past["category"]]
+        page = archive.get("/display/m", params={"at": then.isoformat()})
+        assert page.status_code == 200
+        assert then.isoformat() in page.text  # the page's script asks for that moment
+        too_old = (now - timedelta(days=400)).isoformat()
+        refused = archive.get("/air/cameras/m/latest", params={"at": too_old})
+        assert (refused.status_code, refused.json()["code"]) == (422, "bad_time")
+        assert archive.get("/display/m", params={"at": too_old}).status_code == 422
+        assert archive.get("/display/m", params={"at": "yesterday"}).status_code == 422

@@ -164,24 +164,39 @@ class TestPostFrame:
             )
             assert r.status_code == 201, r.text
 
-    def test_the_history_kept_is_the_longer_retention(
+    def test_an_archive_within_the_history_kept_is_a_backfill(
         self, app: Any, settings: Any, admin: dict[str, str]
     ) -> None:
-        """Rows kept for a year (history_retention_days) take frames of the last year. (``app``
-        empties the tables; this test runs an app of its own settings.)"""
+        """Rows kept for a year (history_retention_days): a camera's frames are taken within
+        the upload window (frame_retention_days, 30 here); an admin imports an archive of the
+        last year with backfill=true; a camera may not backfill (403), and nothing older than
+        the history kept is taken. (``app`` empties the tables; this test runs an app of its
+        own settings.)"""
         from app.main import create_app
 
         year = create_app(settings.model_copy(update={"history_retention_days": 365.0}))
         with TestClient(year, raise_server_exceptions=False) as client:
             r = client.post("/cameras", json={"id": "cam-1", "kind": "rig"}, headers=admin)
-            for days, status in ((200, 201), (366, 422)):
-                r2 = client.post(
+            camera = cam_headers(r.json())
+
+            def post(days: int, headers: dict[str, str], **extra: str) -> Any:
+                taken = (datetime.now(UTC) - timedelta(days=days)).isoformat()
+                return client.post(
                     "/cameras/cam-1/frames",
                     content=make_jpeg(seed=days, noise=3),
-                    headers=cam_headers(r.json()),
-                    params={"captured_at": (datetime.now(UTC) - timedelta(days=days)).isoformat()},
+                    headers={**headers, "Content-Type": "image/jpeg"},
+                    params={"captured_at": taken, **extra},
                 )
-                assert r2.status_code == status, r2.text
+
+            assert post(29, camera).status_code == 201
+            old = post(200, camera)
+            assert (old.status_code, old.json()["code"]) == (422, "bad_time")
+            assert "backfill=true" in old.json()["detail"]
+            assert post(200, camera, backfill="true").status_code == 403
+            assert post(200, admin, backfill="true").status_code == 201
+            too_old = post(366, admin, backfill="true")
+            assert (too_old.status_code, too_old.json()["code"]) == (422, "bad_time")
+            assert "before the history this service keeps" in too_old.json()["detail"]
 
     @pytest.mark.parametrize("sent", [f"{DAY}T13:00:00", f"{DAY}T15:00:00+02:00"])
     def test_captured_at_without_an_offset_is_utc_and_one_with_is_converted(

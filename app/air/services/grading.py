@@ -203,8 +203,8 @@ def classify_frame(session: Session, prepared: Prepared, timing: Timing) -> SkyV
     )
     for name, value in now.columns().items():
         setattr(verdict, name, value)
-    _smooth_later(session, camera.id, frame, later, again)
-    if now.level is not None:
+    _smooth_later(session, camera.id, frame, later, again, live=not prepared.backfill)
+    if now.level is not None and not prepared.backfill:  # an archive raises nothing live
         _alert_if_called_for(session, frame, now, around, readings.where(TRUSTED))
     return verdict
 
@@ -219,11 +219,18 @@ def _changed(a: Smoothed, b: Smoothed) -> bool:
 
 
 def _smooth_later(
-    session: Session, camera_id: str, frame: Frame, later: Sequence[Any], again: list[Smoothed]
+    session: Session,
+    camera_id: str,
+    frame: Frame,
+    later: Sequence[Any],
+    again: list[Smoothed],
+    *,
+    live: bool,
 ) -> None:
     """Write the readings taken after a late frame smoothed again with it (``later``, newest
-    first, and ``again``), and the alert the camera's public reading calls for when the
-    newest of them is the camera's newest (``public_level_changed``)."""
+    first, and ``again``), and, ``live`` (not an archive's frame), the alert the camera's
+    public reading calls for when the newest of them is the camera's newest
+    (``public_level_changed``)."""
     changed = [(r, s) for r, s in zip(later, again, strict=True) if _changed(s, Smoothed.of(r))]
     if not changed:
         return
@@ -231,7 +238,8 @@ def _smooth_later(
     newest, public_now = changed[0]
     hours = timedelta(hours=airquality.NOWCAST_HOURS)
     if (
-        newest.id == later[0].id
+        live
+        and newest.id == later[0].id
         and public_now.level is not None
         # the camera's newest reading: none after the 12 hours this frame smooths
         and session.execute(

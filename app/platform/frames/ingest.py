@@ -129,6 +129,7 @@ def prepare(
     received_at: datetime,
     max_pixels: int,
     idempotency_key: str | None = None,
+    backfill: bool = False,
 ) -> Prepared:
     """Everything about a frame that needs no database, run in a worker thread.
 
@@ -153,7 +154,7 @@ def prepare(
         idempotency_key=idempotency_key,
     )
     may_repeat = idempotency_key is not None or captured_at is not None
-    return Prepared(camera, frame, decoded, may_repeat)
+    return Prepared(camera, frame, decoded, may_repeat, backfill)
 
 
 def recording(
@@ -165,6 +166,7 @@ def recording(
     max_pixels: int,
     timing: Timing,
     idempotency_key: str | None = None,
+    backfill: bool = False,
 ) -> Callable[[Session], Recorded]:
     """``prepare`` the frame (received now) and give back the writer's job that records it:
     what ``GroupCommitWriter.submit_after`` runs for a posted frame and for a pulled one."""
@@ -176,6 +178,7 @@ def recording(
         received_at=timing.now(),
         max_pixels=max_pixels,
         idempotency_key=idempotency_key,
+        backfill=backfill,
     )
     return partial(record, prepared=prepared, timing=timing)
 

@@ -49,6 +49,9 @@ class Prepared:
     may_repeat: bool = False
     """The upload could repeat a stored one (it has an Idempotency-Key or its own captured_at);
     otherwise the unique constraint alone guards against duplicates."""
+    backfill: bool = False
+    """An archive's frame imported by an admin: history, graded and smoothed in its own time,
+    raising nothing live (no alert)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -38,9 +38,16 @@ from app.platform.http.deps import (
     TimeRangeQuery,
     TimingDep,
     UtcTime,
+    get_principal,
     image_work,
 )
-from app.platform.http.errors import NotFound, ServiceUnavailable, Unauthorized, Unprocessable
+from app.platform.http.errors import (
+    Forbidden,
+    NotFound,
+    ServiceUnavailable,
+    Unauthorized,
+    Unprocessable,
+)
 from app.platform.http.responses import (
     AUTH_ERRORS,
     CAMERA_KEEPS_KIND,
@@ -92,31 +99,44 @@ _JPEG_BODY = {
 }
 
 
-def _captured_at(value: datetime | None, now: datetime, settings: Settings) -> datetime | None:
-    """``captured_at`` when it is a time the service can keep a frame of: not in the future,
-    and not before the history it keeps (the longer of its two retentions). A camera whose
-    clock was reset (1970, 2000) sent frames that were stored, graded and then never seen: a
-    sky camera's latest reading and its place on the map stayed those of its last frame before
-    the reset, and a panel's state ignored every new frame as a late upload."""
+def _captured_at(
+    value: datetime | None, now: datetime, settings: Settings, backfill: bool = False
+) -> datetime | None:
+    """``captured_at`` when it is a time the service takes a frame of: not in the future, and
+    within the upload window (``frame_retention_days``), or, for an archive imported by an
+    admin (``backfill``), within the history it keeps (the longer of its two retentions). A
+    camera whose clock was reset (1970, 2000) sent frames that were stored, graded and then
+    never seen: a sky camera's latest reading and its place on the map stayed those of its
+    last frame before the reset, and a panel's state ignored every new frame as a late
+    upload."""
     if value is None:
         return None
     if value > now + MAX_CLOCK_SKEW:
         raise Unprocessable(f"captured_at {value.isoformat()} lies in the future", code="bad_time")
     keep = retention.kept_days(settings.frame_retention_days, settings.history_retention_days)
-    if value < now - timedelta(days=keep):
+    window = keep if backfill else settings.frame_retention_days
+    if value >= now - timedelta(days=window):
+        return value
+    if not backfill and keep > window and value >= now - timedelta(days=keep):
         raise Unprocessable(
-            f"captured_at {value.isoformat()} is more than {keep:g} days ago, before the "
-            "history this service keeps: is the camera's clock set (NTP)?",
+            f"captured_at {value.isoformat()} is more than {window:g} days ago, older than a "
+            f"camera's frames are taken: an archive's frames (within the {keep:g} days of "
+            "history kept) are imported by an admin with backfill=true; else, is the camera's "
+            "clock set (NTP)?",
             code="bad_time",
         )
-    return value
+    raise Unprocessable(
+        f"captured_at {value.isoformat()} is more than {keep:g} days ago, before the "
+        "history this service keeps: is the camera's clock set (NTP)?",
+        code="bad_time",
+    )
 
 
 _TIME = TypeAdapter(UtcTime)
 
 
 def _form_captured_at(
-    text: str, query: datetime | None, now: datetime, settings: Settings
+    text: str, query: datetime | None, now: datetime, settings: Settings, backfill: bool
 ) -> datetime | None:
     """A multipart upload's ``captured_at`` field: the same rules as the query parameter, and
     the same time when both are given (422 ``bad_time`` otherwise)."""
@@ -132,7 +152,7 @@ def _form_captured_at(
             f"({value.isoformat()})",
             code="bad_time",
         )
-    return _captured_at(value, now, settings)
+    return _captured_at(value, now, settings, backfill)
 
 
 @router.post(
@@ -165,16 +185,27 @@ async def post_frame(
             "of the same bytes with the same captured_at).",
         ),
     ] = None,
+    backfill: Annotated[
+        bool,
+        Query(
+            description="An archive's frame (admin token): captured_at may be as old as the "
+            "history kept (VANTAGE_HISTORY_RETENTION_DAYS), not only the upload window "
+            "(VANTAGE_FRAME_RETENTION_DAYS); it is graded and smoothed in its own time and "
+            "raises no alert."
+        ),
+    ] = False,
 ) -> Response:
     """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict.
 
     A retried upload gets the original frame and verdict, with ``Idempotent-Replay: true``.
     """
     start = time.perf_counter()
-    when = _captured_at(captured_at, timing.now(), settings)
+    if backfill and get_principal(request).role != "admin":
+        raise Forbidden("backfill=true imports an archive: the admin token only")
+    when = _captured_at(captured_at, timing.now(), settings, backfill)
     upload = await read_jpeg(request, settings.max_body_bytes)
     if upload.captured_at is not None:
-        when = _form_captured_at(upload.captured_at, when, timing.now(), settings)
+        when = _form_captured_at(upload.captured_at, when, timing.now(), settings, backfill)
     data = upload.data
     store = app_state(request).frame_store if settings.store_frames else None
     writer: GroupCommitWriter = app_state(request).writer
@@ -187,6 +218,7 @@ async def post_frame(
         max_pixels=settings.max_pixels,
         timing=timing,
         idempotency_key=idempotency_key,
+        backfill=backfill,
     )
 
     # decoding and the file write take one of the writer's preparing threads, which then queues
