@@ -703,3 +703,19 @@ def test_an_archive_is_imported_in_its_own_time_and_shown_as_it_was(
         assert (refused.status_code, refused.json()["code"]) == (422, "bad_time")
         assert archive.get("/display/m", params={"at": too_old}).status_code == 422
         assert archive.get("/display/m", params={"at": "yesterday"}).status_code == 422
+
+
+def test_an_episode_ends_with_the_night(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """An alert not cleared before the camera went dark (no reading for 12 hours) ends its
+    episode: the next day's Poor air raises a new alert; within the day, it does not."""
+    calibrate(client, admin, station, table="eu_eaqi")
+    start = START + timedelta(days=20)
+    for day in range(2):
+        for k in range(4):
+            clock.now = start + timedelta(days=day, minutes=30 * k)
+            post(client, station["token"], hazy_jpeg(45.0, seed=7300 + 10 * day + k), clock.now)
+    alerts = client.get("/air/alerts").json()
+    assert [a["kind"] for a in alerts] == ["raised", "raised"]
+    assert alerts[0]["created_at"] > alerts[1]["created_at"]

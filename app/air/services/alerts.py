@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import Sequence
-from datetime import datetime
+from datetime import datetime, timedelta
 
 from sqlalchemy import (
     Row,
@@ -96,32 +96,51 @@ def _last_alert(session: Session, camera_id: str) -> Row[str, str, datetime] | N
 
 
 def in_episode(session: Session, frame: Frame) -> bool:
-    """Whether the camera's last alert was raised and no clear reading (at ``CLEAR_LEVEL``,
-    or, with a probability of Poor or worse, at ``public.ALERT_CLEAR``) has been taken since
-    (before ``frame``): an episode of bad air not yet cleared. (Without the
-    second test, alerts raised before cleared ones existed would each be cleared by the next
-    clean frame, months after their air had cleared.)"""
+    """Whether the camera's last alert was raised and its episode still runs at ``frame``: no
+    clear reading (at ``CLEAR_LEVEL``, or, with a probability of Poor or worse, at
+    ``public.ALERT_CLEAR``) taken since, and a reading with a smoothed level in the
+    ``NOWCAST_HOURS`` before it (a camera dark all night, or gone quiet, ends the episode: the
+    next day's bad air is news again). Without the first test, alerts raised before cleared
+    ones existed would each be cleared by the next clean frame, months after their air had
+    cleared."""
     last = _last_alert(session, frame.camera_id)
     if last is None or last.kind != "raised":
         return False
-    clear_since = session.scalar(
+    since = (
         select(Frame.id)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
         .where(
             Frame.camera_id == frame.camera_id,
             Frame.captured_at > last.captured_at,
             Frame.captured_at < frame.captured_at,
+        )
+    )
+    clear = session.scalar(
+        since.where(
             or_(
                 SkyVerdict.poor_probability <= public.ALERT_CLEAR,
                 and_(
                     SkyVerdict.poor_probability.is_(None),
                     SkyVerdict.smoothed_level >= airquality.CLEAR_LEVEL,
                 ),
-            ),
+            )
+        ).limit(1)
+    )
+    if clear is not None:
+        return False
+    window = frame.captured_at - timedelta(hours=airquality.NOWCAST_HOURS)
+    recent = session.scalar(
+        select(Frame.id)
+        .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
+        .where(
+            Frame.camera_id == frame.camera_id,
+            Frame.captured_at >= max(window, last.captured_at),
+            Frame.captured_at < frame.captured_at,
+            SkyVerdict.smoothed_level.is_not(None),
         )
         .limit(1)
     )
-    return clear_since is None
+    return recent is not None or last.captured_at >= window
 
 
 def listing(
