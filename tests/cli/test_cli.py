@@ -6,7 +6,7 @@ import csv
 import json
 import subprocess
 import sys
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 from zoneinfo import ZoneInfo
@@ -264,6 +264,31 @@ def test_replay_takes_each_frames_time_from_its_name(
     assert "not an IANA time zone" in capsys.readouterr().err
     listed = httpx.get(f"{live}/cameras/s2/frames", headers=ADMIN)
     assert len(listed.json()) == 2
+
+
+def test_replay_backfills_an_archive_with_the_admin_token(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--backfill``: the admin token posts each frame with backfill=true, at its name's
+    time (required); without it, a camera token is."""
+    assert httpx.post(f"{live}/cameras", json={"id": "s3", "kind": "sky"}, headers=ADMIN)
+    taken = [
+        (datetime.now(UTC) - timedelta(days=2, hours=h)).replace(second=0, microsecond=0)
+        for h in (2, 1)
+    ]
+    frames = tmp_path / "archive"
+    frames.mkdir()
+    for k, t in enumerate(taken):
+        (frames / f"{t:%Y%m%d-%H%M}.jpg").write_bytes(sky_jpeg(7, seed=20 + k))
+    assert vantage(live, "replay", "s3", str(frames), "--backfill") == 1
+    assert "give --time-from-name" in capsys.readouterr().err
+    assert vantage(live, "replay", "s3", str(frames)) == 1
+    assert "give --camera-token" in capsys.readouterr().err
+    args = ["--json", "replay", "s3", str(frames), "--backfill", "--time-from-name"]
+    assert vantage(live, *args, "%Y%m%d-%H%M") == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [datetime.fromisoformat(x["captured_at"]) for x in lines] == taken
+    assert vantage(live, *args, "%Y%m%d-%H%M", token="not-the-admin") == 1  # 401
 
 
 def test_a_crlf_csv_leaves_no_carriage_return(

@@ -16,7 +16,7 @@ from app.air.schemas import (
     AirCalibrationOut,
     AirRegradeOut,
 )
-from app.air.services import calibration, cameras, grading
+from app.air.services import calibration, cameras, grading, references
 from app.platform.http.deps import (
     ID_PATTERN,
     Admin,
@@ -163,15 +163,15 @@ async def calibrate(
     [(name, raw)] = named.items()
     if len(files) != len(raw):
         raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
-    references = calibration.parse_references(name, raw)
-    calibration.check_table(breakpoints_table, name == "pm25")
+    given_values = references.parse_references(name, raw)
+    references.check_table(breakpoints_table, name == "pm25")
     row = await image_work(
         request,
         partial(
             calibration.from_uploads,
             session,
             files,
-            references,
+            given_values,
             breakpoints_table,
             camera_id,
             significance,

@@ -59,11 +59,12 @@ from app.platform.http.responses import (
     UPLOAD_UNAVAILABLE,
     not_modified,
 )
-from app.platform.http.uploads import read_jpeg
+from app.platform.http.uploads import FrameUpload, read_jpeg
 from app.platform.observability import FRAMES_RECEIVED, INGEST_SECONDS
 from app.platform.schemas import CameraCreate, CameraCreated, CameraOut, CameraUpdate, FrameOut
 from app.platform.settings import Settings
 from app.platform.state import app_state
+from app.platform.timing import Timing
 
 router = APIRouter(tags=["cameras"])
 
@@ -155,6 +156,44 @@ def _form_captured_at(
     return _captured_at(value, now, settings, backfill)
 
 
+CapturedAt = Annotated[
+    UtcTime | None,
+    Query(description="When the frame was taken (RFC 3339; default: when received)."),
+]
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        max_length=128,
+        description="Retries with the same key get the original response (as do retries "
+        "of the same bytes with the same captured_at).",
+    ),
+]
+Backfill = Annotated[
+    bool,
+    Query(
+        description="An archive's frame (admin token): captured_at may be as old as the "
+        "history kept (VANTAGE_HISTORY_RETENTION_DAYS), not only the upload window "
+        "(VANTAGE_FRAME_RETENTION_DAYS); it is graded and smoothed in its own time and "
+        "raises no alert."
+    ),
+]
+
+
+async def _upload_and_time(
+    request: Request,
+    captured_at: datetime | None,
+    timing: Timing,
+    settings: Settings,
+    backfill: bool,
+) -> tuple[FrameUpload, datetime | None]:
+    """The posted JPEG and its capture time (the query's, or the form's, checked alike)."""
+    when = _captured_at(captured_at, timing.now(), settings, backfill)
+    upload = await read_jpeg(request, settings.max_body_bytes)
+    if upload.captured_at is not None:
+        when = _form_captured_at(upload.captured_at, when, timing.now(), settings, backfill)
+    return upload, when
+
+
 @router.post(
     FRAMES_PATH,
     status_code=201,
@@ -173,27 +212,9 @@ async def post_frame(
     target: UploadTargetDep,
     settings: SettingsDep,
     timing: TimingDep,
-    captured_at: Annotated[
-        UtcTime | None,
-        Query(description="When the frame was taken (RFC 3339; default: when received)."),
-    ] = None,
-    idempotency_key: Annotated[
-        str | None,
-        Header(
-            max_length=128,
-            description="Retries with the same key get the original response (as do retries "
-            "of the same bytes with the same captured_at).",
-        ),
-    ] = None,
-    backfill: Annotated[
-        bool,
-        Query(
-            description="An archive's frame (admin token): captured_at may be as old as the "
-            "history kept (VANTAGE_HISTORY_RETENTION_DAYS), not only the upload window "
-            "(VANTAGE_FRAME_RETENTION_DAYS); it is graded and smoothed in its own time and "
-            "raises no alert."
-        ),
-    ] = False,
+    captured_at: CapturedAt = None,
+    idempotency_key: IdempotencyKey = None,
+    backfill: Backfill = False,
 ) -> Response:
     """Post a frame (raw ``image/jpeg`` body or multipart field ``file``); returns its verdict.
 
@@ -202,10 +223,7 @@ async def post_frame(
     start = time.perf_counter()
     if backfill and get_principal(request).role != "admin":
         raise Forbidden("backfill=true imports an archive: the admin token only")
-    when = _captured_at(captured_at, timing.now(), settings, backfill)
-    upload = await read_jpeg(request, settings.max_body_bytes)
-    if upload.captured_at is not None:
-        when = _form_captured_at(upload.captured_at, when, timing.now(), settings, backfill)
+    upload, when = await _upload_and_time(request, captured_at, timing, settings, backfill)
     data = upload.data
     store = app_state(request).frame_store if settings.store_frames else None
     writer: GroupCommitWriter = app_state(request).writer
