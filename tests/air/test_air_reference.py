@@ -226,6 +226,12 @@ def test_a_doubted_frame_names_its_likeliest_category_and_counts(
     shown = client.get("/air/isopleths", params={"window": 3 * 3600}).json()["cameras"]
     assert [c["camera_id"] for c in shown] == ["m"]
     assert shown[0]["level"] == pytest.approx(by_time[verdicts[-1][0]]["smoothed_level"])
+    newest = by_time[verdicts[-1][0]]
+    assert shown[0]["probability"] == pytest.approx(newest["smoothed_probability"])
+    ends = [
+        breakpoints.level_of_pm25(newest[k], "eu_eaqi") for k in ("smoothed_low", "smoothed_high")
+    ]
+    assert shown[0]["level_error"] == pytest.approx(max(abs(ends[0] - ends[1]) / 2.5632, 12**-0.5))
     # a doubted frame alone, hours later: the screen names its likeliest category
     k = next(k for k, (_, v) in enumerate(verdicts) if v in doubted)
     clock.now += timedelta(hours=13)  # past the 12 hours smoothing weighs

@@ -299,6 +299,41 @@ class TestIsopleths:
         assert f.uncertainty_kind == "kriging_sd"
         assert np.isfinite(f.uncertainty).all()
 
+    def test_kriging_weighs_each_camera_by_its_error(self) -> None:
+        """Cameras' errors (their readings' ranges) in kriging with measurement error: zero
+        errors are kriging as before, exact at a camera; a camera reading 1.5 levels above a
+        smooth gradient sets the map at its place when sure, and hardly moves it when its
+        error is 5 levels (the map there follows its neighbours, with their doubt)."""
+        rng = np.random.default_rng(3)
+        lon = 9.0 + rng.uniform(0, 0.1, 12)
+        lat = 45.0 + rng.uniform(0, 0.1, 12)
+        level = 2.0 + 60.0 * (lon - 9.0)  # a smooth west-to-east gradient, 2–8
+        trend = float(level[0])
+        level[0] += 1.5  # one camera reads above it
+        box = (
+            float(lon[0]) - 1e-3,
+            float(lat[0]) - 1e-3,
+            float(lon[0]) + 1e-3,
+            float(lat[0]) + 1e-3,
+        )
+
+        def at_camera(errors: np.ndarray | None) -> tuple[float, float]:
+            f = interpolate(
+                lon, lat, level, bbox=box, method="kriging", resolution=3,
+                max_distance=50_000, errors=errors,
+            )  # fmt: skip
+            return float(f.value[1, 1]), float(f.uncertainty[1, 1])
+
+        sure, unsure = np.zeros(12), np.zeros(12)
+        unsure[0] = 5.0
+        assert at_camera(sure) == at_camera(None)
+        plain, plain_sd = at_camera(None)
+        pulled, pulled_sd = at_camera(unsure)
+        assert plain == pytest.approx(level[0], abs=1e-6)  # an exact interpolator at a camera
+        assert plain_sd == pytest.approx(0.0, abs=1e-6)
+        assert abs(pulled - trend) < 0.5  # an unsure reading: near its neighbours' trend
+        assert pulled_sd > 0.5
+
     def test_bad_input(self) -> None:
         lon, lat, level = smooth_field(5)
         with pytest.raises(IsoplethError, match="one point"):

@@ -90,19 +90,24 @@ SAME_PLACE_M = 1.0
 
 
 def _stations(
-    xy: NDArray[np.float64], values: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    xy: NDArray[np.float64], values: NDArray[np.float64], variances: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """One position per place: cameras within ``SAME_PLACE_M`` of each other (on a grid of that
-    size) merged, at their mean position with their mean level. A place counts once whatever
-    number of cameras it has, and a radial basis needs distinct points."""
+    size) merged, at their mean position with their mean level, whose error variance is that
+    of a mean, Σσᵢ²/n². A place counts once whatever number of cameras it has, and a radial
+    basis needs distinct points."""
     cell = np.floor(xy / SAME_PLACE_M)
     _, group = np.unique(cell, axis=0, return_inverse=True)
     group = group.ravel()
     n = np.bincount(group)
     if len(n) == len(values):
-        return xy, values
+        return xy, values, variances
     merged = np.stack([np.bincount(group, xy[:, 0]), np.bincount(group, xy[:, 1])], axis=1)
-    return merged / n[:, None], np.bincount(group, values) / n
+    return (
+        merged / n[:, None],
+        np.bincount(group, values) / n,
+        np.bincount(group, variances) / n.astype(np.float64) ** 2,
+    )
 
 
 def _rbf(
@@ -208,9 +213,20 @@ KRIGING_CHUNK = 4096
 
 
 def _kriging(
-    xy: NDArray[np.float64], v: NDArray[np.float64], grid: NDArray[np.float64], k: int
+    xy: NDArray[np.float64],
+    v: NDArray[np.float64],
+    grid: NDArray[np.float64],
+    k: int,
+    variances: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Ordinary kriging, local: the k nearest cameras of each cell, cells solved in batches."""
+    """Ordinary kriging, local: the k nearest cameras of each cell, cells solved in batches.
+
+    Each camera's level carries its own error variance σᵢ² [level²] (its reading's range):
+    kriging with measurement error puts −σᵢ² on the system's diagonal in place of γ(0) = 0
+    (the covariance C(0) + σᵢ² in semivariogram form; Cressie, *Statistics for Spatial Data*,
+    1993, §3.2.1), so a camera sure of its reading weighs more than one that is not, the map
+    need not pass through an unsure reading, and the standard deviation is that of the air,
+    not of a camera's error."""
     nugget, sill, rng = fit_variogram(xy, v)
     _, idx_all = cKDTree(xy).query(grid, k=k)
     idx_all = idx_all.reshape(len(grid), -1)
@@ -224,7 +240,7 @@ def _kriging(
         g = len(cells)
         a = np.ones((g, k + 1, k + 1))
         a[:, :k, :k] = _exp_variogram(h, nugget, sill, rng)
-        a[:, np.arange(k), np.arange(k)] = 0.0  # γ(0) = 0 at the same camera
+        a[:, np.arange(k), np.arange(k)] = -variances[idx]  # γ(0) = 0, less its error
         a[:, k, k] = 0.0
         # cameras a few metres apart make the system near-singular: a tiny ridge keeps it
         # solvable (those within SAME_PLACE_M are already one station)
@@ -249,6 +265,7 @@ def interpolate(
     resolution: int = 128,
     max_distance: float = 5_000.0,
     neighbours: int = 16,
+    errors: NDArray[np.float64] | None = None,
 ) -> Field:
     """Interpolate camera levels onto a ``resolution`` × ``resolution`` lon/lat grid.
 
@@ -258,15 +275,17 @@ def interpolate(
     bbox : (min lon, min lat, max lon, max lat) [°].
     max_distance : cells farther than this from every camera are NaN [m].
     neighbours : cameras per cell for every method.
+    errors : each camera's standard error [level] (0 when None): kriging weighs by them.
     """
     lon, lat, values = (np.asarray(a, dtype=np.float64) for a in (lon, lat, values))
     _check(lon, lat, values)
     check_bbox(bbox)
+    sd = np.zeros(len(values)) if errors is None else np.asarray(errors, dtype=np.float64)
     x0, y0, x1, y1 = bbox
     if not 2 <= resolution <= 1024:
         raise IsoplethError("resolution must be 2–1024")
     proj = Projection(float(np.mean(lon)), float(np.mean(lat)))
-    xy, values = _stations(proj.forward(lon, lat), values)
+    xy, values, variances = _stations(proj.forward(lon, lat), values, sd**2)
     glon = np.linspace(x0, x1, resolution)
     glat = np.linspace(y0, y1, resolution)
     mlon, mlat = np.meshgrid(glon, glat)
@@ -282,7 +301,7 @@ def interpolate(
     elif method == "kriging":
         if len(values) < 3:
             raise IsoplethError("kriging needs cameras at 3 places or more; idw works with fewer")
-        z, uncertainty = _kriging(xy, values, grid, k)
+        z, uncertainty = _kriging(xy, values, grid, k, variances)
         kind = "kriging_sd"
     elif method == "rbf":
         z = _rbf(xy, values, grid, k)
@@ -347,7 +366,7 @@ def _places(lon: NDArray[np.float64], lat: NDArray[np.float64]) -> int:
     """Distinct places among cameras (``_stations``)."""
     proj = Projection(float(np.mean(lon)), float(np.mean(lat)))
     xy = proj.forward(lon, lat)
-    return len(_stations(xy, np.zeros(len(xy)))[1])
+    return len(_stations(xy, np.zeros(len(xy)), np.zeros(len(xy)))[1])
 
 
 def cells_for(bbox: tuple[float, float, float, float], resolution: int, max_cell_m: float) -> int:
@@ -380,6 +399,7 @@ def interpolate_islands(
     resolution: int = 128,
     max_distance: float = 5_000.0,
     neighbours: int = 16,
+    errors: NDArray[np.float64] | None = None,
 ) -> list[Island]:
     """The map as islands: cameras grouped by ``islands`` (linked within 2 × ``max_distance``),
     each interpolated (``interpolate``) over its own bbox — its cameras' extent plus a margin
@@ -417,6 +437,7 @@ def interpolate_islands(
             resolution=n,
             max_distance=max_distance,
             neighbours=neighbours,
+            errors=None if errors is None else np.asarray(errors, dtype=np.float64)[idx],
         )
         out.append(Island(idx, box, f, how))
     return out

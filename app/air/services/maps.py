@@ -16,7 +16,8 @@ from sqlalchemy import (
 from sqlalchemy.orm import Session
 
 from app.air.core import airquality, isopleths
-from app.air.models import SkyVerdict
+from app.air.models import AirCalibration, SkyVerdict
+from app.air.services.calibration import as_regression
 from app.air.services.cameras import TRUSTED
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.http.errors import (
@@ -33,6 +34,25 @@ class Station:
     level: float
     captured_at: datetime
     name: str | None = None
+    error: float = 0.0
+    """The standard error of its level [level]: from its reading's 80 % range (``level_error``),
+    0 for a clusters' level (no range)."""
+    probability: float | None = None
+    """The probability of its reading's category."""
+
+
+Z80 = 1.2816
+"""The standard normal's 90th percentile: an 80 % range is ±1.2816 σ."""
+QUANTUM = 1 / np.sqrt(12)
+"""The standard deviation of rounding to whole levels [level]: a range within one level is
+no surer than its level's rounding."""
+
+
+def level_error(low: float, high: float, unit: str, table: str) -> float:
+    """The standard error [level] of a reading whose 80 % range in ``unit`` is [low, high]:
+    the levels of its ends, apart by 2 × 1.2816 σ, at least ``QUANTUM``."""
+    a, b = (airquality.level_of(v, unit, table) for v in (low, high))
+    return max(abs(a - b) / (2 * Z80), float(QUANTUM))
 
 
 def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]:
@@ -88,6 +108,11 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
             SkyVerdict.smoothed_level,
             SkyVerdict.level,
             Frame.captured_at,
+            SkyVerdict.smoothed_low,
+            SkyVerdict.smoothed_high,
+            SkyVerdict.estimate_unit,
+            SkyVerdict.calibration_id,
+            SkyVerdict.smoothed_probability,
         )
         .join(Frame, Frame.camera_id == Camera.id)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
@@ -101,12 +126,30 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
         )
     ).all()
     seen: dict[str, Station] = {}
-    for cid, name, lon, lat, smooth, level, t in rows:
+    tables = _tables(session, {r.calibration_id for r in rows if r.calibration_id is not None})
+    for cid, name, lon, lat, smooth, level, t, low, high, unit, cal, prob in rows:
         value = smooth if smooth is not None else level
         if lon is None or lat is None or value is None:
             continue
-        seen[cid] = Station(cid, float(lon), float(lat), float(value), t, name)
+        error = 0.0
+        if smooth is not None and low is not None and high is not None and unit and cal in tables:
+            error = level_error(low, high, unit, tables[cal])
+        seen[cid] = Station(
+            cid, float(lon), float(lat), float(value), t, name, error, prob if smooth else None
+        )
     return sorted(seen.values(), key=lambda s: s.camera_id)
+
+
+def _tables(session: Session, calibration_ids: set[str]) -> dict[str, str]:
+    """The breakpoint table of each regression among ``calibration_ids``."""
+    out = {}
+    for row in session.scalars(
+        select(AirCalibration).where(AirCalibration.id.in_(sorted(calibration_ids)))
+    ):
+        regression = as_regression(row)
+        if regression is not None:
+            out[row.id] = regression.table
+    return out
 
 
 @dataclass(frozen=True)
@@ -162,6 +205,7 @@ def field(session: Session, timing: Timing, q: MapQuery) -> MapData:
             lon,
             lat,
             np.array([s.level for s in st]),
+            errors=np.array([s.error for s in st]),
             bbox=q.bbox,
             method=q.method,
             resolution=q.resolution,
@@ -229,6 +273,8 @@ def geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[
                 "category": category,
                 "band": band,
                 "captured_at": s.captured_at.isoformat(),
+                "probability": s.probability,
+                "level_error": s.error,
             }
             for s, category, band in zip(st, own, drawn, strict=True)
         ],
