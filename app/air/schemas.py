@@ -260,9 +260,9 @@ class AirAlertOut(Out):
     frame_id: str
     created_at: datetime
     kind: Literal["raised", "cleared"] = Field(
-        description="raised: the camera's smoothed probability of Poor or worse reached 0.4 "
+        description="raised: the camera's smoothed probability of Poor or worse reached 0.45 "
         "(a regression grades it), or its smoothed level entered ``category`` (Poor or Very "
-        "Poor; the clusters); cleared: after an alert, that probability fell to 0.2, or the "
+        "Poor; the clusters); cleared: after an alert, that probability fell to 0.225, or the "
         "level is back in ``category``, clear of Poor (5.0 or better)."
     )
     smoothed_level: float

@@ -535,7 +535,8 @@ class Regression:
     sigma: float | None = None
     """Residual scale on data it was not fitted to (grouped or leave-one-out), fitted unit."""
     dof: float = 1.0
-    """Residual degrees of freedom, n − tr(H)."""
+    """Residual degrees of freedom, n − tr(H); with days left out, at most the days less one
+    (the held-out residuals' independent units)."""
     max_leverage: float | None = None
     """The largest leverage a training image has against the others, hᵢ/(1 − hᵢ) (its
     leverage in the fit that leaves it out): a frame farther out than any image was from the
@@ -657,6 +658,9 @@ def fit_regression(
         # the closed-form leave-one-out residual (hat value with the intercept's 1/n)
         residuals = (y - fitted) / np.maximum(1 - lev - 1 / n, 1e-6)
     dof = max(n - 1 - float(lev.sum()), 1.0)
+    if by_day:  # σ is measured on days left out, and a day's frames err alike: its
+        # independent units are the days, not the frames
+        dof = min(dof, float(len(set(np.asarray(groups).tolist())) - 1))
     reg = Regression(
         mean=scaler.mean_.astype(np.float64),
         scale=scale.astype(np.float64),
