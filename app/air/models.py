@@ -127,3 +127,29 @@ class AirAlert(Base):
     last_error: Mapped[str | None] = mapped_column(String(500))
     next_attempt_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
     """When the webhook delivery is to be tried next (backoff after a failure)."""
+
+
+class AirStation(Base):
+    """A reference monitor: measured PM2.5 at a place, what calibrates the cameras near it and
+    anchors the map."""
+
+    __tablename__ = "air_stations"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    name: Mapped[str | None] = mapped_column(String(200))
+    lat: Mapped[float] = mapped_column(Float)
+    lon: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+
+
+class StationReading(Base):
+    """A station's PM2.5 [µg/m³] at a time: one per (station, at); an import of the same time
+    replaces it."""
+
+    __tablename__ = "air_station_readings"
+
+    station_id: Mapped[str] = mapped_column(
+        ForeignKey("air_stations.id", ondelete="CASCADE"), primary_key=True
+    )
+    at: Mapped[datetime] = mapped_column(UTCDateTime(), primary_key=True)
+    pm25: Mapped[float] = mapped_column(Float)

@@ -3,8 +3,8 @@
 
 from fastapi import APIRouter
 
-from app.air.routers import alerts, calibration, maps, readings
+from app.air.routers import alerts, calibration, maps, readings, stations
 
 router = APIRouter()
-for part in (calibration, readings, alerts, maps):
+for part in (calibration, readings, alerts, maps, stations):
     router.include_router(part.router)

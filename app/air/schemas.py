@@ -7,7 +7,8 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from app.platform.schemas import Out, Schema, SkyEstimate
+from app.platform.http.deps import UtcTime
+from app.platform.schemas import Id, Lat, Lon, Out, Schema, SkyEstimate
 
 
 class AirCalibrationFromFrames(Schema):
@@ -299,3 +300,41 @@ class AirRegradeOut(Schema):
         description="More frames remain: call again with this since (the last one re-graded "
         "is graded again, harmlessly). Null when done."
     )
+
+
+class StationCreate(Schema):
+    id: Id
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat
+    lon: Lon
+
+
+class StationUpdate(Schema):
+    name: Annotated[str, Field(max_length=200)] | None = None
+    lat: Lat | None = None
+    lon: Lon | None = None
+
+
+class StationReadingIn(Schema):
+    at: UtcTime = Field(description="When it was measured (RFC 3339; without an offset, UTC).")
+    pm25: float = Field(ge=0, allow_inf_nan=False, description="PM2.5 [µg/m³].")
+
+
+class StationReadingOut(Out):
+    at: datetime
+    pm25: float
+
+
+class StationOut(Out):
+    id: str
+    name: str | None
+    lat: float
+    lon: float
+    latest: StationReadingOut | None = Field(
+        default=None, description="Its newest reading; null before any."
+    )
+
+
+class ReadingsStored(Schema):
+    station_id: str
+    stored: int = Field(description="Distinct times stored (a time given twice counts once).")

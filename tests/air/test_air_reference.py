@@ -725,3 +725,44 @@ def test_an_episode_ends_with_the_night(
     alerts = client.get("/air/alerts").json()
     assert [a["kind"] for a in alerts] == ["raised", "raised"]
     assert alerts[0]["created_at"] > alerts[1]["created_at"]
+
+
+def test_a_camera_calibrates_itself_from_a_station_near_it(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any]
+) -> None:
+    """``from=stations``: the camera's stored frames pair with the readings of a station 1 km
+    away (within 30 minutes, 10 minutes off here) and calibrate as from pm25 does; the same
+    regression as from the values given by hand. A station farther than max_distance_km is
+    a 422 naming its distance; fewer than three days paired, one naming them."""
+    assert client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    monitor = {"id": "st-1", "name": "Monitor", "lat": 45.469, "lon": 9.19}  # 1.0 km north
+    assert client.post("/air/stations", json=monitor, headers=admin).status_code == 201
+    readings = [
+        {"at": (START + timedelta(days=k // 6, hours=k % 6, minutes=10)).isoformat(), "pm25": v}
+        for k, v in enumerate(station["pm25"][:12])
+    ]  # two days of readings first
+    path = "/air/stations/st-1/readings"
+    assert client.post(path, json=readings, headers=admin).status_code == 200
+    params = {"from": "stations", "applies_to": "m", "breakpoints": "us_epa"}
+    few = client.post("/air/calibration", params=params, headers=admin)
+    assert (few.status_code, few.json()["code"]) == (422, "too_few_days")
+    assert "12 frames of m pair" in few.json()["detail"] and "over 2 days" in few.json()["detail"]
+    readings = [
+        {"at": (START + timedelta(days=k // 6, hours=k % 6, minutes=10)).isoformat(), "pm25": v}
+        for k, v in enumerate(station["pm25"])
+    ]
+    assert client.post(path, json=readings, headers=admin).json()["stored"] == 48
+    r = client.post("/air/calibration", params=params, headers=admin)
+    assert r.status_code == 201, r.text
+    cal = r.json()
+    assert cal["n_images"] == 48
+    assert cal["camera_ids"] == ["m"]
+    assert cal["method"] == "regression"
+    assert any("from stations st-1: 48 frames paired over 8 days" in w for w in cal["warnings"])
+    by_hand = calibrate(client, admin, station)
+    assert cal["regression"]["sigma"] == pytest.approx(by_hand["regression"]["sigma"])
+    far = client.post(
+        "/air/calibration", params={**params, "max_distance_km": 0.5}, headers=admin
+    )
+    assert (far.status_code, far.json()["code"]) == (422, "no_station_near")
+    assert "the nearest, 'st-1', is 1.0 km away" in far.json()["detail"]

@@ -157,7 +157,8 @@ def test_the_display_reads_from_across_the_street(
 ) -> None:
     """Today's message and the level in the category's colour, no scroll bars at 1920×1080 or
     1280×720; "No current reading" for a camera whose reading is 5 hours old; an unknown
-    camera is a page saying so (404)."""
+    camera is a page saying so (404); a past moment (``?at=``) before the history kept is a page
+    saying why (422)."""
     for width, height in ((1920, 1080), (1280, 720)):
         p = Page(browser, width, height)
         p.page.goto(f"{live}/display/brera")
@@ -165,6 +166,7 @@ def test_the_display_reads_from_across_the_street(
         assert p.page.locator("#headline").inner_text() == "Today's Air Quality is Good"
         assert p.page.locator("#level").inner_text() == "7"
         assert p.page.locator("#name").inner_text() == "Brera"
+        assert p.page.locator("#scale li.on").inner_text() == "7"  # today's on the 1–10 scale
         overflow = p.page.evaluate(
             "[document.documentElement.scrollWidth > innerWidth,"
             " document.documentElement.scrollHeight > innerHeight]"
@@ -178,8 +180,14 @@ def test_the_display_reads_from_across_the_street(
     p = Page(browser)
     p.page.goto(f"{live}/display/old")
     p.page.wait_for_function("document.body.dataset.state === 'none'")
-    assert p.page.locator("#headline").inner_text() == "No current reading"
+    assert p.page.locator("#headline").inner_text() == (
+        "No reading in the last 3 hours (the latest was taken 5 h ago)"
+    )
+    assert p.page.locator("#scale li.on").count() == 0
     p.shot("display-stale")
+    past = p.page.goto(f"{live}/display/old?at=2001-01-01T00:00:00Z")
+    assert past is not None
+    assert past.status == 422
     response = p.page.goto(f"{live}/display/nowhere")
     assert response is not None
     assert response.status == 404

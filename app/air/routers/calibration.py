@@ -16,7 +16,7 @@ from app.air.schemas import (
     AirCalibrationOut,
     AirRegradeOut,
 )
-from app.air.services import calibration, cameras, grading, references
+from app.air.services import calibration, cameras, grading, references, stations
 from app.platform.http.deps import (
     ID_PATTERN,
     Admin,
@@ -34,7 +34,6 @@ from app.platform.http.deps import (
 )
 from app.platform.http.errors import (
     NotFound,
-    Unprocessable,
 )
 from app.platform.http.responses import (
     AUTH_ERRORS,
@@ -90,6 +89,22 @@ BreakpointsTable = Annotated[
 ]
 
 
+From = Annotated[
+    Literal["stations"] | None,
+    Query(
+        alias="from",
+        description="stations: no body; each camera of applies_to is calibrated from its "
+        "stored frames paired with the readings of the reference stations within "
+        "max_distance_km (within 30 minutes of each frame; of several stations, the "
+        "inverse-distance-weighted mean).",
+    ),
+]
+MaxDistanceKm = Annotated[
+    float,
+    Query(gt=0, le=1000, description="from=stations: stations this far from a camera [km]."),
+]
+
+
 def _calibration_out(row: Any) -> AirCalibrationOut:
     return AirCalibrationOut.model_validate(row)
 
@@ -120,18 +135,29 @@ async def calibrate(
     applies_to: AppliesTo = None,
     method: Method = None,
     breakpoints_table: BreakpointsTable = None,
+    source: From = None,
+    max_distance_km: MaxDistanceKm = 10.0,
 ) -> AirCalibrationOut:
-    """Calibrate the level clusters (eqs. 6.12–6.13) from labelled sky images.
-
-    Multipart: repeated ``files`` and ``levels`` (1–10, same order), and optionally ``groups``
-    (each image's capture day or session: the regression leaves a group's images out together
-    when it measures its interval, as it leaves out a day of stored frames); or JSON
+    """Calibrate from labelled sky images (the level clusters, eqs. 6.12–6.13, or the
+    regression). Multipart: repeated ``files`` and ``levels`` (1–10, same order), optionally
+    ``groups`` (each image's day: left out together, as a day of stored frames is); or JSON
     ``{"frame_ids": [...], "levels": [...]}`` of stored sky frames. In place of ``levels``,
-    the reference ``pm25`` [µg/m³] or US ``aqi`` of each, mapped to levels by the US EPA AQI
-    breakpoints (2024) or, for PM2.5 with ``breakpoints=eu_eaqi``, the European Air Quality
-    Index's bands (``app.air.core.breakpoints``); PM2.5 without ``breakpoints`` takes the
-    European index where the cameras it grades stand in Europe, the EPA's elsewhere.
+    the reference ``pm25`` [µg/m³] or US ``aqi``, made levels by the US EPA AQI breakpoints
+    (2024) or the European index's bands (``breakpoints``; by default the European where the
+    graded cameras stand in Europe). ``from=stations``, no body: from the readings of the
+    stations near the cameras of ``applies_to``.
     """
+    if source == "stations":
+        job = partial(
+            stations.calibrate_from_stations,
+            session,
+            applies_to or [],
+            max_km=max_distance_km,
+            significance=significance,
+            shrinkage=shrinkage,
+            now=timing.now(),
+        )
+        return _calibration_out(await run_in_threadpool(job, method, breakpoints_table))
     given = await images_or_frames(
         request,
         AirCalibrationFromFrames,
@@ -157,14 +183,7 @@ async def calibrate(
         return _calibration_out(row)
     files = given.files_of("files")
     groups = given.groups_of(len(files))
-    named = {k: given.fields[k] for k in ("levels", "pm25", "aqi") if given.fields.get(k)}
-    if len(named) != 1:
-        raise Unprocessable("give one of levels, pm25 or aqi per file")
-    [(name, raw)] = named.items()
-    if len(files) != len(raw):
-        raise Unprocessable(f"{len(files)} files but {len(raw)} {name}; give one each")
-    given_values = references.parse_references(name, raw)
-    references.check_table(breakpoints_table, name == "pm25")
+    given_values = references.of_form(given.fields, len(files), breakpoints_table)
     row = await image_work(
         request,
         partial(

@@ -60,6 +60,20 @@ def parse_references(name: str, raw: list[str]) -> Raw:
     return (None, values, None) if name == "pm25" else (None, None, values)
 
 
+def of_form(fields: dict[str, list[str]], n_files: int, table: str | None) -> Raw:
+    """The references of a multipart calibration: one of levels, pm25 or aqi, one per file
+    (422 otherwise), checked (``parse_references``, ``check_table``)."""
+    named = {k: fields[k] for k in ("levels", "pm25", "aqi") if fields.get(k)}
+    if len(named) != 1:
+        raise Unprocessable("give one of levels, pm25 or aqi per file")
+    [(name, raw)] = named.items()
+    if n_files != len(raw):
+        raise Unprocessable(f"{n_files} files but {len(raw)} {name}; give one each")
+    given = parse_references(name, raw)
+    check_table(table, name == "pm25")
+    return given
+
+
 def as_levels(session: Session, raw: Raw, table: str | None, applies_to: list[str]) -> References:
     """Levels as given, or from reference PM2.5 or AQI values by the breakpoint ``table``
     (``core.breakpoints``); the European table maps PM2.5 only. Without a table, PM2.5 takes

@@ -1,0 +1,110 @@
+"""Reference stations over HTTP: registering them, importing their readings (JSON and CSV),
+reading both; bad input refused whole."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi.testclient import TestClient
+
+STATION = {"id": "viale-marche", "name": "Viale Marche", "lat": 45.496, "lon": 9.193}
+
+
+def create(client: TestClient, admin: dict[str, str], **over: Any) -> Any:
+    return client.post("/air/stations", json={**STATION, **over}, headers=admin)
+
+
+def test_a_station_is_registered_read_changed_and_removed(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    assert create(client, admin).status_code == 201
+    assert create(client, admin).status_code == 409
+    assert client.post("/air/stations", json=STATION).status_code == 401
+    listed = client.get("/air/stations").json()  # public
+    assert listed == [{**STATION, "latest": None}]
+    moved = client.patch(
+        "/air/stations/viale-marche", json={"lat": 45.5, "name": "Marche"}, headers=admin
+    )
+    assert moved.status_code == 200, moved.text
+    assert (moved.json()["lat"], moved.json()["name"]) == (45.5, "Marche")
+    cleared = client.patch("/air/stations/viale-marche", json={"lat": None}, headers=admin)
+    assert cleared.status_code == 422
+    assert client.get("/air/stations/viale-marche").json()["lon"] == STATION["lon"]
+    assert client.delete("/air/stations/viale-marche", headers=admin).status_code == 204
+    assert client.get("/air/stations/viale-marche").status_code == 404
+
+
+def test_bad_stations_are_refused_naming_the_field(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    for over, field in (({"lat": 91.0}, "lat"), ({"lon": -181.0}, "lon"), ({"id": "a b"}, "id")):
+        r = create(client, admin, **over)
+        assert r.status_code == 422, over
+        assert field in r.text
+    assert client.get("/air/stations").json() == []
+
+
+def test_readings_are_stored_replaced_and_paged(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """JSON or CSV; a time sent again takes its new value (an import can be repeated); the
+    count says the distinct times stored; newest first, paged; the station lists its
+    latest."""
+    create(client, admin)
+    path = "/air/stations/viale-marche/readings"
+    first = [{"at": f"2025-01-29T{h:02d}:00:00Z", "pm25": 10.0 + h} for h in range(8, 12)]
+    r = client.post(path, json=first, headers=admin)
+    assert r.status_code == 200, r.text
+    assert r.json() == {"station_id": "viale-marche", "stored": 4}
+    csv_body = "at,pm25\n2025-01-29T11:00:00Z,30.5\n2025-01-29T12:00:00+01:00,25\n"
+    r = client.post(path, content=csv_body, headers={**admin, "Content-Type": "text/csv"})
+    assert r.json()["stored"] == 1  # 12:00+01:00 is 11:00Z: the file's last value stands
+    rows = client.get(path).json()
+    assert [(x["at"], x["pm25"]) for x in rows] == [
+        ("2025-01-29T11:00:00Z", 25.0),  # replaced
+        ("2025-01-29T10:00:00Z", 20.0),
+        ("2025-01-29T09:00:00Z", 19.0),
+        ("2025-01-29T08:00:00Z", 18.0),
+    ]
+    page = client.get(path, params={"limit": 2, "offset": 2}).json()
+    assert [x["at"] for x in page] == ["2025-01-29T09:00:00Z", "2025-01-29T08:00:00Z"]
+    since = client.get(path, params={"since": "2025-01-29T10:00:00Z"}).json()
+    assert len(since) == 2
+    latest = client.get("/air/stations/viale-marche").json()["latest"]
+    assert latest == {"at": "2025-01-29T11:00:00Z", "pm25": 25.0}
+
+
+def test_a_bad_import_is_refused_whole_naming_its_row(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    create(client, admin)
+    path = "/air/stations/viale-marche/readings"
+    good = {"at": "2025-01-29T08:00:00Z", "pm25": 12.0}
+    for bad, words in (
+        ({"at": "2025-01-29T09:00:00Z", "pm25": -1}, "pm25"),
+        ({"at": "yesterday", "pm25": 3}, "at"),
+        ({"at": "2025-01-29T09:00:00Z"}, "pm25"),
+    ):
+        r = client.post(path, json=[good, bad], headers=admin)
+        assert r.status_code == 422, bad
+        assert "readings[1" in r.json()["detail"] and words in r.json()["detail"]
+    nan = client.post(
+        path,
+        content='[{"at": "2025-01-29T09:00:00Z", "pm25": NaN}]',
+        headers={**admin, "Content-Type": "application/json"},
+    )
+    assert nan.status_code == 422
+    csv_bad = "at,pm25\n2025-01-29T08:00:00Z,12\n2025-01-29T09:00:00Z,lots\n"
+    r = client.post(path, content=csv_bad, headers={**admin, "Content-Type": "text/csv"})
+    assert r.status_code == 422
+    assert r.json()["detail"].startswith("line 3, pm25")
+    no_header = client.post(
+        path, content="when,value\nx,1\n", headers={**admin, "Content-Type": "text/csv"}
+    )
+    assert "at and pm25" in no_header.json()["detail"]
+    assert client.get(path).json() == []  # nothing of a refused import
+    other = client.post(path, content=b"x", headers={**admin, "Content-Type": "image/png"})
+    assert other.status_code == 415
+    unknown = client.post("/air/stations/nowhere/readings", json=[good], headers=admin)
+    assert unknown.status_code == 404
+    assert client.post(path, json=[good]).status_code == 401
