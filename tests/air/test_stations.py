@@ -44,9 +44,7 @@ def test_bad_stations_are_refused_naming_the_field(
     assert client.get("/air/stations").json() == []
 
 
-def test_readings_are_stored_replaced_and_paged(
-    client: TestClient, admin: dict[str, str]
-) -> None:
+def test_readings_are_stored_replaced_and_paged(client: TestClient, admin: dict[str, str]) -> None:
     """JSON or CSV; a time sent again takes its new value (an import can be repeated); the
     count says the distinct times stored; newest first, paged; the station lists its
     latest."""
@@ -87,7 +85,8 @@ def test_a_bad_import_is_refused_whole_naming_its_row(
     ):
         r = client.post(path, json=[good, bad], headers=admin)
         assert r.status_code == 422, bad
-        assert "readings[1" in r.json()["detail"] and words in r.json()["detail"]
+        assert "readings[1" in r.json()["detail"]
+        assert words in r.json()["detail"]
     nan = client.post(
         path,
         content='[{"at": "2025-01-29T09:00:00Z", "pm25": NaN}]',
