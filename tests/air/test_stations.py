@@ -3,6 +3,7 @@ reading both; bad input refused whole."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from fastapi.testclient import TestClient
@@ -107,3 +108,36 @@ def test_a_bad_import_is_refused_whole_naming_its_row(
     unknown = client.post("/air/stations/nowhere/readings", json=[good], headers=admin)
     assert unknown.status_code == 404
     assert client.post(path, json=[good]).status_code == 401
+
+
+def test_the_map_is_anchored_by_the_stations(client: TestClient, admin: dict[str, str]) -> None:
+    """Stations' newest readings in the window are the map's data points, with the small
+    error of a measurement: each is drawn in its own category's band (kriging passes by
+    them), named in the collection's ``stations`` with its value and time, and in the PNG;
+    stations alone make a map; a reading older than the window is left out."""
+    now = datetime.now(UTC).replace(microsecond=0)
+    places = {"a": (45.46, 9.15, 6.0), "b": (45.48, 9.19, 30.0), "c": (45.45, 9.22, 60.0)}
+    for sid, (lat, lon, pm) in places.items():
+        assert create(client, admin, id=sid, name=f"Station {sid}", lat=lat, lon=lon)
+        at = (now - timedelta(minutes=10)).isoformat()
+        r = client.post(
+            f"/air/stations/{sid}/readings", json=[{"at": at, "pm25": pm}], headers=admin
+        )
+        assert r.status_code == 200, r.text
+    old = (now - timedelta(hours=5)).isoformat()
+    create(client, admin, id="old", lat=45.47, lon=9.2)
+    client.post("/air/stations/old/readings", json=[{"at": old, "pm25": 90.0}], headers=admin)
+    fc = client.get("/air/isopleths", params={"method": "kriging", "max_distance": 8000}).json()
+    shown = {s["station_id"]: s for s in fc["stations"]}
+    assert set(shown) == {"a", "b", "c"}
+    expected = {"a": "Very Good", "b": "Poor", "c": "Very Poor"}  # European bands, Milan
+    for sid, s in shown.items():
+        assert s["value"] == places[sid][2]
+        assert s["category"] == expected[sid]
+        assert s["band"] == s["category"]  # the map at the station is its reading
+    assert fc["cameras"] == []
+    assert {b["properties"]["category"] for b in fc["features"]} >= set(expected.values())
+    assert fc["islands"][0]["station_ids"] == ["a", "b", "c"]
+    png = client.get("/air/isopleths.png", params={"method": "kriging", "max_distance": 8000})
+    assert png.status_code == 200
+    assert png.headers["content-type"] == "image/png"

@@ -233,6 +233,7 @@ async def isopleths_png(request: Request, timing: TimingDep, q: MapQueryDep) -> 
                 layer=q.layer,
                 max_distance=q.max_distance,
                 empty_reason=maps.empty_reason(m, off_map, q.window),
+                monitors=m.monitors,
             )
         )
 

@@ -23,7 +23,7 @@ from matplotlib.patheffects import withStroke
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from app.air.core import airquality, isopleths
-from app.air.services.maps import Station
+from app.air.services.maps import Monitor, Station
 
 COLOURS = {
     "Very Poor": "#d7191c",
@@ -61,6 +61,7 @@ def figure(
     layer: Literal["levels", "uncertainty"] = "levels",
     max_distance: float = 5000.0,
     empty_reason: str | None = None,
+    monitors: Sequence[Monitor] = (),
 ) -> Figure:
     """The map as a matplotlib Figure: a panel per island (the ``MAX_PANELS`` with the most
     cameras), a shared legend, the time it is of. Without islands, a figure that says why
@@ -86,7 +87,7 @@ def figure(
     handles: list[Patch] = []
     axes = fig.subplots(1, n, squeeze=False)[0]
     for ax, island in zip(axes, shown, strict=True):
-        handles = _panel(ax, island, stations, layer)
+        handles = _panel(ax, island, stations, monitors, layer)
     if layer == "levels":
         label = "Category (level 1–10)"
     elif kinds == {"kriging_sd"}:
@@ -106,9 +107,14 @@ def figure(
 
 
 def _panel(
-    ax: object, island: isopleths.Island, stations: Sequence[Station], layer: str
+    ax: object,
+    island: isopleths.Island,
+    stations: Sequence[Station],
+    monitors: Sequence[Monitor],
+    layer: str,
 ) -> list[Patch]:
-    """One island's bands, cameras and scale bar on ``ax``; the legend's entries."""
+    """One island's bands, cameras (dots), reference stations (squares) and scale bar on
+    ``ax``; the legend's entries."""
     from matplotlib.axes import Axes
 
     assert isinstance(ax, Axes)
@@ -152,6 +158,14 @@ def _panel(
         ]
     halo = [withStroke(linewidth=3, foreground="white")]
     for k in island.cameras.tolist():
+        if k >= len(stations):
+            m = monitors[k - len(stations)]
+            ax.plot(m.lon, m.lat, "s", ms=7, mfc="white", mec="black", mew=1.5)
+            ax.annotate(
+                f"{m.name or m.station_id} ({m.pm25:.0f} µg/m³)", (m.lon, m.lat),
+                xytext=(5, -10), textcoords="offset points", fontsize=8, path_effects=halo,
+            )  # fmt: skip
+            continue
         s = stations[k]
         ax.plot(s.lon, s.lat, "o", ms=6, mfc="black", mec="white", mew=1.5)
         name = s.name or s.camera_id

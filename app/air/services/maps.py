@@ -15,10 +15,11 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session
 
-from app.air.core import airquality, isopleths
-from app.air.models import AirCalibration, SkyVerdict
+from app.air.core import airquality, breakpoints, isopleths
+from app.air.models import AirCalibration, AirStation, SkyVerdict
 from app.air.services.calibration import as_regression
 from app.air.services.cameras import TRUSTED
+from app.air.services.stations import latest_of
 from app.platform.db.models import Camera, CameraKind, Frame
 from app.platform.http.errors import (
     Unprocessable,
@@ -53,6 +54,45 @@ def level_error(low: float, high: float, unit: str, table: str) -> float:
     the levels of its ends, apart by 2 × 1.2816 σ, at least ``QUANTUM``."""
     a, b = (airquality.level_of(v, unit, table) for v in (low, high))
     return max(abs(a - b) / (2 * Z80), float(QUANTUM))
+
+
+@dataclass(frozen=True, slots=True)
+class Monitor:
+    """A reference station on the map: its newest reading in the window."""
+
+    station_id: str
+    name: str | None
+    lon: float
+    lat: float
+    pm25: float
+    at: datetime
+    level: float
+    """The level of its PM2.5 by the breakpoint table of its place."""
+
+
+STATION_ERROR = float(QUANTUM)
+"""A station's standard error on the map [level]: it measures, so only the rounding of its
+value to a level."""
+
+
+def monitors(session: Session, *, since: datetime, until: datetime) -> list[Monitor]:
+    """Each reference station with a reading in [``since``, ``until``]: its newest one there,
+    as a level by the table of its place (``breakpoints.table_for_places``)."""
+    every = session.scalars(select(AirStation).order_by(AirStation.id)).all()
+    out = []
+    for station, latest in zip(
+        every, latest_of(session, [s.id for s in every], until), strict=True
+    ):
+        if latest is None or latest.at < since:
+            continue
+        table = breakpoints.table_for_places([(station.lat, station.lon)])
+        level = float(breakpoints.level_of_pm25(latest.pm25, table))
+        out.append(
+            Monitor(
+                station.id, station.name, station.lon, station.lat, latest.pm25, latest.at, level
+            )
+        )
+    return out
 
 
 def unplaced(session: Session, *, since: datetime, until: datetime) -> list[str]:
@@ -174,10 +214,13 @@ class MapData:
 
     stations: list[Station]
     islands: list[isopleths.Island]
+    """Interpolated from the cameras (indices below len(stations)) and the monitors (the
+    rest, in order)."""
     box: tuple[float, float, float, float] | None
     since: datetime
     at: datetime
     max_distance: float
+    monitors: tuple[Monitor, ...] = ()
 
 
 def _window_start(at: datetime, window: int) -> datetime:
@@ -196,16 +239,19 @@ def field(session: Session, timing: Timing, q: MapQuery) -> MapData:
     at = q.at or now
     since = _window_start(at, q.window)
     st = stations(session, since=since, until=at)
-    if not st:
+    mons = monitors(session, since=since, until=at)
+    if not st and not mons:
         return MapData(st, [], q.bbox, since, at, q.max_distance)
-    lon = np.array([s.lon for s in st])
-    lat = np.array([s.lat for s in st])
+    points: list[Station | Monitor] = [*st, *mons]
+    lon = np.array([p.lon for p in points])
+    lat = np.array([p.lat for p in points])
+    errors = [s.error for s in st] + [STATION_ERROR] * len(mons)
     try:
         found = isopleths.interpolate_islands(
             lon,
             lat,
-            np.array([s.level for s in st]),
-            errors=np.array([s.error for s in st]),
+            np.array([p.level for p in points]),
+            errors=np.array(errors),
             bbox=q.bbox,
             method=q.method,
             resolution=q.resolution,
@@ -222,14 +268,14 @@ def field(session: Session, timing: Timing, q: MapQuery) -> MapData:
             float(boxes[:, 2].max()),
             float(boxes[:, 3].max()),
         )
-    return MapData(st, found, box, since, at, q.max_distance)
+    return MapData(st, found, box, since, at, q.max_distance, tuple(mons))
 
 
 def empty_reason(m: MapData, off_map: list[str], window: int) -> str | None:
     """Why a map has no bands, or None when it has some."""
     if any(np.isfinite(i.field.value).any() for i in m.islands):
         return None
-    if m.stations:
+    if m.stations or m.monitors:
         return (
             f"no cell of the bbox lies within max_distance ({m.max_distance:g} m) of a camera"
             " with a reading"
@@ -284,9 +330,27 @@ def geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[
                 "cell_m": [round(v, 1) for v in isopleths.cell_size_m(i.field)],
                 "cells": [len(i.field.lon), len(i.field.lat)],
                 "method": i.method,
-                "camera_ids": [st[k].camera_id for k in i.cameras.tolist()],
+                "camera_ids": [st[k].camera_id for k in i.cameras.tolist() if k < len(st)],
+                "station_ids": [
+                    m.monitors[k - len(st)].station_id for k in i.cameras.tolist() if k >= len(st)
+                ],
             }
             for i in m.islands
+        ],
+        "stations": [
+            {
+                "station_id": s.station_id,
+                "name": s.name,
+                "lon": s.lon,
+                "lat": s.lat,
+                "value": s.pm25,
+                "unit": "pm25",
+                "at": s.at.isoformat(),
+                "level": s.level,
+                "category": airquality.category(s.level),
+                "band": band,
+            }
+            for s, band in zip(m.monitors, _monitor_bands(m), strict=True)
         ],
         "cell_m": cell,
         "empty_reason": empty_reason(m, off_map, q.window),
@@ -295,12 +359,28 @@ def geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[
     }
 
 
+def _monitor_bands(m: MapData) -> list[str | None]:
+    """The category band each reference station of ``m`` is drawn in (None: off the map)."""
+    drawn: list[str | None] = [None] * len(m.monitors)
+    first = len(m.stations)
+    for island in m.islands:
+        idx = island.cameras[island.cameras >= first] - first
+        found = isopleths.band_at(
+            island.field,
+            np.array([m.monitors[k].lon for k in idx]),
+            np.array([m.monitors[k].lat for k in idx]),
+        )
+        for k, band in zip(idx.tolist(), found, strict=True):
+            drawn[k] = band
+    return drawn
+
+
 def _bands_drawn(m: MapData) -> list[str | None]:
     """The category band each camera of ``m`` is drawn in (None: off every island)."""
     st = m.stations
     drawn: list[str | None] = [None] * len(st)
     for island in m.islands:
-        idx = island.cameras
+        idx = island.cameras[island.cameras < len(st)]
         found = isopleths.band_at(
             island.field,
             np.array([st[k].lon for k in idx]),

@@ -1,6 +1,7 @@
 // The city map: the isopleth bands of /air/isopleths over a base map, each sky camera a
 // marker labelled with its name and level (labels that would overlap hidden, worst air kept;
-// a camera with no reading on the map grey, with why),
+// a camera with no reading on the map grey, with why; each reference station a square with its
+// name and measured PM2.5),
 // a popup with its category, time, sky and last 24 h / 7 d; uncertainty and method toggles; a
 // time slider over the last 24 h. Refreshes itself every minute.
 (() => {
@@ -22,6 +23,7 @@
     },
   }).addTo(map);
   const cameras = L.layerGroup().addTo(map);
+  const monitors = L.layerGroup().addTo(map); // the reference stations, redrawn each time
   const markers = new Map();
   let uncertaintyEdges = [];
 
@@ -205,6 +207,16 @@
       m.getElement().querySelector(".cam-label").textContent = label(c);
     }
     prune(seen, true);
+    // each reference station a square marker with its name and measured value (text, never
+    // markup: a station's name is the city's to choose)
+    monitors.clearLayers();
+    for (const s of fc.stations || []) {
+      const html = `<span class="square" style="background:${colour[s.category]}"></span><span class="cam-label"></span>`;
+      const m = L.marker([s.lat, s.lon], { icon: L.divIcon({ className: "cam station", html, iconSize: null }) });
+      monitors.addLayer(m);
+      m.getElement().querySelector(".cam-label").textContent =
+        `${s.name || s.station_id}: ${Math.round(s.value)} µg/m³ (station)`;
+    }
     let view = null;
     if (!state.fitted && fc.bbox) {
       state.fitted = true;
@@ -212,7 +224,7 @@
       map.fitBounds(view, { padding: [30, 30] });
     }
     legend(fc);
-    const notes = [`${fc.cameras.length} cameras, ${fc.method}, map of ${new Date(fc.at).toLocaleString()}`];
+    const notes = [`${fc.cameras.length} cameras, ${(fc.stations || []).length} stations, ${fc.method}, map of ${new Date(fc.at).toLocaleString()}`];
     if (fc.empty_reason) notes.push(`Nothing drawn: ${fc.empty_reason}.`);
     notes.push(...fc.warnings);
     $("status").textContent = notes.join(" ");
