@@ -30,6 +30,8 @@ COMMANDS = (
     ["export", "readings"],
     ["export", "panel-history"],
     ["replay"],
+    ["stations", "import"],
+    ["stations", "readings"],
 )
 
 
@@ -289,6 +291,33 @@ def test_replay_backfills_an_archive_with_the_admin_token(
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [datetime.fromisoformat(x["captured_at"]) for x in lines] == taken
     assert vantage(live, *args, "%Y%m%d-%H%M", token="not-the-admin") == 1  # 401
+
+
+def test_stations_and_their_readings_are_imported(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``stations import`` registers them; ``stations readings`` sends a station's 12,000
+    readings in chunks of 5,000, a bad row named by its line in the file."""
+    stations = write_csv(
+        tmp_path / "stations.csv",
+        [{"id": "vm", "name": "Viale Marche", "lat": "45.496", "lon": "9.193"}],
+    )
+    assert vantage(live, "stations", "import", str(stations)) == 0
+    assert "1 stations registered" in capsys.readouterr().out
+    start = datetime(2025, 1, 1, tzinfo=UTC)
+    rows = [
+        {"at": (start + timedelta(minutes=10 * k)).isoformat(), "pm25": f"{5 + k % 40}"}
+        for k in range(12_000)
+    ]
+    readings = write_csv(tmp_path / "readings.csv", rows)
+    assert vantage(live, "stations", "readings", "vm", str(readings)) == 0
+    assert "12000 readings of vm stored" in capsys.readouterr().out
+    latest = httpx.get(f"{live}/air/stations/vm").json()["latest"]
+    assert datetime.fromisoformat(latest["at"]) == start + timedelta(minutes=10 * 11_999)
+    rows[7_000]["pm25"] = "-3"
+    bad = write_csv(tmp_path / "bad.csv", rows)
+    assert vantage(live, "stations", "readings", "vm", str(bad)) == 1
+    assert "rows 5002–10001" in capsys.readouterr().err
 
 
 def test_a_crlf_csv_leaves_no_carriage_return(

@@ -26,7 +26,6 @@ import csv
 import hashlib
 import json
 import os
-import sys
 import time
 from collections.abc import Iterator, Sequence
 from datetime import datetime
@@ -34,96 +33,17 @@ from pathlib import Path
 from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-import httpx2 as httpx
-from rich.console import Console
 from rich.progress import Progress
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
-err = Console(stderr=True)
-
-
-class Failed(Exception):
-    """What the service or the input refused, as the user is told it."""
-
-
-class Service:
-    """The running service: its URL and a token."""
-
-    def __init__(self, url: str, token: str | None, timeout: float = 300.0) -> None:
-        token = token and token.strip()  # as read from a file or a CSV cell: no token has spaces
-        headers = {"Authorization": f"Bearer {token}"} if token else {}
-        self.http = httpx.Client(base_url=url.rstrip("/"), headers=headers, timeout=timeout)
-        self.url = url
-
-    def close(self) -> None:
-        self.http.close()
-
-    def call(self, method: str, path: str, **kw: Any) -> httpx.Response:
-        try:
-            r = self.http.request(method, path, **kw)
-        except httpx.TransportError as exc:
-            raise Failed(f"cannot reach the service at {self.url}: {exc}") from None
-        if r.status_code >= 400:
-            raise Failed(f"{method} {path}: {r.status_code} {_reason(r)}")
-        return r
-
-
-def _reason(r: httpx.Response) -> str:
-    """The problem's detail (RFC 9457), else the body's start."""
-    try:
-        body = r.json()
-    except ValueError:
-        return r.text[:300]
-    if isinstance(body, dict):
-        return str(body.get("detail") or body.get("title") or body)[:1000]
-    return str(body)[:300]
-
-
-def _rows(path: Path) -> list[dict[str, str]]:
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            return [
-                {k.strip(): (v or "").strip() for k, v in row.items() if k}
-                for row in csv.DictReader(f)
-            ]
-    except OSError as exc:
-        raise Failed(f"cannot read {path}: {exc.strerror}") from None
-
-
-def _images(folder: Path) -> list[Path]:
-    if not folder.is_dir():
-        raise Failed(f"{folder} is not a folder")
-    found = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not found:
-        raise Failed(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
-    return found
-
-
-def _say(args: argparse.Namespace, summary: str, body: Any) -> None:
-    """The command's result on standard output: a line a person reads, or with ``--json``
-    the service's whole answer."""
-    print(json.dumps(body, indent=2) if args.json else summary)
-
-
-def _warn(body: dict[str, Any]) -> None:
-    for w in body.get("warnings") or []:
-        err.print(f"[yellow]warning:[/] {w}")
-
-
-def _number(value: str, name: str, row: int) -> float | None:
-    if value == "":
-        return None
-    try:
-        return float(value)
-    except ValueError:
-        raise Failed(f"row {row}: {name} {value!r} is not a number") from None
+from app.cli import common, stations
+from app.cli.common import Failed, Service, err
 
 
 def import_cameras(service: Service, args: argparse.Namespace) -> None:
     """Register cameras from a CSV: id, kind, then optional name, lat, lon, panel_id, roi (JSON),
     source_url, every_seconds, username, password. The new tokens (shown once) go to
     ``--tokens-out``."""
-    rows = _rows(args.csv)
+    rows = common.rows(args.csv)
     tokens = []
     with Progress(console=err) as progress:
         task = progress.add_task("cameras", total=len(rows))
@@ -135,7 +55,7 @@ def import_cameras(service: Service, args: argparse.Namespace) -> None:
                 if row.get(name):
                     body[name] = row[name]
             for name in ("lat", "lon"):
-                if (v := _number(row.get(name, ""), name, i)) is not None:
+                if (v := common.number(row.get(name, ""), name, i)) is not None:
                     body[name] = v
             if row.get("roi"):
                 try:
@@ -143,7 +63,7 @@ def import_cameras(service: Service, args: argparse.Namespace) -> None:
                 except ValueError:
                     raise Failed(f"row {i}: roi must be JSON, as [0, 0, 640, 300]") from None
             if row.get("source_url"):
-                every = _number(row.get("every_seconds", ""), "every_seconds", i)
+                every = common.number(row.get("every_seconds", ""), "every_seconds", i)
                 body["source"] = {"url": row["source_url"], "every_seconds": int(every or 60)}
                 for name in ("username", "password"):
                     if row.get(name):
@@ -165,7 +85,7 @@ def import_cameras(service: Service, args: argparse.Namespace) -> None:
 
 def import_panels(service: Service, args: argparse.Namespace) -> None:
     """Register panels from a CSV: id, then optional name, lat, lon."""
-    rows = _rows(args.csv)
+    rows = common.rows(args.csv)
     with Progress(console=err) as progress:
         task = progress.add_task("panels", total=len(rows))
         for i, row in enumerate(rows, start=2):
@@ -175,7 +95,7 @@ def import_panels(service: Service, args: argparse.Namespace) -> None:
             if row.get("name"):
                 body["name"] = row["name"]
             for name in ("lat", "lon"):
-                if (v := _number(row.get(name, ""), name, i)) is not None:
+                if (v := common.number(row.get(name, ""), name, i)) is not None:
                     body[name] = v
             service.call("POST", "/panels", json=body)
             progress.advance(task)
@@ -211,7 +131,7 @@ def _labelled(
     if groups and labels is None:
         raise Failed("--groups names a column of the --labels CSV: give --labels")
     columns = [column, *([groups] if groups else [])]
-    paths, values = _labels(folder, _images(folder), labels, *columns)
+    paths, values = _labels(folder, common.images(folder), labels, *columns)
     return paths, values[0], values[1] if groups else None
 
 
@@ -229,7 +149,7 @@ def _labels(
                     f"{p.name} is not in a sub-folder named by its label (or give --labels)"
                 )
         return paths, [[p.parent.name for p in paths]]
-    rows = _rows(labels)
+    rows = common.rows(labels)
     if not rows:
         raise Failed(f"{labels} has no rows")
     for column in ("file", *columns):
@@ -270,14 +190,16 @@ def _labels(
 
 def baseline(service: Service, args: argparse.Namespace) -> None:
     """A panel's clean baseline from a folder of clean photos."""
-    paths = _images(args.folder)
+    paths = common.images(args.folder)
     params = {"camera_id": args.camera_id} if args.camera_id else {}
     r = service.call(
         "POST", f"/panels/{args.panel_id}/baseline", files=_files(paths, "photos"), params=params
     )
     body = r.json()
-    _warn(body)
-    _say(args, f"baseline {body.get('id')} of panel {args.panel_id} from {len(paths)} photos", body)
+    common.warn(body)
+    common.say(
+        args, f"baseline {body.get('id')} of panel {args.panel_id} from {len(paths)} photos", body
+    )
 
 
 def fleet(service: Service, args: argparse.Namespace) -> None:
@@ -285,12 +207,12 @@ def fleet(service: Service, args: argparse.Namespace) -> None:
     paths, labels, groups = _labelled(args.folder, args.labels, "label", args.groups)
     data = {"labels": labels, **({"groups": groups} if groups else {})}
     body = service.call("POST", "/fleet/model", files=_files(paths, "photos"), data=data).json()
-    _warn(body)
+    common.warn(body)
     accuracy = body.get("cv_balanced_accuracy")
     how = "" if accuracy is None else f", balanced accuracy {accuracy:.2f}"
     if accuracy is not None and body.get("cv_low") is not None:
         how += f" (95 % interval {body['cv_low']:.2f}–{body['cv_high']:.2f})"
-    _say(
+    common.say(
         args,
         f"fleet model {body['id']} from {body['n_clean']} clean and {body['n_dirty']} dirty "
         f"photos{how}",
@@ -319,7 +241,7 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
         params=params,
     )
     body = r.json()
-    _warn(body)
+    common.warn(body)
     graded = ", ".join(body.get("camera_ids") or []) or "every sky camera without its own"
     chosen = body.get("selection")
     why = ""
@@ -328,7 +250,7 @@ def air_calibrate(service: Service, args: argparse.Namespace) -> None:
             f"{m} {v:.2f}" if v is not None else f"{m} unfit" for m, v in chosen["scores"].items()
         )
         why = f"; chosen by {chosen['score']}: {scores}"
-    _say(
+    common.say(
         args,
         f"calibration {body['id']} ({body['method']}) from {body['n_images']} images, "
         f"grading {graded}{why}",
@@ -402,7 +324,7 @@ def replay(service: Service, args: argparse.Namespace) -> None:
     apart, each taken when its name says (``--time-from-name``) or now; each frame's verdict
     in a line of JSON. ``--backfill``: an archive, imported with the admin token
     (``backfill=true``): frames as old as the history kept, raising no alert."""
-    paths = [p for p in _images(args.folder) if p.suffix.lower() in (".jpg", ".jpeg")]
+    paths = [p for p in common.images(args.folder) if p.suffix.lower() in (".jpg", ".jpeg")]
     times = _times(paths, args.time_from_name, args.timezone)
     if args.backfill and args.time_from_name is None:
         raise Failed("--backfill imports an archive: give --time-from-name, when each was taken")
@@ -577,6 +499,7 @@ def parser() -> argparse.ArgumentParser:
     _registry_commands(sub)
     _training_commands(sub)
     _export_and_replay_commands(sub)
+    stations.commands(sub)
     return top
 
 
@@ -591,7 +514,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         service.close()
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
