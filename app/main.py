@@ -18,6 +18,7 @@ from fastapi_offline import FastAPIOffline
 from app import __version__
 from app.air import kind as air_kind
 from app.air.router import router as air_router
+from app.air.services import rolling
 from app.air.services import webhook as alert_webhook
 from app.air.services.map_cache import MapCache
 from app.cells import kind as cells_kind
@@ -313,7 +314,8 @@ async def prepare_storage(state: AppState) -> None:
 
 def background_loops(state: AppState) -> list[asyncio.Task[None]]:
     """The loops that run beside requests: the retention sweep, the farm's events to its
-    webhook, and, as configured, the air alerts' webhook and the cameras' sources."""
+    webhook, and, as configured, the air alerts' webhook, the cameras' sources and the
+    rolling calibration of sky cameras from their stations."""
     settings = state.settings
     tasks = [
         asyncio.create_task(
@@ -335,6 +337,18 @@ def background_loops(state: AppState) -> list[asyncio.Task[None]]:
     ]
     if settings.pull_sources:
         tasks.append(asyncio.create_task(puller(state).run()))
+    if settings.air_recalibrate_hours:
+        tasks.append(
+            asyncio.create_task(
+                rolling.run(
+                    state.sessionmaker,
+                    state.timing,
+                    hours=settings.air_recalibrate_hours,
+                    days=settings.air_recalibrate_days,
+                    max_km=settings.air_station_km,
+                )
+            )
+        )
     if settings.alert_webhook_url:
         tasks.append(
             asyncio.create_task(

@@ -338,3 +338,11 @@ class StationOut(Out):
 class ReadingsStored(Schema):
     station_id: str
     stored: int = Field(description="Distinct times stored (a time given twice counts once).")
+
+
+class RollingOut(Schema):
+    recalibrated: list[str] = Field(description="Cameras calibrated again from their stations.")
+    drifting: list[str] = Field(
+        description="Cameras flagged recalibrate: their readings had drifted from the station's."
+    )
+    skipped: dict[str, str] = Field(description="Cameras not recalibrated, and why.")

@@ -227,6 +227,17 @@ class CameraOut(Out):
     source_state: Literal["connecting", "ok", "unreachable", "bad_stream"] | None = Field(
         None, description="source.state, or null for a camera that only posts its frames."
     )
+    attention: list[str] = Field(
+        default_factory=list,
+        description='What the camera\'s operator should do, and why: "recalibrate: …" when a '
+        "sky camera's readings no longer agree with the reference station near it (moved, "
+        "zoomed, a new white balance). Empty: nothing.",
+    )
+
+    @field_validator("attention", mode="before")
+    @classmethod
+    def _none_is_nothing(cls, value: object) -> object:
+        return [] if value is None else value
 
 
 class CameraCreated(CameraOut):

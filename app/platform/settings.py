@@ -269,6 +269,19 @@ class Settings(BaseSettings):
         "and read timeouts, and the snapshot's HTTP timeout) [s].",
     )
     alert_poll_seconds: float = Field(default=5.0, gt=0, description="Webhook sweep interval [s].")
+    air_recalibrate_hours: float | None = Field(
+        default=None,
+        gt=0,
+        description="Recalibrate each located sky camera from the reference stations within "
+        "air_station_km of it every … hours (rolling calibration), and flag a camera whose "
+        "readings have drifted from its station's; off by default.",
+    )
+    air_recalibrate_days: float = Field(
+        default=30.0, gt=0, description="A rolling calibration pairs the frames of the last … days."
+    )
+    air_station_km: float = Field(
+        default=10.0, gt=0, le=1000, description="Stations this near a camera calibrate it [km]."
+    )
     alert_retry_hours: float = Field(
         default=24.0, gt=0, description="Retry an undelivered alert this long after it was raised."
     )

@@ -765,3 +765,50 @@ def test_a_camera_calibrates_itself_from_a_station_near_it(
     far = client.post("/air/calibration", params={**params, "max_distance_km": 0.5}, headers=admin)
     assert (far.status_code, far.json()["code"]) == (422, "no_station_near")
     assert "the nearest, 'st-1', is 1.0 km away" in far.json()["detail"]
+
+
+def test_a_rolling_calibration_follows_the_station_and_flags_a_drift(
+    client: TestClient, admin: dict[str, str], station: dict[str, Any], clock: Any
+) -> None:
+    """``POST /air/stations/recalibrate`` (what ``VANTAGE_AIR_RECALIBRATE_HOURS`` runs on
+    its schedule): a located camera with a station 1 km away is calibrated from the pairs of
+    the last 30 days; one without a place or a station near is skipped, with why. When the
+    camera's later frames disagree with the station (here the station reads five times the
+    haze the frames show, as if the camera had been moved), the next pass flags it
+    ``recalibrate`` in ``GET /cameras/{id}`` and on the map."""
+    assert client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    client.post(
+        "/cameras", json={"id": "far", "kind": "sky", "lat": 40.0, "lon": 3.0}, headers=admin
+    )
+    monitor = {"id": "st-1", "lat": 45.469, "lon": 9.19}
+    assert client.post("/air/stations", json=monitor, headers=admin).status_code == 201
+    path = "/air/stations/st-1/readings"
+
+    def reading(at: datetime, pm25: float) -> None:
+        r = client.post(path, json=[{"at": at.isoformat(), "pm25": pm25}], headers=admin)
+        assert r.status_code == 200, r.text
+
+    for k, v in enumerate(station["pm25"]):
+        reading(START + timedelta(days=k // 6, hours=k % 6), v)
+    first = client.post("/air/stations/recalibrate", headers=admin)
+    assert first.status_code == 200, first.text
+    done = first.json()
+    assert done["recalibrated"] == ["m"]
+    assert "no station within max_distance_km=10" in done["skipped"]["far"]
+    assert done["drifting"] == []
+    assert client.get("/air/calibration", params={"camera_id": "m"}).json()["n_images"] == 48
+    # a week later: eight frames a day over two days, the station reading five times more
+    for day in range(2):
+        for hour in range(8):
+            taken = START + timedelta(days=8 + day, hours=hour)
+            clock.now = taken + timedelta(minutes=1)
+            truth = 8.0 + 2 * hour
+            post(client, station["token"], hazy_jpeg(truth, seed=8000 + 10 * day + hour), taken)
+            reading(taken, 5 * truth)
+    moved = client.post("/air/stations/recalibrate", headers=admin).json()
+    assert moved["drifting"] == ["m"]
+    camera = client.get("/cameras/m", headers=admin).json()
+    assert camera["attention"][0].startswith("recalibrate: its readings' 80 % ranges missed")
+    place = client.get("/air/isopleths", params={"window": 86400}).json()["cameras"]
+    assert [c["recalibrate"] for c in place if c["camera_id"] == "m"] == [True]
+    assert client.get("/cameras/far", headers=admin).json()["attention"] == []

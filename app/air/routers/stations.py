@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request
@@ -11,12 +12,13 @@ from fastapi.responses import Response
 
 from app.air.schemas import (
     ReadingsStored,
+    RollingOut,
     StationCreate,
     StationOut,
     StationReadingOut,
     StationUpdate,
 )
-from app.air.services import stations
+from app.air.services import rolling, stations
 from app.platform.http.deps import (
     ID_PATTERN,
     Admin,
@@ -30,6 +32,7 @@ from app.platform.http.deps import (
 from app.platform.http.errors import UnsupportedMediaType
 from app.platform.http.responses import AUTH_ERRORS, BODY_ERRORS, CONFLICT, NOT_FOUND, UNPROCESSABLE
 from app.platform.http.uploads import content_type, read_capped
+from app.platform.state import app_state
 
 router = APIRouter(prefix="/air", tags=["air quality"])
 
@@ -54,6 +57,27 @@ def create_station(
     """Register a reference station (a monitor of PM2.5) where it stands; 409 for an id in
     use."""
     return _out(stations.create(session, body, timing.now()), None)
+
+
+@router.post(
+    "/stations/recalibrate", response_model=RollingOut, responses={**AUTH_ERRORS, **UNPROCESSABLE}
+)
+async def recalibrate_now(
+    request: Request, settings: SettingsDep, timing: TimingDep, _: Admin
+) -> RollingOut:
+    """Run a rolling calibration now (as ``VANTAGE_AIR_RECALIBRATE_HOURS`` does on its
+    schedule): every located sky camera with a station within ``VANTAGE_AIR_STATION_KM``
+    calibrated from the readings of the last ``VANTAGE_AIR_RECALIBRATE_DAYS``, each flagged
+    ``recalibrate`` (its ``attention``) when its readings had drifted from its station's."""
+    job = partial(
+        rolling.recalibrate_all,
+        app_state(request).sessionmaker,
+        timing,
+        days=settings.air_recalibrate_days,
+        max_km=settings.air_station_km,
+    )
+    done = await run_in_threadpool(job)
+    return RollingOut(recalibrated=done.recalibrated, drifting=done.drifting, skipped=done.skipped)
 
 
 @router.get("/stations", response_model=list[StationOut])

@@ -40,6 +40,8 @@ class Station:
     0 for a clusters' level (no range)."""
     probability: float | None = None
     """The probability of its reading's category."""
+    attention: tuple[str, ...] = ()
+    """What its operator should do ("recalibrate: …")."""
 
 
 Z80 = 1.2816
@@ -153,6 +155,7 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
             SkyVerdict.estimate_unit,
             SkyVerdict.calibration_id,
             SkyVerdict.smoothed_probability,
+            Camera.attention,
         )
         .join(Frame, Frame.camera_id == Camera.id)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
@@ -167,7 +170,7 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
     ).all()
     seen: dict[str, Station] = {}
     tables = _tables(session, {r.calibration_id for r in rows if r.calibration_id is not None})
-    for cid, name, lon, lat, smooth, level, t, low, high, unit, cal, prob in rows:
+    for cid, name, lon, lat, smooth, level, t, low, high, unit, cal, prob, attention in rows:
         value = smooth if smooth is not None else level
         if lon is None or lat is None or value is None:
             continue
@@ -175,7 +178,15 @@ def stations(session: Session, *, since: datetime, until: datetime) -> list[Stat
         if smooth is not None and low is not None and high is not None and unit and cal in tables:
             error = level_error(low, high, unit, tables[cal])
         seen[cid] = Station(
-            cid, float(lon), float(lat), float(value), t, name, error, prob if smooth else None
+            cid,
+            float(lon),
+            float(lat),
+            float(value),
+            t,
+            name,
+            error,
+            prob if smooth else None,
+            tuple(attention or ()),
         )
     return sorted(seen.values(), key=lambda s: s.camera_id)
 
@@ -321,6 +332,7 @@ def geojson(m: MapData, off_map: list[str], now: datetime, q: MapQuery) -> dict[
                 "captured_at": s.captured_at.isoformat(),
                 "probability": s.probability,
                 "level_error": s.error,
+                "recalibrate": any(a.startswith("recalibrate") for a in s.attention),
             }
             for s, category, band in zip(st, own, drawn, strict=True)
         ],

@@ -250,17 +250,22 @@ class Pairs:
     """The stations that gave values."""
 
 
-def pair(session: Session, camera: Camera, stations: Sequence[Near]) -> Pairs:
+def pair(
+    session: Session, camera: Camera, stations: Sequence[Near], since: datetime | None = None
+) -> Pairs:
     """The camera's graded-or-not stored sky frames (usable, measured with sky features)
     paired with the readings of ``stations`` within ``PAIR_WINDOW``: each station's reading
     nearest the frame's time; of several stations, the inverse-distance-weighted mean (the
-    nearest alone when it stands within 100 m)."""
-    frames = session.execute(
+    nearest alone when it stands within 100 m). Frames taken since ``since`` only, when
+    given."""
+    q = (
         select(Frame.id, Frame.captured_at)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
         .where(Frame.camera_id == camera.id, SkyVerdict.usable.is_(True))
-        .order_by(Frame.captured_at)
-    ).all()
+    )
+    if since is not None:
+        q = q.where(Frame.captured_at >= since)
+    frames = session.execute(q.order_by(Frame.captured_at)).all()
     if not frames:
         return Pairs([], [], [])
     first, last = frames[0].captured_at - PAIR_WINDOW, frames[-1].captured_at + PAIR_WINDOW

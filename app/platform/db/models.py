@@ -56,6 +56,8 @@ class Camera(TimestampMixin, Base):
     retired_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
     """When the camera was taken out of service: it posts no more frames, leaves the air map,
     and keeps its history (its frames go with the retention like any others)."""
+    attention: Mapped[list[str] | None] = mapped_column(JSON, default=None)
+    """What a domain asks of the camera's operator ("recalibrate: …"); None: nothing."""
 
 
 class CameraSource(Base):
