@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from functools import partial
@@ -23,6 +24,11 @@ from app.platform.http.errors import Unprocessable
 from app.platform.timing import Timing
 
 log = logging.getLogger("vantage.air")
+
+YIELD = 0.002
+"""Seconds a rolling pass waits between cameras [s]: without it, the pass took SQLite's one
+connection back at once, camera after camera, and the uploads and sweeps waiting for it timed
+out after 60 s (bench/stations.py)."""
 
 DRIFT_MIN_PAIRS = 12
 """Pairs a drift is judged on at least."""
@@ -99,7 +105,8 @@ def recalibrate_all(
     sessions: sessionmaker[Session], timing: Timing, *, days: float, max_km: float
 ) -> Rolled:
     """``recalibrate`` every located sky camera in service, each in its own transaction (one
-    camera's refusal leaves the others')."""
+    camera's refusal leaves the others'), pausing ``YIELD`` between them so that the writes
+    waiting for the database's connection (SQLite has one) take it in turn."""
     with sessions() as session:
         ids = session.scalars(
             select(Camera.id)
@@ -120,6 +127,7 @@ def recalibrate_all(
             why = recalibrate(session, camera, now=now, days=days, max_km=max_km)
             if camera.attention:
                 drifting.append(camera_id)
+        time.sleep(YIELD)
         if why is None:
             done.append(camera_id)
         else:
