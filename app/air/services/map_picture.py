@@ -13,7 +13,7 @@ import io
 import math
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -106,6 +106,30 @@ def figure(
     return fig
 
 
+def _markers(
+    ax: Any, island: isopleths.Island, stations: Sequence[Station], monitors: Sequence[Monitor]
+) -> None:
+    """The island's cameras (dots, with name and level) and reference stations (squares,
+    with name and PM2.5) on ``ax``."""
+    halo = [withStroke(linewidth=3, foreground="white")]
+    for k in island.cameras.tolist():
+        if k >= len(stations):
+            m = monitors[k - len(stations)]
+            ax.plot(m.lon, m.lat, "s", ms=7, mfc="white", mec="black", mew=1.5)
+            ax.annotate(
+                f"{m.name or m.station_id} ({m.pm25:.0f} µg/m³)", (m.lon, m.lat),
+                xytext=(5, -10), textcoords="offset points", fontsize=8, path_effects=halo,
+            )  # fmt: skip
+            continue
+        s = stations[k]
+        ax.plot(s.lon, s.lat, "o", ms=6, mfc="black", mec="white", mew=1.5)
+        name = s.name or s.camera_id
+        ax.annotate(
+            f"{name} ({airquality.rounded(s.level)})", (s.lon, s.lat), xytext=(5, 5),
+            textcoords="offset points", fontsize=8, path_effects=halo,
+        )  # fmt: skip
+
+
 def _panel(
     ax: object,
     island: isopleths.Island,
@@ -156,23 +180,7 @@ def _panel(
             )
             for i in range(len(edges) - 1)
         ]
-    halo = [withStroke(linewidth=3, foreground="white")]
-    for k in island.cameras.tolist():
-        if k >= len(stations):
-            m = monitors[k - len(stations)]
-            ax.plot(m.lon, m.lat, "s", ms=7, mfc="white", mec="black", mew=1.5)
-            ax.annotate(
-                f"{m.name or m.station_id} ({m.pm25:.0f} µg/m³)", (m.lon, m.lat),
-                xytext=(5, -10), textcoords="offset points", fontsize=8, path_effects=halo,
-            )  # fmt: skip
-            continue
-        s = stations[k]
-        ax.plot(s.lon, s.lat, "o", ms=6, mfc="black", mec="white", mew=1.5)
-        name = s.name or s.camera_id
-        ax.annotate(
-            f"{name} ({airquality.rounded(s.level)})", (s.lon, s.lat), xytext=(5, 5),
-            textcoords="offset points", fontsize=8, path_effects=halo,
-        )  # fmt: skip
+    _markers(ax, island, stations, monitors)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect(1 / math.cos(mid))  # one metre east-west as long as one north-south
