@@ -793,16 +793,3 @@ class TestRegression:
         e = model.estimate(np.array([0.0, 0.0, 0.0, 25.0, 0.0]))
         assert e.outside is True
         assert e.span is None
-
-
-@pytest.mark.parametrize(
-    ("span", "words"),
-    [
-        (("Very Good", "Good"), "Very Good or Good"),
-        (("Fair", "Poor"), "Fair or Poor"),
-        (("Good", "Poor"), "anywhere from Good to Poor"),
-        (("Very Good", "Very Poor"), "anywhere from Very Good to Very Poor"),
-    ],
-)
-def test_the_words_of_a_span(span: tuple[str, str], words: str) -> None:
-    assert airquality.span_words(span) == words

@@ -92,16 +92,6 @@ def message(name: str) -> str:
     return f"Today's Air Quality is {name}"
 
 
-def span_words(span: Sequence[str]) -> str:
-    """How a doubted frame names the categories its interval spans, ``span`` (clearest,
-    worst): "Good or Fair" when they are neighbours, "anywhere from Very Good to Fair"
-    when another lies between them."""
-    clearest, worst = span
-    names = [name for _, name in CATEGORIES]
-    apart = abs(names.index(worst) - names.index(clearest))
-    return f"{clearest} or {worst}" if apart == 1 else f"anywhere from {clearest} to {worst}"
-
-
 @dataclass(frozen=True, slots=True)
 class Cluster:
     levels: tuple[int, ...]
