@@ -142,6 +142,29 @@ def test_the_map_labels_every_camera_and_draws_the_bands(
     assert p.errors == []
 
 
+def test_the_map_draws_the_stations_by_name_and_value(
+    browser: Any, live: str, city: dict[str, str], admin: dict[str, str]
+) -> None:
+    """A reference station is a square marker labelled with its name and measured PM2.5, as
+    text: a name that is markup is shown, never run."""
+    name = "<img src=x onerror=alert(1)>"
+    with httpx.Client(base_url=live, timeout=30) as http:
+        station = {"id": "vm", "name": name, "lat": 45.468, "lon": 9.18}
+        assert http.post("/air/stations", json=station, headers=admin).status_code == 201
+        at = (datetime.now(UTC) - timedelta(minutes=10)).isoformat()
+        r = http.post("/air/stations/vm/readings", json=[{"at": at, "pm25": 18.0}], headers=admin)
+        assert r.status_code == 200, r.text
+    p = Page(browser)
+    p.page.goto(f"{live}/map")
+    label = p.page.locator(".station .cam-label")
+    label.wait_for()
+    assert label.inner_text() == f"{name}: 18 µg/m³ (station)"
+    assert p.page.locator(".station img").count() == 0
+    assert "1 stations" in p.page.locator("#status").inner_text()
+    p.shot("map-station")
+    assert p.errors == []
+
+
 def test_the_map_draws_without_a_network(browser: Any, live: str, city: dict[str, str]) -> None:
     """No tile server: the bands, markers and labels draw all the same."""
     page = browser.new_page()
