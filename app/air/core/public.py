@@ -137,9 +137,6 @@ def public(p: Predictive) -> Public:
     low, high = sorted((_out(p.loc - half, p.unit), _out(p.loc + half, p.unit)))
     lowest = next(lo for lo, name in airquality.CATEGORIES if name == best)
     level = int(np.clip(airquality.level_of(value, p.unit, p.table), lowest, lowest + 1))
-    lowest_of_all = airquality.CATEGORIES[-1][0]
-    if lowest == lowest_of_all:  # Very Poor is levels 1–2
-        level = int(np.clip(level, 1, 2))
     poor = sum(probs[n] for n in WORSE_THAN_FAIR)
     return Public(best, probs[best], level, value, low, high, poor, probs)
 
