@@ -734,7 +734,8 @@ def test_a_camera_calibrates_itself_from_a_station_near_it(
     away (within 30 minutes, 10 minutes off here) and calibrate as from pm25 does; the same
     regression as from the values given by hand. A station farther than max_distance_km is
     a 422 naming its distance; fewer than three days paired, one naming them."""
-    assert client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    located = client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    assert located.status_code == 200
     monitor = {"id": "st-1", "name": "Monitor", "lat": 45.469, "lon": 9.19}  # 1.0 km north
     assert client.post("/air/stations", json=monitor, headers=admin).status_code == 201
     readings = [
@@ -776,7 +777,8 @@ def test_a_rolling_calibration_follows_the_station_and_flags_a_drift(
     camera's later frames disagree with the station (here the station reads five times the
     haze the frames show, as if the camera had been moved), the next pass flags it
     ``recalibrate`` in ``GET /cameras/{id}`` and on the map."""
-    assert client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    located = client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    assert located.status_code == 200
     client.post(
         "/cameras", json={"id": "far", "kind": "sky", "lat": 40.0, "lon": 3.0}, headers=admin
     )

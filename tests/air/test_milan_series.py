@@ -106,4 +106,4 @@ def test_a_milan_camera_ranks_later_days_by_the_european_index(
     assert abs(np.mean(truth - said)) <= 0.35
     ranges = [p["smoothed_estimate"] for p in public]
     holds = np.mean([e["low"] <= v <= e["high"] for e, v in zip(ranges, pm, strict=True)])
-    assert 0.75 <= holds <= 0.9
+    assert 0.75 <= holds <= 0.85  # the calibrated band; 51 of 60 measured

@@ -118,7 +118,8 @@ def test_the_map_is_anchored_by_the_stations(client: TestClient, admin: dict[str
     now = datetime.now(UTC).replace(microsecond=0)
     places = {"a": (45.46, 9.15, 6.0), "b": (45.48, 9.19, 30.0), "c": (45.45, 9.22, 60.0)}
     for sid, (lat, lon, pm) in places.items():
-        assert create(client, admin, id=sid, name=f"Station {sid}", lat=lat, lon=lon)
+        made = create(client, admin, id=sid, name=f"Station {sid}", lat=lat, lon=lon)
+        assert made.status_code == 201
         at = (now - timedelta(minutes=10)).isoformat()
         r = client.post(
             f"/air/stations/{sid}/readings", json=[{"at": at, "pm25": pm}], headers=admin

@@ -273,7 +273,8 @@ def test_replay_backfills_an_archive_with_the_admin_token(
 ) -> None:
     """``--backfill``: the admin token posts each frame with backfill=true, at its name's
     time (required); without it, a camera token is."""
-    assert httpx.post(f"{live}/cameras", json={"id": "s3", "kind": "sky"}, headers=ADMIN)
+    made = httpx.post(f"{live}/cameras", json={"id": "s3", "kind": "sky"}, headers=ADMIN)
+    assert made.status_code == 201
     taken = [
         (datetime.now(UTC) - timedelta(days=2, hours=h)).replace(second=0, microsecond=0)
         for h in (2, 1)

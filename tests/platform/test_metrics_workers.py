@@ -30,7 +30,8 @@ def test_every_scrape_counts_the_frames_of_every_worker(
     proc = start_server(env, port, workers=2)
     base = f"http://127.0.0.1:{port}"
     try:
-        assert httpx.post(f"{base}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN)
+        made = httpx.post(f"{base}/cameras", json={"id": "c", "kind": "rig"}, headers=ADMIN)
+        assert made.status_code == 201, made.text
         for k in range(40):  # a connection each: the kernel spreads them over the workers
             r = httpx.post(
                 f"{base}/cameras/c/frames",
