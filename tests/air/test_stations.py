@@ -142,3 +142,22 @@ def test_the_map_is_anchored_by_the_stations(client: TestClient, admin: dict[str
     png = client.get("/air/isopleths.png", params={"method": "kriging", "max_distance": 8000})
     assert png.status_code == 200
     assert png.headers["content-type"] == "image/png"
+
+
+def test_names_that_look_like_formulas_are_drawn_as_text(
+    client: TestClient, admin: dict[str, str]
+) -> None:
+    """The PNG labels stations (and cameras) by name: a name such as "$\\frac{$" is text,
+    not a formula matplotlib cannot parse (a 500 before)."""
+    now = datetime.now(UTC)
+    for sid, lat, lon in (("a", 45.46, 9.15), ("b", 45.48, 9.19)):
+        made = create(client, admin, id=sid, name="$\\frac{$", lat=lat, lon=lon)
+        assert made.status_code == 201
+        at = (now - timedelta(minutes=5)).isoformat()
+        r = client.post(
+            f"/air/stations/{sid}/readings", json=[{"at": at, "pm25": 10}], headers=admin
+        )
+        assert r.status_code == 200
+    png = client.get("/air/isopleths.png")
+    assert png.status_code == 200, png.text
+    assert png.headers["content-type"] == "image/png"

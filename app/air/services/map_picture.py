@@ -119,6 +119,7 @@ def _markers(
             ax.annotate(
                 f"{m.name or m.station_id} ({m.pm25:.0f} µg/m³)", (m.lon, m.lat),
                 xytext=(5, -10), textcoords="offset points", fontsize=8, path_effects=halo,
+                parse_math=False,  # a name is text: "$…$" in it is no formula
             )  # fmt: skip
             continue
         s = stations[k]
@@ -126,7 +127,7 @@ def _markers(
         name = s.name or s.camera_id
         ax.annotate(
             f"{name} ({airquality.rounded(s.level)})", (s.lon, s.lat), xytext=(5, 5),
-            textcoords="offset points", fontsize=8, path_effects=halo,
+            textcoords="offset points", fontsize=8, path_effects=halo, parse_math=False,
         )  # fmt: skip
 
 
