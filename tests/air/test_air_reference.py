@@ -814,3 +814,34 @@ def test_a_rolling_calibration_follows_the_station_and_flags_a_drift(
     place = client.get("/air/isopleths", params={"window": 86400}).json()["cameras"]
     assert [c["recalibrate"] for c in place if c["camera_id"] == "m"] == [True]
     assert client.get("/cameras/far", headers=admin).json()["attention"] == []
+
+
+def test_a_camera_with_more_pairs_than_a_calibration_takes_is_sampled_evenly(
+    client: TestClient,
+    admin: dict[str, str],
+    station: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """More pairs than ``stations.MAX_PAIRS`` (a camera posting every minute pairs 43,000
+    frames a month, past what a calibration from stored frames takes: a 500 before): evenly
+    spaced ones over its days calibrate it."""
+    from app.air.services import stations
+
+    monkeypatch.setattr(stations, "MAX_PAIRS", 20)
+    located = client.patch("/cameras/m", json={"lat": 45.46, "lon": 9.19}, headers=admin)
+    assert located.status_code == 200
+    monitor = {"id": "st-1", "lat": 45.469, "lon": 9.19}
+    assert client.post("/air/stations", json=monitor, headers=admin).status_code == 201
+    readings = [
+        {"at": (START + timedelta(days=k // 6, hours=k % 6)).isoformat(), "pm25": v}
+        for k, v in enumerate(station["pm25"])
+    ]
+    r = client.post("/air/stations/st-1/readings", json=readings, headers=admin)
+    assert r.status_code == 200
+    params = {"from": "stations", "applies_to": "m", "method": "regression"}
+    cal = client.post("/air/calibration", params=params, headers=admin)
+    assert cal.status_code == 201, cal.text
+    assert cal.json()["n_images"] == 20
+    assert cal.json()["regression"]["groups"] == 8  # still every day
+    assert stations.evenly(5, 3) == [0, 2, 4]
+    assert stations.evenly(3, 5) == [0, 1, 2]

@@ -14,10 +14,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.air.core import airquality
-from app.air.models import SkyVerdict
+from app.air.models import AirCalibration, SkyVerdict
 from app.air.schemas import AirCalibrationFromFrames
 from app.air.services import stations
-from app.air.services.calibration import from_frames, grading, of_frames
+from app.air.services.calibration import from_frames, grading
 from app.platform.background import in_thread
 from app.platform.db.models import Camera, CameraKind
 from app.platform.http.errors import Unprocessable
@@ -46,12 +46,12 @@ class Rolled:
     """Cameras not recalibrated, and why (no station near, too few days paired)."""
 
 
-def drift(session: Session, camera: Camera, pairs: stations.Pairs) -> str | None:
+def drift(session: Session, current: AirCalibration | None, pairs: stations.Pairs) -> str | None:
     """Why the camera should be recalibrated ("recalibrate: …"), "" when it need not be, or
     None when too few of its frames graded by the calibration that grades it now pair with
     a station value to tell (fewer than ``DRIFT_MIN_PAIRS``): it has drifted when their 80 %
-    ranges missed the station's value in more than ``DRIFT_SHARE`` of them."""
-    current = grading(session, camera.id).calibration
+    ranges missed the station's value in more than ``DRIFT_SHARE`` of them. ``current``: the
+    calibration that grades the camera now."""
     if current is None or not pairs.frame_ids:
         return None
     value = dict(zip(pairs.frame_ids, pairs.pm25, strict=True))
@@ -86,12 +86,12 @@ def recalibrate(
     except Unprocessable as exc:
         return exc.detail
     pairs = stations.pair(session, camera, near, since=now - timedelta(days=days))
-    why = drift(session, camera, pairs)
+    current = grading(session, camera.id).calibration
+    why = drift(session, current, pairs)
     if why is not None:  # judged: flagged, or cleared; else as it was
         camera.attention = [why] if why else None
-    if len({*of_frames(session, pairs.frame_ids).days}) < airquality.MIN_GROUPS:
+    if len(pairs.days) < airquality.MIN_GROUPS:
         return f"{len(pairs.frame_ids)} frames paired, of fewer than 3 days"
-    current = grading(session, camera.id).calibration
     body = AirCalibrationFromFrames(frame_ids=pairs.frame_ids, pm25=pairs.pm25)
     method = current.method if current is not None else None
     try:

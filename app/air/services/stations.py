@@ -24,7 +24,7 @@ from app.air.schemas import (
     StationReadingIn,
     StationUpdate,
 )
-from app.air.services.calibration import from_frames, of_frames
+from app.air.services.calibration import from_frames, solar_day
 from app.air.services.cameras import sky_camera
 from app.platform.db.models import Camera, Frame
 from app.platform.frames.cameras import insert_new
@@ -242,12 +242,27 @@ def near(session: Session, camera: Camera, max_km: float) -> list[Near]:
     return within
 
 
+MAX_PAIRS = 10_000
+"""Pairs a calibration takes at most (a calibration from stored frames takes as many): a
+camera posting every minute pairs 43,000 frames in 30 days, and evenly spaced ones of them
+measure the same."""
+
+
+def evenly(n: int, at_most: int) -> list[int]:
+    """Indices of at most ``at_most`` of ``n`` items, evenly spaced (all of them when fewer)."""
+    if n <= at_most:
+        return list(range(n))
+    return [int(i) for i in np.unique(np.linspace(0, n - 1, at_most).round())]
+
+
 @dataclass(frozen=True, slots=True)
 class Pairs:
     frame_ids: list[str]
     pm25: list[float]
     stations: list[str]
     """The stations that gave values."""
+    days: set[str]
+    """The days the pairs cover (``solar_day``, as the calibration groups them)."""
 
 
 def pair(
@@ -257,7 +272,7 @@ def pair(
     paired with the readings of ``stations`` within ``PAIR_WINDOW``: each station's reading
     nearest the frame's time; of several stations, the inverse-distance-weighted mean (the
     nearest alone when it stands within 100 m). Frames taken since ``since`` only, when
-    given."""
+    given; at most ``MAX_PAIRS`` of them."""
     q = (
         select(Frame.id, Frame.captured_at)
         .join(SkyVerdict, SkyVerdict.frame_id == Frame.id)
@@ -267,7 +282,7 @@ def pair(
         q = q.where(Frame.captured_at >= since)
     frames = session.execute(q.order_by(Frame.captured_at)).all()
     if not frames:
-        return Pairs([], [], [])
+        return Pairs([], [], [], set())
     first, last = frames[0].captured_at - PAIR_WINDOW, frames[-1].captured_at + PAIR_WINDOW
     series = {}
     for n in stations:
@@ -286,6 +301,7 @@ def pair(
     ids: list[str] = []
     values: list[float] = []
     used: set[str] = set()
+    taken: list[datetime] = []
     window = PAIR_WINDOW.total_seconds()
     for f in frames:
         t0 = f.captured_at.timestamp()
@@ -301,8 +317,12 @@ def pair(
         w = np.array([1 / km for _, _, km in got])
         ids.append(f.id)
         values.append(float(w @ np.array([v for _, v, _ in got]) / w.sum()))
+        taken.append(f.captured_at)
         used.update(sid for sid, _, _ in got)
-    return Pairs(ids, values, sorted(used))
+    keep = evenly(len(ids), MAX_PAIRS)
+    ids, values, taken = [ids[i] for i in keep], [values[i] for i in keep], [taken[i] for i in keep]
+    days = {solar_day(t, camera.lon) for t in taken}
+    return Pairs(ids, values, sorted(used), days)
 
 
 def calibrate_from_stations(
@@ -329,13 +349,16 @@ def calibrate_from_stations(
     frame_ids: list[str] = []
     values: list[float] = []
     used: set[str] = set()
+    days: set[str] = set()
     for camera_id in sorted(set(camera_ids)):
         camera = sky_camera(session, camera_id)
         found = pair(session, camera, near(session, camera, max_km))
         frame_ids += found.frame_ids
         values += found.pm25
         used.update(found.stations)
-    days = {d for d in of_frames(session, frame_ids).days} if frame_ids else set()
+        days |= found.days
+    keep = evenly(len(frame_ids), MAX_PAIRS)  # several cameras' together
+    frame_ids, values = [frame_ids[i] for i in keep], [values[i] for i in keep]
     if len(days) < airquality.MIN_GROUPS:
         raise Unprocessable(
             f"{len(frame_ids)} frames of {', '.join(sorted(set(camera_ids)))} pair with a "
