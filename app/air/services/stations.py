@@ -29,6 +29,7 @@ from app.air.services.cameras import sky_camera
 from app.platform.db.models import Camera, Frame
 from app.platform.frames.cameras import insert_new
 from app.platform.http.errors import Unprocessable
+from app.platform.http.uploads import first_error
 from app.platform.lookup import get_or_404
 
 EARTH_RADIUS_KM = 6371.0088
@@ -127,9 +128,8 @@ def parse_json(body: bytes) -> list[StationReadingIn]:
     try:
         readings = _READINGS.validate_json(body)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise Unprocessable(f"readings[{where}]: {first['msg']}", code="bad_readings") from None
+        where, message = first_error(exc)
+        raise Unprocessable(f"readings[{where}]: {message}", code="bad_readings") from None
     return _bounded(readings)
 
 
@@ -148,11 +148,8 @@ def parse_csv(text: str) -> list[StationReadingIn]:
         try:
             out.append(StationReadingIn.model_validate({"at": row["at"], "pm25": row["pm25"]}))
         except ValidationError as exc:
-            first = exc.errors()[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise Unprocessable(
-                f"line {line}, {where}: {first['msg']}", code="bad_readings"
-            ) from None
+            where, message = first_error(exc)
+            raise Unprocessable(f"line {line}, {where}: {message}", code="bad_readings") from None
         if len(out) > MAX_READINGS:
             break
     return _bounded(out)

@@ -262,9 +262,14 @@ async def read_json(request: Request, model: type[M], limit: int) -> M:
     try:
         return model.model_validate_json(body)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise Unprocessable(f"{where}: {first['msg']}" if where else first["msg"]) from None
+        where, message = first_error(exc)
+        raise Unprocessable(f"{where}: {message}" if where else message) from None
+
+
+def first_error(exc: ValidationError) -> tuple[str, str]:
+    """Where the first of pydantic's errors is (its location, dotted) and what it says."""
+    first = exc.errors()[0]
+    return ".".join(str(p) for p in first["loc"]), first["msg"]
 
 
 def content_type(request: Request) -> str:
