@@ -46,8 +46,8 @@ from app.platform.frames.camera_info import CameraInfo
 from app.platform.frames.ingest import analyse
 from app.platform.frames.jpeg import decode_rgb
 from app.solar.core import fleet
+from app.solar.services.fleet_training import fit_fleet, fleet_search, fold_interval
 from app.solar.services.panels import as_core_model
-from app.solar.services.training import fit_fleet, fleet_search
 from app.stats import hotelling
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -221,13 +221,19 @@ def main() -> None:
     images = [decode_rgb(d, max_pixels=10**9)[1] for d in data]
     groups = near_duplicate_groups(images)
     judged = label != "snow"
-    sky = sorted(
-        p for p in (args.data.parent / "sky").rglob("*.jpg") if p.parent.name != "milan_webcam"
-    )  # milan_webcam's frames are also in milan_series
+    shared = args.data.parent
+    no_panel_paths = {
+        "sky and street": sorted(
+            p for p in (shared / "sky").rglob("*.jpg") if p.parent.name != "milan_webcam"
+        ),  # milan_webcam's frames are also in milan_series
+        "objects": sorted((shared / "parts").glob("*.jpg")),
+        "checkerboards": sorted((shared / "calibration").rglob("*.jpg")),
+    }
+    sources = np.array([name for name, ps in no_panel_paths.items() for _ in ps])
+    sky = [p for ps in no_panel_paths.values() for p in ps]
     no_panel = np.array(
         [analyse(p.read_bytes(), camera=CAMERA, max_pixels=10**9).features for p in sky]
     ).reshape(len(sky), -1)
-    unlike = {"panels": [0, 0], "no panel": [0, 0, 0, 0]}  # called unlike, of; not sure, condition
     y = np.isin(label, ("dust", "bird_drop")).astype(int)
     counts = ", ".join(f"{(label == c).sum()} {c}" for c in LABELS)
     print(f"{len(rows)} photos ({counts}), {len(set(groups))} groups after near-duplicate grouping")
@@ -236,29 +242,34 @@ def main() -> None:
     table: list[dict[str, Any]] = []
     # + "dirty" (linear models) and "not sure" (KernelModel.doubt)
     confusion = np.zeros((len(LABELS), len(LABELS) + 2), int)
+    outcome = {name: np.zeros(3, int) for name in no_panel_paths}  # unlike, not sure, judged
+    panels_unlike = [0, 0]
+    intervals, reported = [], []
     for seed in range(args.seeds):
         folds = StratifiedGroupKFold(args.folds, shuffle=True, random_state=seed)
-        pred = np.zeros(len(rows), int)
-        t2_pred = np.zeros(len(rows), int)
+        pred, t2_pred = np.zeros(len(rows), int), np.zeros(len(rows), int)
         condition = np.empty(len(rows), object)
         doubted = np.zeros(len(rows), bool)
+        fold_ba = []
         for tr, te in folds.split(feats, label, groups):
             assert not set(groups[tr]) & set(groups[te])
-            model = as_core_model(fit_fleet(feats[tr], list(label[tr]), now=now))
+            fit = fit_fleet(feats[tr], list(label[tr]), now=now, groups=list(groups[tr]))
+            reported.append(fit.cv_balanced_accuracy)
+            model = as_core_model(fit)
             pred[te] = (model.probability(feats[te]) >= model.threshold).astype(int)
+            fold_ba.append(balanced_accuracy_score(y[te][judged[te]], pred[te][judged[te]]))
             condition[te] = [model.condition(f) for f in feats[te]]
             why = [model.doubt(vec) or "" for vec in feats[te]]
             doubted[te] = [bool(reason) for reason in why]
-            unlike["panels"][0] += sum(reason.startswith("unlike") for reason in why)
-            unlike["panels"][1] += len(te)
-            for vec in no_panel:
+            panels_unlike[0] += sum(reason.startswith("unlike") for reason in why)
+            panels_unlike[1] += len(te)
+            for source, vec in zip(sources, no_panel, strict=True):
                 reason = model.doubt(vec) or ""
-                slot = 0 if reason.startswith("unlike") else 2 if reason else 3
-                unlike["no panel"][slot] += 1
-                unlike["no panel"][1] += 1
+                outcome[source][0 if reason.startswith("unlike") else 1 if reason else 2] += 1
             clean_train = tr[label[tr] == "clean"]
             baseline = hotelling.fit_baseline(modes[clean_train], significance=0.05)
             t2_pred[te] = [0 if hotelling.classify(baseline, m).clean else 1 for m in modes[te]]
+        intervals.append(fold_interval(np.array(fold_ba)))
         fr = rates(y[judged], pred[judged])
         tr2 = rates(y[judged], t2_pred[judged])
         sure = judged & ~doubted
@@ -278,25 +289,41 @@ def main() -> None:
     }
     spread = float(np.std([r["fleet"]["balanced_accuracy"] for r in table]))
     sure_spread = float(np.std([r["fleet_sure"]["balanced_accuracy"] for r in table]))
+    low, high = np.mean(intervals, axis=0)
     print(f"mean:   {fmt('fleet', summary['fleet'])} (± {spread:.3f} over seeds)")
+    print(f"        95 % interval over a seed's {args.folds} folds (mean): {low:.3f}–{high:.3f}")
     print(
         f"        {fmt('fleet, sure answers', sure_mean)} (± {sure_spread:.3f}) on "
         f"{sure_mean['answered']:.0%} of photos"
     )
-    print(f"        {fmt('T² modes', summary['t2_modes'])}")
+    print(f"        T² modes BA {summary['t2_modes']['balanced_accuracy']:.3f}")
+    print(
+        f"        what each fold's model reported of itself (its own nested "
+        f"cv_balanced_accuracy): {np.mean(reported):.3f} ± {np.std(reported):.3f}"
+    )
     print("\nconfusion over all seeds (rows: label; columns: what the fleet model said)")
     print("| label | " + " | ".join([*LABELS, "dirty", "not sure"]) + " |")
     print("|---" * (len(LABELS) + 3) + "|")
     for i, name in enumerate(LABELS):
         print(f"| {name} | " + " | ".join(str(v) for v in confusion[i]) + " |")
-    if len(sky):
-        u, n, unsure, judged_anyway = unlike["no panel"]
+    brushed = int(confusion[LABELS.index("snow"), [1, 2, 4]].sum())
+    print(f"snow photos sent to brushing (dust, bird_drop or dirty, not doubted): {brushed}")
+    print("\nphotos that show no panel, judged by each fold's model")
+    print("| photos | n | unlike its panels | not sure | doubted | given a condition |")
+    print("|---|---|---|---|---|---|")
+    for name, (u, unsure, cond) in outcome.items():
+        n = u + unsure + cond
         print(
-            f"\n{len(sky)} photos that show no panel (../shared/data/sky), each fold's model: "
-            f"called unlike its photos {u / n:.0%}, not sure {unsure / n:.0%}, given a "
-            f"condition {judged_anyway / n:.0%}; held-out panel photos called unlike: "
-            f"{unlike['panels'][0] / unlike['panels'][1]:.1%}"
+            f"| {name} | {n // (args.seeds * args.folds)} | {u / n:.0%} | {unsure / n:.0%} | "
+            f"{(u + unsure) / n:.0%} | {cond / n:.0%} |"
         )
+    total = sum(outcome.values())
+    print(
+        f"| all | {int(total.sum()) // (args.seeds * args.folds)} | {total[0] / total.sum():.0%} "
+        f"| {total[1] / total.sum():.0%} | {(total[0] + total[1]) / total.sum():.0%} "
+        f"| {total[2] / total.sum():.0%} |"
+    )
+    print(f"held-out panel photos called unlike: {panels_unlike[0] / panels_unlike[1]:.1%}")
     print(json.dumps({"seeds": table, "mean": summary, "confusion": confusion.tolist()}))
     if args.scales:
         scale_study(images, feats, label, groups, args.seeds)

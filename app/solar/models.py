@@ -144,9 +144,19 @@ class FleetModel(Base):
     """The 95 % interval of ``cv_balanced_accuracy`` over its folds (Student's t): low end."""
     cv_high: Mapped[float | None] = mapped_column(Float, default=None)
     """Its high end."""
+    cv_sure_balanced_accuracy: Mapped[float | None] = mapped_column(Float, default=None)
+    """Nested balanced accuracy of the answers outside the not-sure band."""
+    cv_answered: Mapped[float | None] = mapped_column(Float, default=None)
+    """The share of held-out photos outside the not-sure band (nested)."""
+    n_farm: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    """Photos that were the farm's labelled frames."""
+    cv_without_farm: Mapped[float | None] = mapped_column(Float, default=None)
+    """``cv_balanced_accuracy`` had the farm's labelled frames not been learnt from (the same
+    held-out photos)."""
     kernel: Mapped[dict[str, Any] | None] = mapped_column(JSON)
-    """A kernel model (``core.fleet.KernelModel``): support, dual, intercept, gamma, platt;
-    none for the linear models of before (``coef``, ``intercept``)."""
+    """A kernel model (``core.fleet.KernelModel``): support, dual, intercept, gamma, platt,
+    band and shape (older ones: training and reach instead); none for the linear models of
+    before (``coef``, ``intercept``)."""
     heads: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     """Logistic heads on the same standardised features: snow (vs the rest) and bird_drop
     (vs dust), each {coef, intercept}, when trained."""

@@ -262,9 +262,9 @@ class FleetModelOut(Out):
     n_bird_drop: int = 0
     n_snow: int = 0
     cv_balanced_accuracy: float | None = Field(
-        description="Needs cleaning against clean: balanced accuracy over 5 folds, the model's "
-        "choice of C and γ made again inside each (nested); on panels it never saw when "
-        "trained with groups."
+        description="Needs cleaning against clean: balanced accuracy over 5 folds, every choice "
+        "of the training (C and γ, Platt's sigmoid, the not-sure band) made again inside each "
+        "(nested); on panels it never saw when trained with groups."
     )
     cv_low: float | None = Field(
         default=None,
@@ -272,6 +272,22 @@ class FleetModelOut(Out):
         "low end: what panels it never saw may get. Null for models trained before.",
     )
     cv_high: float | None = Field(default=None, description="Its high end.")
+    cv_sure_balanced_accuracy: float | None = Field(
+        default=None,
+        description="Balanced accuracy of the answers it is sure of (outside its not-sure "
+        "band), nested as cv_balanced_accuracy. Null for models trained before.",
+    )
+    cv_answered: float | None = Field(
+        default=None,
+        description="The share of held-out photos it is sure of, nested. Null for models "
+        "trained before.",
+    )
+    n_farm: int = Field(default=0, description="Photos that were the farm's labelled frames.")
+    cv_without_farm: float | None = Field(
+        default=None,
+        description="cv_balanced_accuracy had the farm's labelled frames not been learnt from, "
+        "on the same held-out photos: what the farm's labels did. Null without them.",
+    )
     n_groups: int | None = Field(
         default=None,
         description="Groups (panels) the folds kept together; null when trained without "

@@ -25,16 +25,22 @@ def panel(seed: int = 0) -> np.ndarray:
 
 
 def panel_jpeg(
-    rgb: np.ndarray, *, seed: int = 0, size: tuple[int, int] = (160, 120), gain: float = 1.0
+    rgb: np.ndarray,
+    *,
+    seed: int = 0,
+    size: tuple[int, int] = (160, 120),
+    gain: float = 1.0,
+    pitch: int = 16,
+    offset: int = 0,
 ) -> bytes:
-    """A panel photo whose cells have colour ``rgb``: grid lines, mild noise, JPEG q95;
-    ``gain`` scales the whole scene (0.1: dusk)."""
+    """A panel photo whose cells have colour ``rgb``: grid lines every ``pitch`` px from
+    ``offset``, mild noise, JPEG q95; ``gain`` scales the whole scene (0.1: dusk)."""
     w, h = size
     rng = np.random.default_rng(seed)
     image = np.empty((h, w, 3), np.float64)
     image[:] = rgb
-    image[::16, :] = (175, 175, 180)
-    image[:, ::16] = (175, 175, 180)
+    image[offset::pitch, :] = (175, 175, 180)
+    image[:, offset::pitch] = (175, 175, 180)
     image += rng.normal(0, 5, image.shape)
     image *= gain
     bgr = np.clip(image, 0, 255).astype(np.uint8)[:, :, ::-1]
@@ -180,15 +186,20 @@ SAND = np.array([190.0, 180.0, 160.0])
 
 
 def fleet_photos() -> tuple[list[Any], list[str]]:
-    """8 clean photos and 8 half covered in sand (seeded), as form parts, and their labels."""
+    """8 clean photos and 8 half covered in sand (seeded), as form parts, and their labels;
+    panels of several makes and cameras: grid pitches of 13–19 px at any offset, frames of
+    140–180 × 105–135 px."""
     rng = np.random.default_rng(5)
     files, labels = [], []
-    for i in range(8):
+    for i in range(16):
         c = CLEAN_RGB + rng.normal(0, 6, 3)
-        d = 0.5 * c + 0.5 * SAND
-        files.append(("files", (f"c{i}.jpg", panel_jpeg(c, seed=i), "image/jpeg")))
-        files.append(("files", (f"d{i}.jpg", panel_jpeg(d, seed=100 + i), "image/jpeg")))
-        labels += ["clean", "dust"]
+        name, rgb = ("clean", c) if i % 2 == 0 else ("dust", 0.5 * c + 0.5 * SAND)
+        pitch = int(rng.integers(13, 20))
+        look = {"pitch": pitch, "offset": int(rng.integers(0, pitch))}
+        size = (int(rng.integers(140, 181)), int(rng.integers(105, 136)))
+        photo = panel_jpeg(rgb, seed=i if i % 2 == 0 else 100 + i, size=size, **look)
+        files.append(("files", (f"{name[0]}{i // 2}.jpg", photo, "image/jpeg")))
+        labels.append(name)
     return files, labels
 
 

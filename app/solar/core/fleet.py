@@ -16,7 +16,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import expit
-from skimage.feature import graycomatrix, graycoprops, local_binary_pattern
+from skimage.feature import graycomatrix, graycoprops
+
+from app.solar.core.structure import STRUCTURE_FEATURES, structure_features
 
 MAX_SIDE = 128
 """Long side of the reduced copy the features are computed on [px]."""
@@ -47,6 +49,7 @@ TEXTURE_FEATURES = (
     )
     + tuple(f"lab_p{q}_{c}" for q in (10, 90) for c in "lab")
     + tuple(f"lbp24r3_{k}" for k in range(26))
+    + STRUCTURE_FEATURES
 )
 """Texture: GLCM contrast, homogeneity, energy, correlation and dissimilarity at 1 and 3 px
 (averaged over 4 directions, 32 grey levels); the 10-bin histogram of uniform LBP (8
@@ -54,9 +57,10 @@ neighbours, radius 1); colour: HSV and CIELAB means and standard deviations, CIE
 90th percentiles; the 26-bin histogram of uniform LBP at the coarser scale of 24 neighbours,
 radius 3 px (Ojala, Pietikäinen & Mäenpää, *Multiresolution gray-scale and rotation invariant
 texture classification with local binary patterns*, IEEE PAMI 24(7), 2002: the operators
-LBP^riu2 of (8, 1) and (24, 3)). The coarse scale is meant for a cell's grid and busbars,
-which a dust film softens; one pixel's neighbours see finer speckle. Its gain, and how much of
-it comes from choosing the scale on the same photos: ``bench/fleet_eval.py --scales``."""
+LBP^riu2 of (8, 1) and (24, 3)); last the ``STRUCTURE_FEATURES`` (``core.structure``): band
+energies, lines, repetition, layout. The coarse scale is meant for a cell's grid and busbars,
+which a dust film softens; one pixel's neighbours see finer speckle. What each group earns on
+panels the model never saw: ``bench/fleet_eval.py --groups``."""
 
 ALL_FEATURES = HAZE_FEATURES + TEXTURE_FEATURES
 """What ``features`` computes, in its order; a model uses those it names."""
@@ -109,12 +113,27 @@ def texture_features(image: NDArray[np.uint8]) -> NDArray[np.float64]:
     )
     co = [graycoprops(glcm, prop).mean(axis=1) for prop in _GLCM_PROPS]  # per distance
     fine, coarse = (lbp_histogram(grey, p, r) for p, r in ((8, 1), (24, 3)))
-    hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.float64)
-    lab = cv2.cvtColor(small, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float64)
-    colour = [hsv.mean(0), hsv.std(0), lab.mean(0), lab.std(0)]
-    colour += list(np.percentile(lab, [10, 90], axis=0))
-    out = np.concatenate([np.concatenate(co), fine, np.concatenate(colour), coarse])
+    hsv_mean, hsv_std = cv2.meanStdDev(cv2.cvtColor(small, cv2.COLOR_RGB2HSV))
+    lab = cv2.cvtColor(small, cv2.COLOR_RGB2LAB)
+    lab_mean, lab_std = cv2.meanStdDev(lab)
+    planes = cv2.split(lab)
+    lab_p = [[_percentile(np.asarray(c, np.uint8), q) for c in planes] for q in (10, 90)]
+    colour = [a.ravel() for a in (hsv_mean, hsv_std, lab_mean, lab_std)] + lab_p
+    out = np.concatenate(
+        [np.concatenate(co), fine, np.concatenate(colour), coarse, structure_features(grey)]
+    )
     return np.asarray(np.nan_to_num(out, nan=0.0), dtype=np.float64)  # a flat image: no texture
+
+
+def _percentile(channel: NDArray[np.uint8], q: float) -> float:
+    """The ``q``-th percentile of a uint8 plane, linearly interpolated between the order
+    statistics as NumPy's default, from its histogram [level]."""
+    counts = np.bincount(channel.ravel(), minlength=256)
+    cdf = np.cumsum(counts)
+    position = q / 100.0 * (cdf[-1] - 1)  # 0-based rank
+    lo = int(np.searchsorted(cdf, np.floor(position) + 1))
+    hi = int(np.searchsorted(cdf, np.ceil(position) + 1))
+    return float(lo + (hi - lo) * (position - np.floor(position)))
 
 
 def texture_scale(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -133,8 +152,35 @@ def texture_grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
 
 def lbp_histogram(grey: NDArray[np.uint8], points: int, radius: float) -> NDArray[np.float64]:
     """Share of the pixels of each of the ``points`` + 2 codes of uniform, rotation-invariant
-    LBP (``points`` neighbours on a circle of ``radius`` px), shape (points + 2,)."""
-    codes = local_binary_pattern(grey, points, radius, "uniform").astype(np.int64)
+    LBP (``points`` neighbours on a circle of ``radius`` px, bilinearly interpolated), shape
+    (points + 2,), over the pixels at least ⌈radius⌉ from the border.
+
+    The operator LBP^riu2 of Ojala et al. (2002), eq. 10 there: the number of neighbours at
+    least as bright as the centre when the circle's bits change at most twice, else
+    points + 1. Each neighbour is the whole image shifted by OpenCV (``warpAffine``), so
+    it costs a few vectorised passes, not a loop per pixel; scikit-image's
+    ``local_binary_pattern`` gives the same histogram (``tests/solar/test_fleet.py``) at
+    about ten times the time."""
+    g = grey.astype(np.float32)
+    h, w = g.shape
+    r = int(np.ceil(radius))
+    inner = (slice(r, h - r), slice(r, w - r))
+    centre = g[inner]
+    ones: NDArray[np.uint8] = np.zeros(centre.shape, np.uint8)
+    changes: NDArray[np.uint8] = np.zeros(centre.shape, np.uint8)
+    bits: list[NDArray[np.uint8]] = []
+    for k in range(points):
+        angle = 2.0 * np.pi * k / points
+        dx, dy = radius * np.cos(angle), -radius * np.sin(angle)
+        shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]], dtype=np.float32)
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        neighbour = np.asarray(cv2.warpAffine(g, shift, (w, h), flags=flags))[inner]
+        bits.append(np.asarray(cv2.compare(neighbour, centre, cv2.CMP_GE), np.uint8) // 255)
+        ones = np.asarray(cv2.add(ones, bits[-1]), np.uint8)
+        if k:
+            changes = np.asarray(cv2.add(changes, cv2.absdiff(bits[-1], bits[-2])), np.uint8)
+    changes = np.asarray(cv2.add(changes, cv2.absdiff(bits[0], bits[-1])), np.uint8)
+    codes = np.where(changes <= 2, ones, np.uint8(points + 1))
     counts = np.bincount(codes.ravel(), minlength=points + 2)[: points + 2]
     return np.asarray(counts / codes.size, dtype=np.float64)
 
@@ -223,6 +269,37 @@ class Head:
         return _sigmoid(z @ self.coef + self.intercept)
 
 
+COLOUR_FEATURES = tuple(n for n in TEXTURE_FEATURES if n.startswith(("hsv_", "lab_")))
+"""The HSV and CIELAB statistics among the texture features."""
+
+SNOW_FEATURES = HAZE_FEATURES + COLOUR_FEATURES + STRUCTURE_FEATURES
+"""What the snow head reads: how white, how covered, how built; not the fine texture."""
+
+SHAPE_FEATURES = HAZE_FEATURES + STRUCTURE_FEATURES
+"""What tells a panel photo from a photo of something else (``Shape``): how hazy and how
+built, not the colours that go with a panel's type."""
+
+
+@dataclass(frozen=True, slots=True)
+class Shape:
+    """What the panel photos a model learnt from look like, as a test that a frame shows a
+    panel: the Mahalanobis distance √((z − μ)ᵀ P (z − μ)) of its standardised
+    ``SHAPE_FEATURES`` z from theirs (μ, and P the inverse of their shrunk covariance), over
+    ``limit``, which a photo like them exceeds with probability at most 5 %
+    (``training.shape_model``)."""
+
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    location: NDArray[np.float64]
+    precision: NDArray[np.float64]
+    limit: float
+
+    def distance(self, f: ArrayLike) -> float:
+        """The distance of one ``ALL_FEATURES`` vector (K,) from the training photos."""
+        z = (pick(f, SHAPE_FEATURES) - self.mean) / self.scale - self.location
+        return float(np.sqrt(max(0.0, float(z @ self.precision @ z))))
+
+
 @dataclass(frozen=True, slots=True)
 class KernelModel:
     """Needs cleaning or not: a support-vector machine with a Gaussian (RBF) kernel on the
@@ -248,8 +325,17 @@ class KernelModel:
     they were kept, which cannot tell a photo unlike them)."""
     reach: float | None = None
     """How far from every training photo a frame may lie (standard units) and still be among
-    them: a photo like them lies further with probability at most 5 % (``training.reach``;
-    models fitted before that kept the largest nearest-neighbour distance of their photos)."""
+    them: a conformal rank of their distances to their nearest other photo, or for the
+    oldest models the largest of them. Models fitted since keep ``shape`` instead."""
+    shape: Shape | None = None
+    """What its panel photos look like, to doubt frames of no panel (None: a model from
+    before, which has ``reach`` instead)."""
+    snow_floor: float | None = None
+    """A frame it would send to brushing is doubted from this p(snow) up (the lowest p(snow)
+    of a held-out snow photo, ``fleet_training._snow_floor``); None: from 0.5 − ``band``."""
+    band: float = 0.2
+    """A calibrated p(needs cleaning) within this of ``threshold`` is "not sure" (chosen on
+    its training photos, ``training.choose_band``; 0.2 for models from before)."""
 
     def standardised(self, f: ArrayLike) -> NDArray[np.float64]:
         return (pick(f, self.feature_names) - self.mean) / self.scale
@@ -279,39 +365,50 @@ class KernelModel:
     def doubt(self, f: ArrayLike) -> str | None:
         """Why the model's clean-or-dirty answer on one frame is not to be trusted, or None.
 
-        Three reasons: the frame lies outside what the model learnt (further from every
-        training photo than ``reach``); its p(snow) is within ``UNSURE`` below 0.5 (at 0.5 and
-        above it is snow); or its p(needs cleaning) is within ``UNSURE`` of the threshold. On the
-        shared photos (``bench/fleet_eval.py``, folds grouped by panel) the answers outside
-        that band are right more often than all answers are: the band is where the two
-        classes' photos mix."""
+        Three reasons: the frame does not look like the panel photos the model learnt from
+        (``shape``, or for older models further from every one than ``reach``); its p(snow) is
+        within ``band`` below 0.5 (at 0.5 and above it is snow), or when it would be sent to
+        brushing at or above ``snow_floor``; or its p(needs cleaning) is
+        within ``band`` of the threshold, where the two classes' photos mix
+        (``bench/fleet_eval.py``, folds grouped by panel)."""
+        if self.shape is not None:
+            far = self.shape.distance(f)
+            if far > self.shape.limit:
+                return (
+                    f"unlike the panel photos the fleet model learnt from (is a panel in view?): "
+                    f"its build lies {far:.1f} from theirs, beyond {self.shape.limit:.1f}"
+                )
         z = self.standardised(f)
-        if self.training is not None and self.reach is not None and len(self.training):
+        if self.shape is None and self.training is not None and self.reach is not None:
             nearest = float(np.sqrt(((self.training - z) ** 2).sum(axis=1)).min())
-            if nearest > self.reach:
+            if len(self.training) and nearest > self.reach:
                 return (
                     f"unlike every photo the fleet model learnt from: the nearest lies "
                     f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"
                 )
+        p = float(self.probability(f))
         if self.snow is not None:
             p_snow = float(self.snow.probability(z))
-            if 0.5 - UNSURE <= p_snow < 0.5:  # brushing a snow-covered panel is no cleaning
+            low = 0.5 - self.band
+            if self.snow_floor is not None and p >= self.threshold:
+                low = min(low, self.snow_floor)
+            if low <= p_snow < 0.5:  # brushing a snow-covered panel is no cleaning
                 return (
                     f"the fleet model is not sure the panel is free of snow: p(snow) {p_snow:.2f}"
                 )
-        return undecided(float(self.probability(f)), self.threshold)
+        return undecided(p, self.threshold, self.band)
 
 
 UNSURE = 0.2
-"""A fleet answer whose calibrated p(needs cleaning) lies within this of the threshold is
-"not sure" (0.3–0.7 at 0.5): no verdict, no task, and the reason given."""
+"""The not-sure band of models trained before the band was chosen on their photos."""
 
 
-def undecided(p: float, threshold: float) -> str | None:
-    """The reason a fleet answer of p(needs cleaning) ``p`` is "not sure", or None."""
-    if abs(p - threshold) < UNSURE:
+def undecided(p: float, threshold: float, band: float = UNSURE) -> str | None:
+    """The reason a fleet answer of p(needs cleaning) ``p`` is "not sure" (within ``band`` of
+    ``threshold``), or None."""
+    if abs(p - threshold) < band:
         return (
-            f"the fleet model is not sure: p(needs cleaning) {p:.2f}, within {UNSURE:.2f} "
+            f"the fleet model is not sure: p(needs cleaning) {p:.2f}, within {band:.2f} "
             f"of its threshold {threshold:.2f}"
         )
     return None

@@ -38,12 +38,12 @@ from app.platform.schemas import Schema
 from app.platform.state import app_state
 from app.platform.timing import Timing
 from app.solar.schemas import DoubtOut, FleetModelOut, LabelCounts, LabelIn, LabelOut
+from app.solar.services import fleet_training, panels
 from app.solar.services import labels as labels_service
-from app.solar.services import panels, training
 
 router = APIRouter(prefix="/fleet", tags=["panels"])
 
-LABELS = (*training.FLEET_LABELS, "dirty")
+LABELS = (*fleet_training.FLEET_LABELS, "dirty")
 
 
 def _train(
@@ -68,7 +68,8 @@ def _train(
     if stored:
         named = groups or [f"upload-{i}" for i in range(len(files))]
         groups = [*named, *(s.group for s, _ in stored)]
-    row = training.fit_fleet(features, labels, now=timing.now(), groups=groups)
+    farm = [False] * len(files) + [True] * len(stored)
+    row = fleet_training.fit_fleet(features, labels, now=timing.now(), groups=groups, farm=farm)
     session.add(row)
     session.flush()
     return FleetModelOut.model_validate(row)

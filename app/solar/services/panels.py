@@ -21,7 +21,7 @@ from app.platform.lookup import get_or_404
 from app.platform.memo import ById
 from app.platform.timing import Timing
 from app.solar.core import power
-from app.solar.core.fleet import Head, KernelModel, LogisticModel
+from app.solar.core.fleet import UNSURE, Head, KernelModel, LogisticModel, Shape
 from app.solar.core.panel_state import (
     PanelFacts,
     PanelState,
@@ -189,6 +189,19 @@ def _read_model(row: FleetModel) -> LogisticModel | KernelModel:
         threshold=row.threshold,
         training=None if "training" not in k else np.asarray(k["training"], np.float64),
         reach=k.get("reach"),
+        shape=None if k.get("shape") is None else _shape(k["shape"]),
+        band=float(k.get("band", UNSURE)),
+        snow_floor=heads.get("snow", {}).get("floor"),
+    )
+
+
+def _shape(stored: dict[str, Any]) -> Shape:
+    return Shape(
+        mean=np.asarray(stored["mean"], np.float64),
+        scale=np.asarray(stored["scale"], np.float64),
+        location=np.asarray(stored["location"], np.float64),
+        precision=np.asarray(stored["precision"], np.float64),
+        limit=float(stored["limit"]),
     )
 
 

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import math
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,13 +26,10 @@ from app.platform.frames.cameras import check_in_service
 from app.platform.frames.kinds import Decoded
 from app.platform.http.errors import Unprocessable
 from app.solar.core import power
-from app.solar.core.fleet import ALL_FEATURES
-from app.solar.models import Baseline, FleetModel, PanelVerdict
-from app.solar.services import events, labels
+from app.solar.models import Baseline, PanelVerdict
+from app.solar.services import events
 from app.solar.services.panels import baseline_unfit, lock_panel
 from app.stats import hotelling
-
-MIN_FLEET_PER_CLASS = 5
 
 
 def panel_camera(session: Session, panel_id: str, camera_id: str | None) -> CameraInfo:
@@ -208,214 +203,3 @@ def evaluate(
     except ValueError as exc:  # BaselineError included: too few or degenerate sets
         raise Unprocessable(str(exc), code="bad_baseline") from None
     return Evaluation(test, rates, clean, dirty)
-
-
-NOVELTY = 0.05
-"""How often a photo like the training photos may be called unlike them (``reach``)."""
-
-
-def reach(
-    z: NDArray[np.float64], alpha: float = NOVELTY, groups: NDArray[np.str_] | None = None
-) -> float:
-    """How far a frame may lie from its nearest training photo (rows of ``z``, (n, K), standard
-    units) and still be among them (``KernelModel.doubt``): a conformal novelty threshold.
-
-    Each photo's distance to its nearest other photo is what a new photo like them would show;
-    the ⌈(n + 1)(1 − α)⌉-th smallest of the n is exceeded by such a photo with probability at
-    most α (split-conformal rank argument: Angelopoulos & Bates, *A gentle introduction to
-    conformal prediction*, 2021, §1; the largest of them when n < 1/α − 1). The largest alone
-    let street views posted to a panel camera be judged dirty (``bench/fleet_eval.py``). With
-    ``groups`` (each photo's panel), the nearest photo of another group: a new panel is like
-    the training panels, not like a second photo of one of them."""
-    from sklearn.metrics import pairwise_distances_chunked
-
-    n = len(z)
-    group = np.arange(n) if groups is None else np.asarray(groups)  # else each its own
-
-    def to_other_groups(d: NDArray[np.float64], start: int) -> NDArray[np.float64]:
-        rows = group[start : start + len(d)]
-        return np.asarray(np.where(rows[:, None] == group[None, :], np.inf, d).min(axis=1))
-
-    nearest = np.sort(
-        np.concatenate(list(pairwise_distances_chunked(z, reduce_func=to_other_groups)))
-    )
-    k = math.ceil((n + 1) * (1 - alpha))
-    return float(nearest[min(k, n) - 1])
-
-
-FLEET_FOLDS = 5
-"""Folds of the fleet model's choices and of its reported accuracy."""
-
-FLEET_LABELS = labels.LABELS
-"""What a fleet photo may be labelled; ``dirty`` is read as dust."""
-
-
-def fleet_folds(seed: int, grouped: bool, folds: int = FLEET_FOLDS) -> Any:
-    """Stratified folds (scikit-learn), shuffled by ``seed``; ``grouped``: a group's photos
-    (one panel's) all in one fold, so that a fold's score is on panels the fit never saw."""
-    from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
-
-    kind = StratifiedGroupKFold if grouped else StratifiedKFold
-    return kind(n_splits=folds, shuffle=True, random_state=seed)
-
-
-def fleet_search(k: int, grouped: bool = False, folds: int = FLEET_FOLDS) -> Any:
-    """The fleet classifier before its choice of C and γ, for ``k`` features: a standardised
-    RBF support-vector machine with balanced classes, C and γ to be chosen by ``folds``-fold
-    cross-validated balanced accuracy (scikit-learn's ``GridSearchCV``); ``grouped``: by folds
-    that keep a group together (``fleet_folds``), its ``fit`` then given ``groups``."""
-    from sklearn.model_selection import GridSearchCV
-    from sklearn.pipeline import Pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC
-
-    return GridSearchCV(
-        Pipeline([("scale", StandardScaler()), ("svm", SVC(class_weight="balanced"))]),
-        {"svm__C": [1.0, 3.0, 10.0], "svm__gamma": [0.3 / k, 1.0 / k, 3.0 / k]},
-        cv=fleet_folds(0, grouped, folds),
-        scoring="balanced_accuracy",
-    )
-
-
-def fold_interval(scores: NDArray[np.float64], level: float = 0.95) -> tuple[float, float]:
-    """The ``level`` interval of the mean of ``scores`` (one per fold), Student's t on their
-    spread, clipped to [0, 1]: how far the figure could be from what unseen panels get, with
-    as few folds as there are."""
-    from scipy import stats
-
-    k = len(scores)
-    mean = float(np.mean(scores))
-    half = float(stats.t.ppf(0.5 + level / 2, k - 1) * np.std(scores, ddof=1) / np.sqrt(k))
-    return max(0.0, mean - half), min(1.0, mean + half)
-
-
-def check_fleet_groups(groups: NDArray[np.str_], dirty: NDArray[np.bool_]) -> None:
-    """Refuse groups too few to fold: each of clean and needs cleaning in at least
-    ``FLEET_FOLDS`` groups (photos of snow aside), so that every fold can test both."""
-    for name, rows in (("clean", ~dirty), ("needing cleaning", dirty)):
-        if (n := len(set(groups[rows].tolist()))) < FLEET_FOLDS:
-            raise Unprocessable(
-                f"the photos {name} come from {n} groups; the folds that keep a group "
-                f"together need at least {FLEET_FOLDS}",
-                code="too_few_groups",
-            )
-
-
-def _checked_labels(
-    features: NDArray[np.float64], labels: Sequence[str]
-) -> tuple[NDArray[np.str_], dict[str, int]]:
-    """The labels as the model reads them (dirty is dust) and each label's count; Unprocessable
-    for too few photos of a class or non-finite features."""
-    names = np.array(["dust" if label == "dirty" else label for label in labels])
-    counts = {label: int((names == label).sum()) for label in FLEET_LABELS}
-    n_clean, n_dirty = counts["clean"], counts["dust"] + counts["bird_drop"]
-    if min(n_dirty, n_clean) < MIN_FLEET_PER_CLASS:
-        raise Unprocessable(
-            f"need at least {MIN_FLEET_PER_CLASS} clean and {MIN_FLEET_PER_CLASS} dust or "
-            f"bird_drop images; got {n_clean} clean, {n_dirty} needing cleaning"
-        )
-    if not np.isfinite(features).all():
-        raise Unprocessable("some images gave non-finite features")
-    return names, counts
-
-
-def _heads(z: NDArray[np.float64], names: NDArray[np.str_]) -> dict[str, Any]:
-    """Logistic heads on the standardised features ``z``: snow against the rest, droppings
-    against dust, each when at least 3 photos show it and 3 do not."""
-    from sklearn.linear_model import LogisticRegression
-
-    def head(positive: NDArray[np.bool_], rows: NDArray[np.bool_]) -> dict[str, Any] | None:
-        if positive[rows].sum() < 3 or (~positive[rows]).sum() < 3:
-            return None
-        fit = LogisticRegression(C=0.3, class_weight="balanced", max_iter=5000)
-        fit.fit(z[rows], positive[rows])
-        return {"coef": fit.coef_[0].tolist(), "intercept": float(fit.intercept_[0])}
-
-    everyone = np.ones(len(names), dtype=bool)
-    heads = {
-        "snow": head(names == "snow", everyone),
-        "bird_drop": head(names == "bird_drop", np.isin(names, ("dust", "bird_drop"))),
-    }
-    return {name: h for name, h in heads.items() if h is not None}
-
-
-def fit_fleet(
-    features: NDArray[np.float64],
-    labels: Sequence[str],
-    *,
-    now: datetime,
-    groups: Sequence[str] | None = None,
-) -> FleetModel:
-    """The fleet model (``core.fleet.KernelModel``) from labelled photos of many panels.
-
-    Needs cleaning (dust, bird_drop) against clean, on the photos that are not snow: a
-    standardised RBF support-vector machine with balanced classes (scikit-learn), C and γ
-    chosen by 5-fold cross-validated balanced accuracy, its decisions Platt-scaled to a
-    probability on cross-validated decisions. ``cv_balanced_accuracy`` is that of the whole
-    choice, nested: outer 5 folds, the choice made again inside each (on 3 folds with groups).
-    Heads on the same
-    features: snow against the rest, droppings against dust, each when ≥ 3 photos show it.
-
-    ``groups`` names each photo's panel (or any group of near-duplicates): every fold then
-    keeps a group's photos together, and the reach is measured to other groups' photos.
-    Without it each photo is its own panel; several photos of one panel then flatter the
-    choice, the accuracy and the probabilities, as a fold tests on panels it trained on."""
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.model_selection import cross_val_predict, cross_val_score
-
-    names, counts = _checked_labels(features, labels)
-    n_clean, n_dirty = counts["clean"], counts["dust"] + counts["bird_drop"]
-    k = features.shape[1]
-    judged = names != "snow"
-    x, dirty = features[judged], np.isin(names[judged], ("dust", "bird_drop"))
-    g = None if groups is None else np.asarray(groups, dtype=str)
-    gx = None if g is None else g[judged]  # the groups of the photos judged, as x
-    if gx is not None:
-        check_fleet_groups(gx, dirty)
-    grouped = gx is not None
-    fit_groups = {"groups": gx} if grouped else {}
-    search = fleet_search(k, grouped=grouped)
-    # an outer fold's training part may hold only 4 groups of a class: 3 inner folds
-    inner = fleet_search(k, grouped=True, folds=3) if grouped else search
-    outer = fleet_folds(1, grouped)
-    cv = cross_val_score(
-        inner, x, dirty, groups=gx, cv=outer, scoring="balanced_accuracy", params=fit_groups
-    )
-    low, high = fold_interval(cv)
-    search.fit(x, dirty, **fit_groups)
-    best = search.best_estimator_
-    folds = fleet_folds(0, grouped)
-    decisions = cross_val_predict(best, x, dirty, groups=gx, cv=folds, method="decision_function")
-    platt = LogisticRegression(C=1e6).fit(decisions.reshape(-1, 1), dirty)
-    scaler, svm = best.named_steps["scale"], best.named_steps["svm"]
-    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
-    z = (features - scaler.mean_) / scale
-    heads = _heads(z, names)
-    return FleetModel(
-        id=str(uuid.uuid4()),
-        created_at=now,
-        feature_names=list(ALL_FEATURES),
-        mean=scaler.mean_.tolist(),
-        scale=scale.tolist(),
-        coef=[],
-        intercept=0.0,
-        kernel={
-            "support": svm.support_vectors_.tolist(),
-            "dual": svm.dual_coef_[0].tolist(),
-            "intercept": float(svm.intercept_[0]),
-            "gamma": float(svm.gamma),
-            "platt": [float(platt.coef_[0, 0]), float(platt.intercept_[0])],
-            "training": z.tolist(),
-            "reach": reach(z, groups=g),
-        },
-        heads=heads,
-        threshold=0.5,
-        n_clean=n_clean,
-        n_dirty=n_dirty,
-        n_snow=counts["snow"],
-        n_bird_drop=counts["bird_drop"],
-        cv_balanced_accuracy=float(np.mean(cv)),
-        cv_low=low,
-        cv_high=high,
-        n_groups=None if g is None else len(set(g.tolist())),
-    )
