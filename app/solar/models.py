@@ -165,6 +165,18 @@ class FleetModel(Base):
     n_groups: Mapped[int | None] = mapped_column(Integer, default=None)
     """Groups (panels) its folds kept together; none when each photo was its own."""
 
+    @property
+    def band(self) -> float | None:
+        """The not-sure band it chose on its photos (None: a model from before)."""
+        value = (self.kernel or {}).get("band")
+        return None if value is None else float(value)
+
+    @property
+    def snow_floor(self) -> float | None:
+        """The p(snow) from which a frame it would send to brushing is doubted."""
+        value = ((self.heads or {}).get("snow") or {}).get("floor")
+        return None if value is None else float(value)
+
 
 class Robot(TimestampMixin, Base):
     __tablename__ = "robots"

@@ -282,6 +282,17 @@ class FleetModelOut(Out):
         description="The share of held-out photos it is sure of, nested. Null for models "
         "trained before.",
     )
+    band: float | None = Field(
+        default=None,
+        description="A frame whose p(needs cleaning) lies within this of threshold is not sure "
+        "(no verdict, the reason given); chosen on its training photos. Null for models "
+        "trained before (0.2).",
+    )
+    snow_floor: float | None = Field(
+        default=None,
+        description="A frame it would send to brushing is not sure from this p(snow) up: the "
+        "lowest p(snow) a snow photo held out of its training had. Null without snow photos.",
+    )
     n_farm: int = Field(default=0, description="Photos that were the farm's labelled frames.")
     cv_without_farm: float | None = Field(
         default=None,

@@ -114,7 +114,8 @@ def test_the_model_learns_from_the_farms_labels(
     client: TestClient, admin: dict[str, str], doubted: dict[str, Any]
 ) -> None:
     """The doubted frames, labelled dust, join the uploaded photos: the model counts them,
-    each measured in its camera's region; unlabelled frames are refused by name."""
+    each measured in its camera's region, and says what its figure would have been without
+    them; unlabelled frames are refused by name."""
     before = client.get("/fleet/model", headers=admin).json()
     for frame in doubted["frames"]:
         client.put(f"/fleet/labels/{frame}", json={"label": "dust"}, headers=admin)
@@ -125,6 +126,9 @@ def test_the_model_learns_from_the_farms_labels(
     assert r.json()["n_dirty"] == before["n_dirty"] + 3
     model = r.json()
     assert model["cv_low"] <= model["cv_balanced_accuracy"] <= model["cv_high"] <= 1.0
+    assert (before["n_farm"], before["cv_without_farm"]) == (0, None)
+    assert model["n_farm"] == 3
+    assert 0.0 <= model["cv_without_farm"] <= 1.0
     assert r.json()["n_clean"] == before["n_clean"]
     # on their own, three frames of one panel are too few to learn from: said, not a 500
     alone = client.post("/fleet/model", json={"frame_ids": doubted["frames"]}, headers=admin)

@@ -318,6 +318,9 @@ class TestFleetModel:
     ) -> None:
         r = train_fleet(client, admin)
         assert r.json()["cv_balanced_accuracy"] == 1.0
+        assert r.json()["band"] in (0.1, 0.15, 0.2, 0.25, 0.3)
+        assert r.json()["snow_floor"] is None  # no snow photos: no snow head
+        assert r.json()["cv_answered"] == 1.0  # 8 and 8 far apart: every one answered
         assert status(client, admin)["state"] == "unknown"
         v = post_frame(client, farm, CLEAN_RGB)
         assert (v["method"], v["clean"]) == ("fleet", True)

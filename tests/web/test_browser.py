@@ -315,6 +315,7 @@ def test_the_farm_board_says_how_the_fleet_model_did(
         assert "balanced accuracy 1.00 (95 % interval 1.00–1.00) on panels it never saw" in text, (
             text
         )
+        assert "It answers 100 % of frames, those at 1.00" in text, text
         data = {"labels": labels}
         assert http.post("/fleet/model", files=files, data=data, headers=admin).status_code == 201
         p.page.reload()

@@ -55,7 +55,11 @@
     const where = m.n_groups ? "on panels it never saw" : "on photos it did not learn from (high if several show one panel: train with groups)";
     const range = m.cv_low == null ? "" : ` (95 % interval ${m.cv_low.toFixed(2)}–${m.cv_high.toFixed(2)})`;
     const score = m.cv_balanced_accuracy == null ? "" : `; balanced accuracy ${m.cv_balanced_accuracy.toFixed(2)}${range} ${where}`;
-    return `Fleet model of ${new Date(m.created_at).toLocaleDateString()}: ${photos} photos${of}${score}.`;
+    const sure = m.cv_sure_balanced_accuracy == null ? "" : ` It answers ${Math.round(100 * m.cv_answered)} % of frames, those at ${m.cv_sure_balanced_accuracy.toFixed(2)}; the others it lists below as not sure.`;
+    const farm = !m.n_farm ? "" : m.cv_without_farm == null
+      ? ` ${m.n_farm} of its photos are frames the farm labelled.`
+      : ` ${m.n_farm} of its photos are frames the farm labelled: without them it would score ${m.cv_without_farm.toFixed(2)} on the same panels.`;
+    return `Fleet model of ${new Date(m.created_at).toLocaleDateString()}: ${photos} photos${of}${score}.${sure}${farm}`;
   }
 
   // The frames the fleet model would not judge, to label: what the farm teaches the model.
