@@ -2,28 +2,30 @@
 
 Clean (30), dust (30), bird droppings (10) and snow (7), five stratified folds that never put one
 panel in both training and test (near-duplicate photos are grouped first), repeated over seeds.
-For each fold: the fleet model as the service trains it (``training.fit_fleet``, its own choice
-of C and γ made on the training fold only) and, on the same folds, the dissertation's mode-only
-T² test used as a fleet baseline (clean modes of the training panels → F-test on each test
-photo). Balanced accuracy of needs cleaning (dust, droppings) against clean on the photos that
-are not snow; the confusion of the four labels.
+For each fold: the fleet model as the service trains it (``fleet_training.fit_fleet`` with the
+photos' groups: C and γ, Platt's sigmoid, the not-sure band, the panel test and the snow floor
+all chosen on the training fold only) and, on the same folds, the dissertation's mode-only T²
+test used as a fleet baseline (clean modes of the training panels → F-test on each test photo).
+Balanced accuracy of needs cleaning (dust, droppings) against clean on the photos that are not
+snow, with the interval over the folds; the same on the answers the model is sure of; the
+confusion of the four labels; snow sent to brushing.
 
-``--scales``: the coarse LBP scale was chosen on these photos, so the figure above flatters it.
-The study fits the service's SVM (C and γ by inner CV, decision at 0) on the other features plus
-each candidate scale's histogram (P neighbours, radius R px), and once more with the scale chosen
-by 4 grouped folds inside each training fold: that last figure is what choosing a scale on
-photos like these earns on panels it never saw.
+Photos that show no panel (the sky photos of ../shared/data/sky, the parts of
+../shared/data/parts, the calibration checkerboards), judged by each fold's model as a panel
+camera's frames would be: how many it calls unlike its panel photos, how many it is not sure
+of, how many it gives a condition; and how many held-out panel photos it calls unlike (at most
+5 % by the panel test's design).
 
-Photos that show no panel (the sky photos of ../shared/data/sky: a fixed camera's street view,
-city skylines), judged by each fold's model as a panel camera's frames would be: how many it
-calls unlike every photo it learnt from, how many it is not sure of, how many it gives a
-condition; and how many held-out panel photos it calls unlike (at most 5 % by
-``training.reach``'s design).
+``--groups``: the feature set was settled on these photos; the study fits the service's SVM
+on each candidate set, and once with the set chosen by 4 grouped folds inside each training
+fold: what choosing the features on photos like these earns on panels it never saw.
+``--scales``: the same for the coarse LBP scale (P neighbours, radius R px).
 
 ``--copies``: an operator's photos are often several of one panel. Each photo, mirrored and
 cropped, makes three of one panel; the model trained without and with ``groups``.
 
-    python bench/fleet_eval.py [--data ../shared/data/solar] [--seeds 5] [--scales] [--copies]
+    python bench/fleet_eval.py [--data ../shared/data/solar] [--seeds 5] [--groups] [--scales]
+                               [--copies]
 """
 
 from __future__ import annotations
