@@ -424,3 +424,15 @@ class TestFleetModel:
         r = client.post("/fleet/model", files=files, data={"labels": "shiny"}, headers=admin)
         assert r.status_code == 422
         assert client.get("/fleet/model", headers=admin).status_code == 404
+
+
+def test_the_histogram_percentile_is_numpys() -> None:
+    """The colour percentiles come from a histogram; the reference is ``np.percentile``'s
+    default (linear between order statistics), on seeded planes of odd and even sizes."""
+    from app.solar.core.fleet import _percentile
+
+    rng = np.random.default_rng(0)
+    for n in (1, 7, 100, 4097):
+        plane = rng.integers(0, 256, n).astype(np.uint8)
+        for q in (0, 10, 50, 90, 100):
+            assert _percentile(plane, q) == pytest.approx(np.percentile(plane, q), abs=1e-9)

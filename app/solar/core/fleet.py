@@ -292,7 +292,7 @@ class Shape:
     panel: the Mahalanobis distance √((z − μ)ᵀ P (z − μ)) of its standardised
     ``SHAPE_FEATURES`` z from theirs (μ, and P the inverse of their shrunk covariance), over
     ``limit``, which a photo like them exceeds with probability at most 5 %
-    (``training.shape_model``)."""
+    (``fleet_training.shape_model``)."""
 
     mean: NDArray[np.float64]
     scale: NDArray[np.float64]
@@ -341,7 +341,7 @@ class KernelModel:
     of a held-out snow photo, ``fleet_training._snow_floor``); None: from 0.5 − ``band``."""
     band: float = 0.2
     """A calibrated p(needs cleaning) within this of ``threshold`` is "not sure" (chosen on
-    its training photos, ``training.choose_band``; 0.2 for models from before)."""
+    its training photos, ``fleet_training.choose_band``; 0.2 for models from before)."""
 
     def standardised(self, f: ArrayLike) -> NDArray[np.float64]:
         return (pick(f, self.feature_names) - self.mean) / self.scale
@@ -385,9 +385,10 @@ class KernelModel:
                     f"its build lies {far:.1f} from theirs, beyond {self.shape.limit:.1f}"
                 )
         z = self.standardised(f)
-        if self.shape is None and self.training is not None and self.reach is not None:
+        old = self.shape is None and self.training is not None and self.reach is not None
+        if old and self.training is not None and len(self.training):
             nearest = float(np.sqrt(((self.training - z) ** 2).sum(axis=1)).min())
-            if len(self.training) and nearest > self.reach:
+            if self.reach is not None and nearest > self.reach:
                 return (
                     f"unlike every photo the fleet model learnt from: the nearest lies "
                     f"{nearest:.1f} standard units away, beyond its reach of {self.reach:.1f}"

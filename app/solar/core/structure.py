@@ -5,10 +5,11 @@ softens the finest scale of that pattern and leaves the coarse ones. A street, a
 is built otherwise: smooth sky above, texture below, no repeated grid. These features describe
 that build, not the panel's colour (which goes with its type more than with its soiling), so
 the same numbers serve the clean-or-dirty model and the test of whether a photo shows a panel
-at all (``training.shape_limit``).
+at all (``fleet_training.shape_model``).
 
 All of them are measured on the grey copy the texture features use (``fleet.texture_grey``,
-long side 256 px), with OpenCV and NumPy only, in about 2 ms at 640×480 on one core.
+long side 256 px), with OpenCV and NumPy only: about 3.3 ms for a 640×480 frame on one core of a
+machine that decodes it in 2 ms (``bench/README.md``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Training from labelled images: a panel's baseline, the fleet model, the T² evaluation."""
+"""Training from labelled images: a panel's baseline and the T² evaluation (the fleet model's
+training is ``fleet_training``)."""
 
 from __future__ import annotations
 
