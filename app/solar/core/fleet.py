@@ -291,7 +291,7 @@ class Shape:
     """What the panel photos a model learnt from look like, as a test that a frame shows a
     panel: the Mahalanobis distance √((z − μ)ᵀ P (z − μ)) of its standardised
     ``SHAPE_FEATURES`` z from theirs (μ, and P the inverse of their shrunk covariance), over
-    ``limit``, which a photo like them exceeds with probability at most 5 %
+    ``limit``, which a photo like them exceeds with probability of about 5 %
     (``fleet_training.shape_model``)."""
 
     mean: NDArray[np.float64]
