@@ -160,7 +160,7 @@ def lbp_histogram(grey: NDArray[np.uint8], points: int, radius: float) -> NDArra
     points + 1. Each neighbour is the whole image interpolated at the neighbour's sub-pixel
     offset by a 2×2 correlation (OpenCV's ``filter2D``), then shifted by its whole pixels: a
     few vectorised passes, not a loop per pixel. scikit-image's ``local_binary_pattern``
-    gives the same histogram (``tests/solar/test_fleet.py``) at about ten times the time;
+    gives the same histogram (``tests/solar/test_fleet.py``) at about five times the time;
     as there, the offsets are rounded to 5 decimals, so that cos 90° is 0."""
     g = grey.astype(np.float32)
     h, w = g.shape
