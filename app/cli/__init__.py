@@ -212,6 +212,9 @@ def fleet(service: Service, args: argparse.Namespace) -> None:
     how = "" if accuracy is None else f", balanced accuracy {accuracy:.2f}"
     if accuracy is not None and body.get("cv_low") is not None:
         how += f" (95 % interval {body['cv_low']:.2f}–{body['cv_high']:.2f})"
+    if body.get("cv_sure_balanced_accuracy") is not None:
+        sure, answered = body["cv_sure_balanced_accuracy"], body["cv_answered"]
+        how += f"; sure of {answered:.0%} of photos, those at {sure:.2f}"
     common.say(
         args,
         f"fleet model {body['id']} from {body['n_clean']} clean and {body['n_dirty']} dirty "

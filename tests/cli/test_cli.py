@@ -131,7 +131,9 @@ def test_air_calibration_replay_and_readings_export(
     assert "calibration_id" in rows[0]
 
 
-def test_baseline_fleet_and_history(live: str, tmp_path: Path) -> None:
+def test_baseline_fleet_and_history(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert httpx.post(f"{live}/panels", json={"id": "p1"}, headers=ADMIN).status_code == 201
     clean = tmp_path / "clean"
     clean.mkdir()
@@ -148,7 +150,9 @@ def test_baseline_fleet_and_history(live: str, tmp_path: Path) -> None:
         c = CLEAN_RGB + rng.normal(0, 6, 3)
         (photos / "clean" / f"c{i}.jpg").write_bytes(panel_jpeg(c, seed=i))
         (photos / "dirty" / f"d{i}.jpg").write_bytes(panel_jpeg(0.5 * c + 0.5 * sand, seed=100 + i))
+    capsys.readouterr()
     assert vantage(live, "fleet", str(photos)) == 0
+    assert "; sure of 100% of photos, those at 1.00" in capsys.readouterr().out
     assert httpx.get(f"{live}/fleet/model", headers=ADMIN).json()["n_groups"] is None
     # each clean photo and its sandy copy are one panel's: the folds keep them together
     rows = [
