@@ -102,54 +102,76 @@ SCALES = ((8, 2), (8, 3), (16, 2), (16, 3), (24, 3), (16, 4))
 """(P, R) of the uniform LBP scales the study compares."""
 
 
-def scale_study(
-    images: list[np.ndarray], feats: np.ndarray, label: np.ndarray, groups: np.ndarray, seeds: int
+def chosen_inside(
+    candidates: dict[str, np.ndarray],
+    label: np.ndarray,
+    groups: np.ndarray,
+    seeds: int,
+    title: tuple[str, str],
+    grouped_search: bool,
 ) -> None:
-    """Balanced accuracy with each candidate coarse LBP scale, and with the scale chosen inside
-    each training fold (nested), on the service's folds."""
-    base = feats[:, [fleet.ALL_FEATURES.index(n) for n in fleet.ALL_FEATURES if "lbp24r3" not in n]]
-    greys = [fleet.texture_grey(im) for im in images]
-    candidates = {"none": base} | {
-        f"P={p}, R={r}": np.hstack([base, [fleet.lbp_histogram(g, p, r) for g in greys]])
-        for p, r in SCALES
-    }
+    """Balanced accuracy of the service's SVM (decision at 0) on each candidate feature
+    matrix, and with the candidate chosen by 4 grouped folds inside each training fold
+    (nested), on the service's folds; printed as a table headed ``title`` (caption, column).
+    ``grouped_search``: C and γ by 3 grouped inner folds, else by 5 ungrouped ones."""
     y = np.isin(label, ("dust", "bird_drop")).astype(int)
     judged = label != "snow"
 
     def fit_predict(x: np.ndarray, tr: np.ndarray, te: np.ndarray) -> np.ndarray:
         tr = tr[judged[tr]]
-        return np.asarray(fleet_search(x.shape[1]).fit(x[tr], y[tr]).predict(x[te]))
+        if not grouped_search:
+            return np.asarray(fleet_search(x.shape[1]).fit(x[tr], y[tr]).predict(x[te]))
+        search = fleet_search(x.shape[1], grouped=True, folds=3)
+        return np.asarray(search.fit(x[tr], y[tr], groups=groups[tr]).predict(x[te]))
 
     def inner_score(x: np.ndarray, splits: list[tuple[np.ndarray, np.ndarray]]) -> float:
         """Mean balanced accuracy over the inner folds (indices into the whole set)."""
-        scored = []
-        for a, b in splits:
-            b = b[judged[b]]
-            scored.append(balanced_accuracy_score(y[b], fit_predict(x, a, b)))
-        return float(np.mean(scored))
+        return float(
+            np.mean(
+                [
+                    balanced_accuracy_score(y[b][judged[b]], fit_predict(x, a, b[judged[b]]))
+                    for a, b in splits
+                ]
+            )
+        )
 
+    first = next(iter(candidates.values()))
     scores: dict[str, list[float]] = {name: [] for name in [*candidates, "chosen inside"]}
     picks: dict[str, int] = dict.fromkeys(candidates, 0)
     for seed in range(seeds):
         folds = StratifiedGroupKFold(5, shuffle=True, random_state=seed)
         pred = {name: np.zeros(len(y), int) for name in scores}
-        for tr, te in folds.split(base, label, groups):
+        for tr, te in folds.split(first, label, groups):
             for name, x in candidates.items():
                 pred[name][te] = fit_predict(x, tr, te)
             inner = StratifiedGroupKFold(4, shuffle=True, random_state=seed)
-            splits = [(tr[a], tr[b]) for a, b in inner.split(base[tr], label[tr], groups[tr])]
+            splits = [(tr[a], tr[b]) for a, b in inner.split(first[tr], label[tr], groups[tr])]
             inner_ba = {name: inner_score(x, splits) for name, x in candidates.items()}
             best = max(inner_ba, key=lambda name: inner_ba[name])
             picks[best] += 1
             pred["chosen inside"][te] = fit_predict(candidates[best], tr, te)
         for name in scores:
             scores[name].append(balanced_accuracy_score(y[judged], pred[name][judged]))
-    print("\ncoarse LBP scale (SVM decision at 0, the same folds)")
-    print("| scale | balanced accuracy | chosen inside |")
+    print(f"\n{title[0]} (SVM decision at 0, the same folds)")
+    print(f"| {title[1]} | balanced accuracy | chosen inside |")
     print("|---|---|---|")
     for name, ba in scores.items():
         chosen = "" if name == "chosen inside" else str(picks[name])
         print(f"| {name} | {np.mean(ba):.3f} ± {np.std(ba):.3f} | {chosen} |")
+
+
+def scale_study(
+    images: list[np.ndarray], feats: np.ndarray, label: np.ndarray, groups: np.ndarray, seeds: int
+) -> None:
+    """Each candidate coarse LBP scale in place of the service's, and the scale chosen inside
+    each training fold (``chosen_inside``; C and γ by 5 ungrouped folds, as before groups)."""
+    base = feats[:, [fleet.ALL_FEATURES.index(n) for n in fleet.ALL_FEATURES if "lbp24r3" not in n]]
+    greys = [fleet.texture_grey(im) for im in images]
+    candidates = {"none": base} | {
+        f"P={p}, R={r}": np.hstack([base, [fleet.lbp_histogram(g, p, r) for g in greys]])
+        for p, r in SCALES
+    }
+    chosen_inside(candidates, label, groups, seeds, ("coarse LBP scale", "scale"), False)
 
 
 GROUPS = {
@@ -162,54 +184,16 @@ GROUPS = {
 
 
 def groups_study(feats: np.ndarray, label: np.ndarray, groups: np.ndarray, seeds: int) -> None:
-    """Balanced accuracy of the service's SVM (C and γ by grouped inner CV, decision at 0) on
-    each feature set of ``GROUPS``, and with the set chosen by 4 grouped folds inside each
-    training fold (nested): what choosing the features on photos like these earns on panels
-    the model never saw."""
+    """Each feature set of ``GROUPS``, and the set chosen inside each training fold
+    (``chosen_inside``; C and γ by 3 grouped folds): what choosing the features on photos
+    like these earns on panels the model never saw."""
     candidates = {
         name: feats[:, [i for i, n in enumerate(fleet.ALL_FEATURES) if not n.startswith(drop)]]
         if drop
         else feats
         for name, drop in GROUPS.items()
     }
-    y = np.isin(label, ("dust", "bird_drop")).astype(int)
-    judged = label != "snow"
-
-    def fit_predict(x: np.ndarray, tr: np.ndarray, te: np.ndarray) -> np.ndarray:
-        tr = tr[judged[tr]]
-        search = fleet_search(x.shape[1], grouped=True, folds=3)
-        return np.asarray(search.fit(x[tr], y[tr], groups=groups[tr]).predict(x[te]))
-
-    scores: dict[str, list[float]] = {name: [] for name in [*candidates, "chosen inside"]}
-    picks: dict[str, int] = dict.fromkeys(candidates, 0)
-    for seed in range(seeds):
-        folds = StratifiedGroupKFold(5, shuffle=True, random_state=seed)
-        pred = {name: np.zeros(len(y), int) for name in scores}
-        for tr, te in folds.split(feats, label, groups):
-            for name, x in candidates.items():
-                pred[name][te] = fit_predict(x, tr, te)
-            inner = StratifiedGroupKFold(4, shuffle=True, random_state=seed)
-            splits = [(tr[a], tr[b]) for a, b in inner.split(feats[tr], label[tr], groups[tr])]
-            inner_ba = {
-                name: np.mean(
-                    [
-                        balanced_accuracy_score(y[b][judged[b]], fit_predict(x, a, b[judged[b]]))
-                        for a, b in splits
-                    ]
-                )
-                for name, x in candidates.items()
-            }
-            best = max(inner_ba, key=lambda name: inner_ba[name])
-            picks[best] += 1
-            pred["chosen inside"][te] = fit_predict(candidates[best], tr, te)
-        for name in scores:
-            scores[name].append(balanced_accuracy_score(y[judged], pred[name][judged]))
-    print("\nfeature sets (SVM decision at 0, the same folds)")
-    print("| features | balanced accuracy | chosen inside |")
-    print("|---|---|---|")
-    for name, ba in scores.items():
-        chosen = "" if name == "chosen inside" else str(picks[name])
-        print(f"| {name} | {np.mean(ba):.3f} ± {np.std(ba):.3f} | {chosen} |")
+    chosen_inside(candidates, label, groups, seeds, ("feature sets", "features"), True)
 
 
 def copies_study(images: list[np.ndarray], label: np.ndarray, seeds: int) -> None:
