@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 from fastapi.testclient import TestClient
 
+from app.solar.core.fleet import ALL_FEATURES, KernelModel
 from tests.factories import bearer
 
 
@@ -216,3 +217,22 @@ def status(client: TestClient, admin: dict[str, str]) -> Any:
     r = client.get("/panels/p1/status", headers=admin)
     assert r.status_code == 200, r.text
     return r.json()
+
+
+def one_feature_model(**kw: object) -> KernelModel:
+    """A kernel model on ALL_FEATURES whose decision is exp(−½‖z − e₀‖²) − exp(−½‖z + e₀‖²)
+    (one support-vector pair, unit standardisation) through Platt's (4, 0): p = 0.5 where
+    z₀ = 0, 0.915 at z = 2e₀. ``kw``: the model's other fields (heads, shape, band, …)."""
+    k = len(ALL_FEATURES)
+    e0 = np.eye(k)[0]
+    return KernelModel(
+        feature_names=ALL_FEATURES,
+        mean=np.zeros(k),
+        scale=np.ones(k),
+        support=np.vstack([e0, -e0]),
+        dual=np.array([1.0, -1.0]),
+        intercept=0.0,
+        gamma=0.5,
+        platt=(4.0, 0.0),
+        **kw,  # type: ignore[arg-type]
+    )

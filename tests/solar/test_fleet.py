@@ -30,6 +30,7 @@ from tests.factories.solar import (
     CLEAN_RGB,
     SAND,
     clean_set,
+    one_feature_model,
     panel,
     panel_jpeg,
     post_frame,
@@ -180,24 +181,6 @@ def test_the_kernel_model_decides_as_scikit_learn_does() -> None:
     snowy[1] = mean[1] + 20 * scale[1]  # the snow head: σ(z₁ − 10) > 0.5
     assert model.condition(snowy) == "snow"
     assert model.condition(raw[1]) in ("clean", "dirty")
-
-
-def one_feature_model(**kw: object) -> KernelModel:
-    """A kernel model on ALL_FEATURES whose decision is 4·(z₀ − 0) through one support vector
-    pair, unit standardisation: p(dirty) = σ(decision), so p = 0.5 where z₀ = 0."""
-    k = len(ALL_FEATURES)
-    e0 = np.eye(k)[0]
-    return KernelModel(
-        feature_names=ALL_FEATURES,
-        mean=np.zeros(k),
-        scale=np.ones(k),
-        support=np.vstack([e0, -e0]),
-        dual=np.array([1.0, -1.0]),
-        intercept=0.0,
-        gamma=0.5,
-        platt=(4.0, 0.0),
-        **kw,  # type: ignore[arg-type]
-    )
 
 
 class TestDoubt:

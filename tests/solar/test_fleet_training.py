@@ -8,7 +8,15 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from app.solar.core.fleet import ALL_FEATURES, SHAPE_FEATURES, UNSURE, Head, KernelModel, Shape
+from app.solar.core.fleet import (
+    ALL_FEATURES,
+    SHAPE_FEATURES,
+    UNSURE,
+    Head,
+    KernelModel,
+    Shape,
+    pick,
+)
 from app.solar.services.fleet_training import (
     ANSWERED,
     choose_band,
@@ -17,6 +25,7 @@ from app.solar.services.fleet_training import (
     shape_model,
 )
 from app.solar.services.panels import as_core_model
+from tests.factories.solar import one_feature_model
 
 NOW = datetime(2026, 6, 1, tzinfo=UTC)
 K = len(ALL_FEATURES)
@@ -30,23 +39,27 @@ def test_the_conformal_limit_is_the_rank_of_the_held_out_scores() -> None:
     assert conformal_limit(np.arange(1.0, 11.0)) == 10.0
 
 
-def test_a_panel_photo_like_the_training_photos_is_called_unlike_them_at_most_5_percent() -> None:
+def test_a_panel_photo_like_the_training_photos_is_called_unlike_them_about_5_percent() -> None:
     """Training and new photos drawn alike (seeded correlated Gaussians, all features): over
-    30 training sets of 80, the share of 400 new photos beyond the shape model's limit is at
-    most α = 0.05 on average (the conformal guarantee), and not far below it."""
-    rng = np.random.default_rng(3)
-    mix = rng.normal(0, 1, (K, K)) / np.sqrt(K)
+    90 training sets of 80 (three seeds' mixes), the share of 400 new photos beyond the shape
+    model's limit is about α = 0.05. About, not at most: each photo's distance is held out of
+    a fit on the others (a jackknife), whose guarantee is 2α at worst (Barber et al.,
+    *Predictive inference with the jackknife+*, Ann. Statist. 49(1), 2021); measured, the
+    mean of 30 sets was 0.061, 0.049 and 0.044 for these seeds, each ± 0.005. The bound,
+    ± 0.015, is three times the spread of the mean of 90."""
     shares = []
-    for _ in range(30):
-        train = rng.normal(0, 1, (80, K)) @ mix
-        new = rng.normal(0, 1, (400, K)) @ mix
-        stored = shape_model(train, None)
-        assert stored is not None
-        shape = Shape(
-            **{k: np.asarray(v) for k, v in stored.items() if k != "limit"}, limit=stored["limit"]
-        )
-        shares.append(float(np.mean([shape.distance(f) > shape.limit for f in new])))
-    assert 0.02 < np.mean(shares) <= 0.05 + 0.012  # ±0.012: 30 sets' spread of the mean
+    for seed in (3, 4, 5):
+        rng = np.random.default_rng(seed)
+        mix = rng.normal(0, 1, (K, K)) / np.sqrt(K)
+        for _ in range(30):
+            train = rng.normal(0, 1, (80, K)) @ mix
+            new = rng.normal(0, 1, (400, K)) @ mix
+            stored = shape_model(train, None)
+            assert stored is not None
+            z = (pick(new, SHAPE_FEATURES) - stored["mean"]) / stored["scale"] - stored["location"]
+            distance = np.sqrt(np.einsum("ij,jk,ik->i", z, np.asarray(stored["precision"]), z))
+            shares.append(float(np.mean(distance > stored["limit"])))  # Shape.distance, all at once
+    assert abs(np.mean(shares) - 0.05) < 0.015
 
 
 def test_the_distance_is_mahalanobis() -> None:
@@ -90,22 +103,6 @@ class TestBand:
         p = np.full(20, 0.52)
         dirty = np.arange(20) % 2 == 0
         assert choose_band(p, dirty) == 0.1
-
-
-def one_feature_model(**kw: object) -> KernelModel:
-    """Decision exp(−½‖z − e₀‖²) − exp(−½‖z + e₀‖²) through Platt's (4, 0): p = 0.915 at 2e₀."""
-    e0 = np.eye(K)[0]
-    return KernelModel(
-        feature_names=ALL_FEATURES,
-        mean=np.zeros(K),
-        scale=np.ones(K),
-        support=np.vstack([e0, -e0]),
-        dual=np.array([1.0, -1.0]),
-        intercept=0.0,
-        gamma=0.5,
-        platt=(4.0, 0.0),
-        **kw,  # type: ignore[arg-type]
-    )
 
 
 def test_a_frame_sent_to_brushing_is_doubted_down_to_the_snow_floor() -> None:
