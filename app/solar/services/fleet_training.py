@@ -202,7 +202,8 @@ def _snow_floor(
     z: NDArray[np.float64], snow: NDArray[np.bool_], groups: NDArray[np.str_] | None
 ) -> float | None:
     """The lowest p(snow) of a snow photo held out of the head's fit, its group (panel) left
-    out at a time; None for fewer than 2 groups of snow photos. A frame the fleet model
+    out at a time (up to ``SHAPE_FOLDS`` folds, so that the cost is bounded); None for fewer
+    than 2 groups of snow photos. A frame the fleet model
     would send to brushing with p(snow) at or above it is doubted: it may be snow as those
     photos were. One group out at a time, because a fit on all but one is what a new snow
     photo meets."""
@@ -212,9 +213,10 @@ def _snow_floor(
     snowy = sorted(set(g[snow].tolist()))
     if len(snowy) < 2:
         return None
+    folds = min(len(snowy), SHAPE_FOLDS)  # one group a fold, up to SHAPE_FOLDS fits
     held = []
-    for group in snowy:
-        out = g == group
+    for k in range(folds):
+        out = np.isin(g, snowy[k::folds])
         fit = LogisticRegression(C=SNOW_C, class_weight="balanced", max_iter=5000)
         fit.fit(z[~out], snow[~out])
         held.append(float(fit.predict_proba(z[out & snow])[:, 1].min()))
