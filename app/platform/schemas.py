@@ -284,6 +284,12 @@ class PanelVerdictOut(VerdictBase):
         "awaiting confirmation was done (a late upload): judged, but it did not change the "
         "panel's state or its tasks.",
     )
+    cleaning: str | None = Field(
+        default=None,
+        description="What this verdict did to the cleaning: opened a task, and on what "
+        "evidence (the cameras' verdicts, the output's word when the farm weighs it), or found "
+        "the panel dirty while its output says cleaning does not pay yet.",
+    )
 
 
 class SkyEstimate(Out):

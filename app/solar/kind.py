@@ -72,6 +72,7 @@ def verdict_out(verdict: Verdict) -> PanelVerdictOut:
         p_dirty=verdict.p_dirty,
         condition=verdict.condition,
         late=bool(verdict.late),
+        cleaning=verdict.cleaning,
         **verdict_common(verdict),
     )
 

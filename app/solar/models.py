@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import enum
-from datetime import datetime
+from datetime import date, datetime
 from typing import Any
 
 from sqlalchemy import (
     JSON,
     Boolean,
+    Date,
     Enum,
     Float,
     ForeignKey,
@@ -37,6 +38,12 @@ class Panel(TimestampMixin, Base):
     """Longitude [°], WGS 84."""
     location: Mapped[str | None] = mapped_column(String(200), default=None)
     """Where the panel is in words a robot or its crew can use ("row 3, string B, 7th")."""
+    kwp: Mapped[float | None] = mapped_column(Float, default=None)
+    """Rated DC power at standard test conditions [kW]: what pvlib scales insolation by."""
+    tilt: Mapped[float | None] = mapped_column(Float, default=None)
+    """Tilt from horizontal [°]."""
+    azimuth: Mapped[float | None] = mapped_column(Float, default=None)
+    """The direction it faces [° east of north]: 180 faces south."""
     baseline_id: Mapped[str | None] = mapped_column(
         ForeignKey("baselines.id", use_alter=True), default=None
     )
@@ -121,6 +128,8 @@ class CleaningTask(Base):
     """effective, ineffective, not_needed, failed or panel_retired."""
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     fail_reason: Mapped[str | None] = mapped_column(String(500))
+    evidence: Mapped[str | None] = mapped_column(String(300), default=None)
+    """What opened it: the cameras' verdicts, and the output's word when the farm weighs it."""
 
 
 class FleetModel(Base):
@@ -214,6 +223,9 @@ class PanelVerdict(Verdict):
     full_resolution: Mapped[bool] = mapped_column(Boolean, default=True, server_default=false())
     """Its modes are of the full-size frame; verdicts from before, of a 1/2–1/8 scale decode:
     a baseline cannot be trained from those."""
+    cleaning: Mapped[str | None] = mapped_column(String(300), default=None)
+    """What this verdict did to the cleaning: opened a task (and on what evidence), or found
+    the panel dirty while the output said cleaning does not pay yet."""
 
     __mapper_args__ = {"polymorphic_identity": CameraKind.panel, "polymorphic_load": "inline"}
 
@@ -231,3 +243,44 @@ class FrameLabel(Base):
     source: Mapped[str] = mapped_column(String(16))
     """operator (through the API or the farm board) or robot (a cleaning's before and after)."""
     labelled_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+
+
+class EnergyDay(Base):
+    """A panel's output on one day, with what it would have made clean: the soiling ratio's
+    input. One row a panel and day; a day sent again replaces it."""
+
+    __tablename__ = "panel_energy_days"
+
+    panel_id: Mapped[str] = mapped_column(ForeignKey("panels.id"), primary_key=True)
+    day: Mapped[date] = mapped_column(Date, primary_key=True)
+    """The day, in the farm's local time as its export gives it."""
+    kwh: Mapped[float] = mapped_column(Float)
+    """Measured energy [kWh]."""
+    expected_kwh: Mapped[float] = mapped_column(Float)
+    """What the clean panel would have made [kWh]: given, or modelled by pvlib."""
+    expected_from: Mapped[str] = mapped_column(String(8))
+    """given, poa (pvlib from plane-of-array insolation) or ghi (from global horizontal)."""
+    poa_kwh_m2: Mapped[float | None] = mapped_column(Float, default=None)
+    ghi_kwh_m2: Mapped[float | None] = mapped_column(Float, default=None)
+    rain_mm: Mapped[float | None] = mapped_column(Float, default=None)
+    received_at: Mapped[datetime] = mapped_column(UTCDateTime())
+
+
+class SolarEconomics(Base):
+    """The farm's prices (one row): what its energy is worth, what a cleaning costs, and
+    whether the cleaning trigger weighs them."""
+
+    __tablename__ = "solar_economics"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    energy_price_per_kwh: Mapped[float] = mapped_column(Float)
+    cleaning_cost: Mapped[float] = mapped_column(Float)
+    cost_per: Mapped[str] = mapped_column(String(8))
+    """panel (each panel's cleaning costs ``cleaning_cost``) or visit (a robot's visit does,
+    shared by ``panels_per_visit``)."""
+    panels_per_visit: Mapped[int] = mapped_column(Integer)
+    currency: Mapped[str | None] = mapped_column(String(3))
+    trigger: Mapped[str] = mapped_column(String(16))
+    """camera (the cameras' verdicts alone open a task) or camera_and_pays (a dirty panel gets
+    a task when it has no recent output, or when cleaning it pays)."""
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime())

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from datetime import datetime
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from app.platform.schemas import Id, Lat, Lon, Out, PanelVerdictOut, Schema
 
@@ -19,12 +20,30 @@ Location = Annotated[
 ]
 
 
+Kwp = Annotated[
+    float,
+    Field(
+        gt=0,
+        le=1_000_000,
+        description="Rated DC power at standard test conditions [kW] (a panel 0.4, a string "
+        "of them more): pvlib models what it would make from insolation.",
+    ),
+]
+Tilt = Annotated[float, Field(ge=0, le=90, description="Tilt from horizontal [°].")]
+Azimuth = Annotated[
+    float, Field(ge=0, lt=360, description="The direction it faces [° east of north]: 180 south.")
+]
+
+
 class PanelCreate(Schema):
     id: Id
     name: Annotated[str, Field(max_length=200)] | None = None
     lat: Lat | None = None
     lon: Lon | None = None
     location: Location | None = None
+    kwp: Kwp | None = None
+    tilt: Tilt | None = None
+    azimuth: Azimuth | None = None
 
 
 class PanelUpdate(Schema):
@@ -35,6 +54,9 @@ class PanelUpdate(Schema):
     lat: Lat | None = None
     lon: Lon | None = None
     location: Location | None = None
+    kwp: Kwp | None = None
+    tilt: Tilt | None = None
+    azimuth: Azimuth | None = None
 
 
 PanelStateName = Literal["no_baseline", "clean", "needs_cleaning", "cleaning", "unknown"]
@@ -46,6 +68,9 @@ class PanelOut(Out):
     lat: float | None
     lon: float | None
     location: str | None = None
+    kwp: float | None = None
+    tilt: float | None = None
+    azimuth: float | None = None
     created_at: datetime
     retired_at: datetime | None = Field(
         None, description="When the panel was retired (DELETE); null while in service."
@@ -155,6 +180,11 @@ class TaskOut(Out):
     )
     attempts: int
     fail_reason: str | None
+    evidence: str | None = Field(
+        None,
+        description="What opened it: the cameras' dirty verdicts, and the output's word when "
+        "the farm's trigger weighs it (PUT /solar/economics).",
+    )
 
 
 class PanelPlace(Out):
@@ -318,6 +348,21 @@ class HistoryBucket(Out):
     t2_max: float | None
     p_value_min: float | None = Field(description="Smallest p-value (eq. 5.20's F).")
     p_dirty_mean: float | None = Field(description="Mean p_dirty of those judged by the fleet.")
+    kwh: float | None = Field(None, description="Day buckets: the day's measured energy [kWh].")
+    expected_kwh: float | None = Field(None, description="What the clean panel would have made.")
+    performance_index: float | None = Field(
+        None, description="kwh / expected_kwh, null on a day left out (outage, low light)."
+    )
+    soiling_ratio: float | None = Field(
+        None, description="The fitted soiling ratio of the day (1: as clean as after cleaning)."
+    )
+    soiling_low: float | None = Field(None, description="95 % interval of the ratio.")
+    soiling_high: float | None = None
+    cleaned: bool = Field(
+        False,
+        description="A soiling interval began on the day: a cleaning (robot, rain, or "
+        "a recovery of the output).",
+    )
 
 
 FleetLabel = Literal["clean", "dust", "bird_drop", "snow"]
@@ -353,3 +398,143 @@ class LabelOut(Out):
 class LabelCounts(Out):
     counts: dict[str, int] = Field(description="Frames the farm labelled, by label.")
     total: int
+
+
+Energy = Annotated[float, Field(ge=0, le=1e9)]
+Insolation = Annotated[float, Field(ge=0, le=15)]
+
+
+class EnergyDayIn(Schema):
+    """A panel's (or a string's) output on one day."""
+
+    date: dt.date = Field(description="The day (YYYY-MM-DD), in the farm's local time.")
+    kwh: Energy = Field(description="Measured energy [kWh].")
+    expected_kwh: Energy | None = Field(
+        None,
+        description="What the clean panel would have made [kWh] (the inverter's or SCADA's "
+        "model). Left out, pvlib models it from poa_kwh_m2 (the panel needs kwp) or "
+        "ghi_kwh_m2 (kwp, tilt, azimuth, lat and lon).",
+    )
+    poa_kwh_m2: Insolation | None = Field(None, description="Plane-of-array insolation [kWh/m²].")
+    ghi_kwh_m2: Insolation | None = Field(
+        None, description="Global horizontal insolation [kWh/m²]."
+    )
+    rain_mm: Annotated[float, Field(ge=0, le=2000)] | None = Field(
+        None, description="Rain [mm]: a recovery on a rainy day is put down to rain."
+    )
+
+    @model_validator(mode="after")
+    def _expected_can_hold_it(self) -> EnergyDayIn:
+        if self.expected_kwh == 0 and self.kwh > 0:
+            raise ValueError(
+                "expected_kwh: 0 expected cannot hold a measured kwh above 0 (its ratio is "
+                "infinite); leave expected_kwh out to have it modelled"
+            )
+        return self
+
+
+class EnergyDayOut(Out):
+    day: dt.date
+    kwh: float
+    expected_kwh: float
+    expected_from: Literal["given", "poa", "ghi"] = Field(
+        description="given, or modelled by pvlib from plane-of-array (poa) or global "
+        "horizontal (ghi) insolation."
+    )
+    poa_kwh_m2: float | None
+    ghi_kwh_m2: float | None
+    rain_mm: float | None
+
+
+class EnergyStored(Out):
+    panel_id: str
+    stored: int = Field(description="Days stored (a day sent again replaced the old one).")
+    modelled: int = Field(description="Of those, days whose expected energy pvlib modelled.")
+    first: dt.date | None
+    last: dt.date | None
+
+
+class SoilingIntervalOut(Out):
+    start: dt.date
+    end: dt.date
+    cause: Literal["start", "robot", "rain", "detected"] = Field(
+        description="What began it: the first day of output, a robot's completed cleaning, a "
+        "recovery of the output on a rainy day, or one with no known cause."
+    )
+    days: int = Field(description="Days of output its line was fitted to.")
+    rate_per_day: float | None = Field(
+        description="Soiling rate [1/day] (−0.003: 0.3 % of the output lost a day); null "
+        "with fewer than 7 days."
+    )
+    rate_low: float | None = Field(description="95 % interval of the rate (Sen's).")
+    rate_high: float | None
+
+
+class RecommendationOut(Out):
+    clean: bool = Field(description="Cleaning pays now.")
+    by: dt.date | None = Field(
+        description="The day cleaning starts to pay (today's when it does now); null when the "
+        "output shows no soiling to pay for."
+    )
+    reason: str
+    optimal_interval_days: float | None = Field(
+        description="τ* = √(2C / (ρ E P)): the cleaning interval of least cost per day for "
+        "the rate of soiling measured."
+    )
+    lost_value: float | None = Field(description="Value of the energy lost since the cleaning.")
+    cleaning_cost: float | None = Field(description="A cleaning of this panel.")
+    currency: str | None = None
+
+
+class SoilingOut(Out):
+    panel_id: str
+    as_of: dt.date | None = Field(description="The last day of output analysed.")
+    soiling_ratio: float | None = Field(
+        description="Output over what the panel made just after its last cleaning (1: clean), "
+        "on the last day; null without enough output (``reason`` says why)."
+    )
+    low: float | None = Field(description="95 % interval of the ratio.")
+    high: float | None
+    rate_per_day: float | None = Field(description="The current interval's soiling rate [1/day].")
+    loss_kwh_per_day: float | None = Field(
+        description="Energy lost a day at the current ratio, on a day like the last fortnight's."
+    )
+    loss_since_cleaning_kwh: float | None
+    since_cleaning_days: int | None = Field(
+        description="Days from the current interval's start (the last cleaning) to ``as_of``."
+    )
+    last_cleaning: dt.date | None = Field(
+        description="The current interval's first day, when a cleaning (robot, rain or seen "
+        "in the output) began it."
+    )
+    days: int = Field(description="Days of output stored for the panel.")
+    intervals: list[SoilingIntervalOut]
+    recommendation: RecommendationOut | None = Field(
+        description="Whether cleaning pays; null without a soiling ratio."
+    )
+    reason: str | None = None
+
+
+class EconomicsIn(Schema):
+    energy_price_per_kwh: float = Field(gt=0, le=1000, description="What a kWh is worth.")
+    cleaning_cost: float = Field(ge=0, le=1e7, description="What a cleaning costs.")
+    cost_per: Literal["panel", "visit"] = Field(
+        "panel",
+        description="panel: each panel's cleaning costs ``cleaning_cost``; visit: a robot's "
+        "visit does, shared by ``panels_per_visit`` panels.",
+    )
+    panels_per_visit: int = Field(1, ge=1, le=100_000)
+    currency: Annotated[str, Field(pattern=r"^[A-Z]{3}$")] | None = Field(
+        None, description="ISO 4217 code, for the pages."
+    )
+    trigger: Literal["camera", "camera_and_pays"] = Field(
+        "camera",
+        description="camera: the cameras' dirty verdicts open a cleaning task; "
+        "camera_and_pays: they do when the panel has no output in the last 7 days, or when "
+        "its output says cleaning pays.",
+    )
+
+
+class EconomicsOut(EconomicsIn):
+    per_panel_cost: float = Field(description="What one panel's cleaning costs.")
+    updated_at: datetime

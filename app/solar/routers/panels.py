@@ -62,7 +62,7 @@ from app.solar.schemas import (
     TwoSampleOut,
     ViewOut,
 )
-from app.solar.services import cleaning, history, lookup, panels, registry, training
+from app.solar.services import cleaning, history, lookup, panels, registry, soiling, training
 
 router = APIRouter(tags=["panels"])
 
@@ -78,6 +78,9 @@ def _out(
         lat=panel.lat,
         lon=panel.lon,
         location=panel.location,
+        kwp=panel.kwp,
+        tilt=panel.tilt,
+        azimuth=panel.azimuth,
         created_at=panel.created_at,
         retired_at=panel.retired_at,
         state=state if state is not None else panels.state_now(session, panel, timing),
@@ -146,7 +149,7 @@ def get_panel(
 def update_panel(
     panel_id: PanelId, body: PanelUpdate, session: SessionDep, timing: TimingDep, _: Admin
 ) -> PanelOut:
-    """Change a panel's name or location (JSON merge: fields left out keep their value,
+    """Change a panel's name, location or rating (JSON merge: fields left out keep their value,
     ``null`` clears one)."""
     return _out(session, timing, registry.update_panel(session, panel_id, body))
 
@@ -372,9 +375,11 @@ def panel_history(
     bucket: Annotated[Literal["hour", "day"], Query(description="UTC hours or days.")] = "day",
 ) -> list[HistoryBucket]:
     """The panel's verdicts of frames taken in [since, until), summed by UTC hour or day,
-    oldest first: clean, dirty and not judged, T² and p-values, fleet p_dirty (the farm
-    board's trend charts)."""
+    oldest first: clean, dirty and not judged, T² and p-values, fleet p_dirty; by day, beside
+    them its output, performance index and soiling ratio (the farm board's charts)."""
     rows = history.history(session, panel_id, since=span.since, until=span.until, bucket=bucket)
+    if bucket == "day":
+        rows = soiling.with_output(session, panel_id, rows, since=span.since, until=span.until)
     return [HistoryBucket(**r) for r in rows]
 
 

@@ -39,7 +39,7 @@ from app.solar.models import (
     PanelVerdict,
     TaskStatus,
 )
-from app.solar.services import events, labels
+from app.solar.services import events, labels, soiling
 from app.solar.services.cleaning import shown_as
 from app.solar.services.trends import Trend, soiling_trend
 from app.stats import hotelling
@@ -235,8 +235,10 @@ def apply_verdict(
     timing: Timing,
     *,
     fleet_available: bool,
-) -> CleaningTask | None:
-    """Run the state machine for one usable verdict; returns the panel's open task after it."""
+) -> tuple[CleaningTask | None, str | None]:
+    """Run the state machine for one usable verdict; returns the panel's open task after it,
+    and what the verdict did to the cleaning (opened a task, or found cleaning does not pay
+    yet: ``soiling.gate``)."""
     before = facts(panel, task, now, fleet_available=fleet_available)
     t = on_verdict(before, clean, debounce=timing.debounce)
     panel.dirty_streak, panel.last_clean, panel.ineffective = (
@@ -244,7 +246,12 @@ def apply_verdict(
         t.last_clean,
         t.ineffective,
     )
+    note = None
     if t.action is TaskAction.open:
+        gate = soiling.gate(session, panel, now.date(), dirty=t.dirty_streak)
+        if not gate.open:
+            return None, f"dirty, no task opened: {gate.evidence}"[:300]
+        note = f"opened a cleaning task: {gate.evidence}"[:300]
         task = CleaningTask(
             id=str(uuid.uuid4()),
             panel_id=panel.id,
@@ -252,6 +259,7 @@ def apply_verdict(
             status=TaskStatus.pending,
             created_at=now,
             attempts=0,
+            evidence=gate.evidence[:300],
         )
         session.add(task)
         events.task_event(session, task, "task.opened", now)
@@ -266,7 +274,7 @@ def apply_verdict(
             close_task(task, TaskStatus.closed, "ineffective", now)
             events.task_event(session, task, "cleaning.ineffective", now)
         task = None
-    return task
+    return task, note
 
 
 def is_late(panel: Panel, task: CleaningTask | None, captured_at: datetime) -> bool:
@@ -419,7 +427,7 @@ def classify_frame(session: Session, prepared: Prepared, timing: Timing) -> Pane
     if verdict.clean is not None and not verdict.late:
         panel.last_judged_at = frame.captured_at
         held = task
-        task = apply_verdict(
+        task, verdict.cleaning = apply_verdict(
             session, panel, task, verdict.clean, now, timing, fleet_available=fleet_available
         )
         if held is not None and held.outcome == "effective" and held.completed_at is not None:
@@ -526,6 +534,7 @@ def task_view(task: CleaningTask, now: datetime) -> dict[str, Any]:
         "outcome": task.outcome,
         "attempts": task.attempts,
         "fail_reason": task.fail_reason,
+        "evidence": task.evidence,
     }
 
 
