@@ -35,7 +35,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from rich.progress import Progress
 
-from app.cli import common, stations
+from app.cli import common, energy, stations
 from app.cli.common import Failed, Service, err
 
 
@@ -503,6 +503,7 @@ def parser() -> argparse.ArgumentParser:
     _training_commands(sub)
     _export_and_replay_commands(sub)
     stations.commands(sub)
+    energy.commands(sub)
     return top
 
 

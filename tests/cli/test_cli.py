@@ -32,6 +32,7 @@ COMMANDS = (
     ["replay"],
     ["stations", "import"],
     ["stations", "readings"],
+    ["energy", "import"],
 )
 
 
@@ -323,6 +324,40 @@ def test_stations_and_their_readings_are_imported(
     bad = write_csv(tmp_path / "bad.csv", rows)
     assert vantage(live, "stations", "readings", "vm", str(bad)) == 1
     assert "rows 5002–10001" in capsys.readouterr().err
+
+
+def test_a_farms_export_is_imported_panel_by_panel(
+    live: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``energy import``: an hourly SCADA export, a column per panel (one of them mapped with
+    --panel) and the farm's plane-of-array insolation, summed by day; a NaN named by its row."""
+    for pid in ("p1", "p2"):
+        body = {"id": pid, "kwp": 0.4}
+        assert httpx.post(f"{live}/panels", json=body, headers=ADMIN).status_code == 201
+    first = datetime.now(UTC).replace(hour=0, minute=0, second=0, microsecond=0)
+    first -= timedelta(days=20)
+    rows = [
+        {
+            "timestamp": (first + timedelta(hours=h)).isoformat(),
+            "p1": "0.1",
+            "inverter 2": "0.05",
+            "poa_kwh_m2": "0.25",
+        }
+        for h in range(24 * 20)
+    ]
+    export = write_csv(tmp_path / "scada.csv", rows)
+    args = ["energy", "import", str(export), "--panel", "p1=p1", "--panel", "inverter 2=p2"]
+    assert vantage(live, *args) == 0
+    assert "40 days of 2 panels stored" in capsys.readouterr().out
+    days = httpx.get(f"{live}/panels/p2/energy", headers=ADMIN).json()
+    assert len(days) == 20
+    assert days[0]["kwh"] == pytest.approx(1.2)
+    assert days[0]["poa_kwh_m2"] == pytest.approx(6.0)
+    assert days[0]["expected_kwh"] == pytest.approx(2.4)  # 0.4 kW × 6 kWh/m²
+    assert days[0]["expected_from"] == "poa"
+    rows[30]["p1"] = "nan"
+    assert vantage(live, "energy", "import", str(write_csv(tmp_path / "bad.csv", rows))) == 1
+    assert "row 32: p1 is nan" in capsys.readouterr().err
 
 
 def test_a_crlf_csv_leaves_no_carriage_return(

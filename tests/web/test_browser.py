@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Iterator
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from tests.factories.air import calibrate, sky_jpeg
+from tests.factories.energy import plant
 from tests.factories.solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -323,6 +324,59 @@ def test_the_farm_board_says_how_the_fleet_model_did(
         assert "train with groups" in p.page.locator("#fleet").inner_text()
         p.shot("farm-fleet")
         assert p.errors == []
+
+
+def test_the_farm_board_shows_the_camera_and_the_output_side_by_side(
+    browser: Any, live: str, admin: dict[str, str], clock: Any
+) -> None:
+    """A dusty panel whose output lost 0.3 % a day for 89 days since a cleaning, and whose
+    camera says dirty: the detail gives the ratio with its range, the loss, whether cleaning
+    pays, that the two agree, and charts the ratio's band, the cleaning and the camera."""
+    p0 = plant(0, start=clock.now.date() - timedelta(days=149))
+    days = [
+        {"date": date.fromordinal(int(d)).isoformat(), "kwh": float(k), "expected_kwh": float(e)}
+        for d, k, e in zip(p0.days, p0.kwh, p0.expected, strict=True)
+    ]
+    with httpx.Client(base_url=live, timeout=30) as http:
+        assert (
+            http.post("/panels", json={"id": "p0", "name": "Row B 0"}, headers=admin).status_code
+            == 201
+        )
+        camera = http.post(
+            "/cameras", json={"id": "c0", "kind": "panel", "panel_id": "p0"}, headers=admin
+        ).json()["token"]
+        files = [("files", (f"{i}.jpg", f, "image/jpeg")) for i, f in enumerate(clean_set(10))]
+        assert http.post("/panels/p0/baseline", files=files, headers=admin).status_code == 201
+        clock.advance(minutes=10)
+        r = http.post(
+            "/cameras/c0/frames",
+            content=panel_jpeg(CLEAN_RGB + DUST, seed=1),
+            headers={"Authorization": f"Bearer {camera}", "Content-Type": "image/jpeg"},
+        )
+        assert r.status_code == 201, r.text
+        assert http.post("/panels/p0/energy", json=days, headers=admin).status_code == 200
+        prices = {"energy_price_per_kwh": 0.25, "cleaning_cost": 2.0, "currency": "EUR"}
+        assert http.put("/solar/economics", json=prices, headers=admin).status_code == 200
+    p = Page(browser)
+    p.sign_in(f"{live}/farm", admin)
+    p.page.locator(".tile").first.click()
+    p.page.wait_for_function("document.querySelector('#output').innerText.length > 0")
+    text = p.page.locator("#output").inner_text()
+    assert "of clean (95 % range" in text, text
+    assert "kWh since the cleaning of" in text, text
+    assert "Cleaning pays now: the energy lost since" in text, text
+    assert "The camera says dirty; the output agrees." in text, text
+    p.page.wait_for_function("Chart.getChart(document.querySelector('#trend')) !== undefined")
+    drawn = p.page.evaluate(
+        "() => Chart.getChart(document.querySelector('#trend')).data.datasets"
+        ".map((d) => [d.label, d.data.filter((v) => v != null).length])"
+    )
+    counts = dict(drawn)
+    assert counts["soiling ratio (fit)"] >= 89
+    assert counts["cleaning"] == 1
+    assert counts["share of frames judged dirty (camera)"] == 1
+    p.shot("farm-output")
+    assert [e for e in p.errors if "404" not in e] == []  # no fleet model: its 404 is logged
 
 
 def test_the_cells_page_outlines_a_part(browser: Any, live: str, admin: dict[str, str]) -> None:

@@ -1,5 +1,6 @@
 // The solar farm board: panels as a grid coloured by state, open cleaning tasks with their
-// robots and leases, a panel's soiling trend (its history) and its last frame's region.
+// robots and leases, a panel's soiling from its camera and its output side by side, and its
+// last frame's region.
 (() => {
   const $ = (id) => document.getElementById(id);
   const NAMES = { clean: "clean", needs_cleaning: "needs cleaning", cleaning: "being cleaned", unknown: "unknown", no_baseline: "no baseline" };
@@ -10,29 +11,66 @@
     return r.json();
   }
 
+  // What the output says of the panel, in words: the ratio with its range, the loss, whether
+  // cleaning pays, and whether the camera and the output agree.
+  function output(soiling, last) {
+    if (soiling.soiling_ratio == null) return `Output: ${soiling.reason || "none stored"}.`;
+    const pct = (x) => `${(100 * x).toFixed(1)} %`;
+    const since = soiling.last_cleaning ? `the cleaning of ${soiling.last_cleaning}` : `${soiling.intervals[soiling.intervals.length - 1].start} (the first day of output)`;
+    const parts = [
+      `Output on ${soiling.as_of}: ${pct(soiling.soiling_ratio)} of clean (95 % range ${pct(soiling.low)}–${pct(soiling.high)}),`,
+      `losing ${soiling.loss_kwh_per_day.toFixed(2)} kWh a day, ${soiling.loss_since_cleaning_kwh.toFixed(1)} kWh since ${since}.`,
+    ];
+    const rec = soiling.recommendation;
+    if (rec) parts.push(rec.clean ? `Cleaning pays now: ${rec.reason}.` : `Cleaning does not pay yet: ${rec.reason}.`);
+    else if (soiling.reason) parts.push(`${soiling.reason}.`);
+    // the camera's last word against the output's: soiled when even the range's top is below 97 %
+    const soiled = soiling.high < 0.97, clean = soiling.low > 0.97;
+    if (last && last.clean != null && (soiled || clean)) {
+      const agree = (last.clean === false) === soiled;
+      parts.push(`The camera says ${last.clean ? "clean" : "dirty"}; the output ${agree ? "agrees" : "disagrees"}.`);
+    }
+    return parts.join(" ");
+  }
+
   async function detail(panel) {
     $("detail").hidden = false;
     $("detail-title").textContent = `${panel.name || panel.id}: ${NAMES[panel.state] || panel.state}`;
-    const status = await json(`/panels/${encodeURIComponent(panel.id)}/status`);
+    const id = encodeURIComponent(panel.id);
+    const [status, soiling] = await Promise.all([json(`/panels/${id}/status`), json(`/panels/${id}/soiling`)]);
     const last = status.last_verdict;
-    // the 14 days up to the panel's last frame (a panel gone quiet shows its last weeks)
-    const end = last && last.captured_at ? new Date(last.captured_at) : new Date();
-    const since = new Date(end.getTime() - 14 * 86400e3).toISOString();
-    const until = new Date(end.getTime() + 86400e3).toISOString();
+    $("output").textContent = output(soiling, last);
+    // the 90 days up to the panel's last frame or day of output (a panel gone quiet shows its
+    // last months)
+    const ends = [last && last.captured_at, soiling.as_of].filter(Boolean).map((t) => new Date(t).getTime());
+    const end = ends.length ? Math.max(...ends) : Date.now();
+    const since = new Date(end - 90 * 86400e3).toISOString();
+    const until = new Date(end + 86400e3).toISOString();
     const q = new URLSearchParams({ bucket: "day", since, until });
-    const history = await json(`/panels/${encodeURIComponent(panel.id)}/history?${q}`);
+    const history = await json(`/panels/${id}/history?${q}`);
     const old = Chart.getChart($("trend"));
     if (old) old.destroy();
     new Chart($("trend"), {
       type: "line",
       data: {
-        labels: history.map((h) => new Date(h.start).toLocaleDateString()),
+        labels: history.map((h) => h.start.slice(0, 10)),
         datasets: [
-          { label: "share judged dirty", data: history.map((h) => (h.clean + h.dirty ? h.dirty / (h.clean + h.dirty) : null)), borderColor: "#d7191c", yAxisID: "y" },
-          { label: "mean T²", data: history.map((h) => h.t2_mean), borderColor: "#2c7bb6", yAxisID: "t2" },
+          { label: "95 % range", data: history.map((h) => h.soiling_low), borderColor: "rgba(44,123,182,0.2)", pointRadius: 0, yAxisID: "y" },
+          { label: "95 % range (top)", data: history.map((h) => h.soiling_high), borderColor: "rgba(44,123,182,0.2)", backgroundColor: "rgba(44,123,182,0.2)", fill: "-1", pointRadius: 0, yAxisID: "y" },
+          { label: "soiling ratio (fit)", data: history.map((h) => h.soiling_ratio), borderColor: "#2c7bb6", pointRadius: 0, yAxisID: "y" },
+          { label: "performance index", data: history.map((h) => h.performance_index), borderColor: "#999", showLine: false, pointRadius: 2, yAxisID: "y" },
+          { label: "cleaning", data: history.map((h) => (h.cleaned ? 1.02 : null)), borderColor: "#1a9641", backgroundColor: "#1a9641", showLine: false, pointStyle: "triangle", pointRadius: 7, yAxisID: "y" },
+          { label: "share of frames judged dirty (camera)", data: history.map((h) => (h.clean + h.dirty ? h.dirty / (h.clean + h.dirty) : null)), borderColor: "#d7191c", backgroundColor: "#d7191c", showLine: false, pointRadius: 3, yAxisID: "camera" },
         ],
       },
-      options: { animation: false, maintainAspectRatio: false, scales: { y: { min: 0, max: 1, position: "left" }, t2: { position: "right" } } },
+      options: {
+        animation: false, maintainAspectRatio: false, spanGaps: false,
+        plugins: { legend: { labels: { filter: (item) => !item.text.endsWith("(top)") } } },
+        scales: {
+          y: { position: "left", suggestedMin: 0.7, suggestedMax: 1.05, title: { display: true, text: "output / clean output" } },
+          camera: { position: "right", min: 0, max: 1, grid: { drawOnChartArea: false }, title: { display: true, text: "camera: share judged dirty" } },
+        },
+      },
     });
     const frame = last && last.frame_id;
     $("thumb").hidden = !frame;
