@@ -84,7 +84,8 @@ def import_cameras(service: Service, args: argparse.Namespace) -> None:
 
 
 def import_panels(service: Service, args: argparse.Namespace) -> None:
-    """Register panels from a CSV: id, then optional name, lat, lon."""
+    """Register panels from a CSV: id, then optional name, lat, lon, and the rating pvlib
+    models expected energy from: kwp, tilt, azimuth."""
     rows = common.rows(args.csv)
     with Progress(console=err) as progress:
         task = progress.add_task("panels", total=len(rows))
@@ -94,7 +95,7 @@ def import_panels(service: Service, args: argparse.Namespace) -> None:
             body: dict[str, Any] = {"id": row["id"]}
             if row.get("name"):
                 body["name"] = row["name"]
-            for name in ("lat", "lon"):
+            for name in ("lat", "lon", "kwp", "tilt", "azimuth"):
                 if (v := common.number(row.get(name, ""), name, i)) is not None:
                     body[name] = v
             service.call("POST", "/panels", json=body)

@@ -113,11 +113,19 @@ class TestRecommendation:
         assert found.current is not None
         rec = soiling.recommend(found.current, price_per_kwh=0.25, cleaning_cost=2.0)
         assert not rec.clean
-        if found.current.rate is not None and found.current.rate >= 0:
-            assert rec.by is None
-        else:  # a slope of noise: a date far off
-            assert rec.by is not None
-            assert rec.by - found.current.day > 365
+        assert rec.by is None
+        assert "no soiling it can tell from noise" in rec.reason
+        assert found.current.high >= 1.0
+
+
+def test_a_cleaning_that_would_pay_in_decades_gets_no_date() -> None:
+    p = plant(9, rate=0.003)
+    found = soiling.analyse(p.days, p.kwh, p.expected, cleanings=p.cleanings)
+    assert found.current is not None
+    rec = soiling.recommend(found.current, price_per_kwh=1e-6, cleaning_cost=50.0)
+    assert not rec.clean
+    assert rec.by is None
+    assert "more than 10 years" in rec.reason
 
 
 # RdTools 3.2.1's soiling test series (rdtools/test/conftest.py, soiling_normalized_daily):

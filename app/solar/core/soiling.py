@@ -63,6 +63,9 @@ index is mostly noise."""
 RAIN_MM = 5.0
 """A recovery on or the day after a day with this much rain [mm] is put down to rain."""
 
+MIN_EXPECTED_KWH = 1e-3
+"""A day expected to make less than this [kWh] is left out."""
+
 CONFIDENCE = 0.95
 """Of Sen's interval of each slope, and so of the ratio's."""
 
@@ -130,7 +133,9 @@ def performance_index(
     the usable days around them (7 days)."""
     kwh = np.asarray(kwh, dtype=np.float64)
     expected = np.asarray(expected_kwh, dtype=np.float64)
-    ok = np.isfinite(kwh) & np.isfinite(expected) & (expected > 0)
+    # a day expected to make less than a watt-hour made nothing to compare (and its ratio can
+    # overflow)
+    ok = np.isfinite(kwh) & np.isfinite(expected) & (expected >= MIN_EXPECTED_KWH)
     if ok.any():
         ok &= expected >= LOW_LIGHT * float(np.median(expected[ok]))
     pi = np.full(kwh.shape, np.nan)
@@ -177,16 +182,18 @@ def recoveries(pi: NDArray[np.float64], used: NDArray[np.bool_]) -> NDArray[np.i
 
 def _refine(values: NDArray[np.float64], split: int, k: int) -> int:
     """The split near ``split`` that best cuts ``values[split - k : split + k]`` into two
-    levels (least absolute deviations from each side's median): the medians' comparison finds
-    a recovery, but its largest difference can sit a day or two off the step."""
+    levels (least squares: the split that maximises ``n₁ n₂ / n · (ȳ₂ − ȳ₁)²``, outliers
+    already left out): the medians' comparison finds a recovery, but its largest difference
+    can sit a day or two off the step."""
     lo, hi = max(split - k, 0), min(split + k, values.size)
-    best, where = math.inf, split
-    for p in range(lo + 1, hi):
-        left, right = values[lo:p], values[p:hi]
-        cost = float(np.abs(left - np.median(left)).sum() + np.abs(right - np.median(right)).sum())
-        if cost < best:
-            best, where = cost, p
-    return where
+    window = values[lo:hi]
+    n = window.size
+    left_n = np.arange(1, n)
+    left_sum = np.cumsum(window)[:-1]
+    left_mean = left_sum / left_n
+    right_mean = (window.sum() - left_sum) / (n - left_n)
+    gain = left_n * (n - left_n) / n * (right_mean - left_mean) ** 2
+    return lo + 1 + int(np.argmax(gain))
 
 
 def _boundaries(
@@ -336,6 +343,10 @@ def _current(
     )
 
 
+HORIZON_DAYS = 3650
+"""A day cleaning would pay further ahead than this is no date."""
+
+
 @dataclass(frozen=True, slots=True)
 class Recommendation:
     clean: bool
@@ -375,17 +386,27 @@ def recommend(current: Current, *, price_per_kwh: float, cleaning_cost: float) -
             None,
             lost,
         )
-    if rho is None or worth <= 0:
+    if rho is None or worth <= 0 or current.high >= 1.0:
         return Recommendation(
             False,
             None,
-            f"the output shows no soiling building up since {_date(current.since)}",
+            f"the output shows no soiling it can tell from noise since {_date(current.since)}",
             None,
             lost,
         )
     # the day the lost value reaches C: V(t) = V_now + ρEP (t² − t_now²) / 2
     t_now = current.day - current.since
     t_due = math.sqrt(t_now**2 + 2.0 * (cleaning_cost - lost) / worth)
+    if t_due - t_now > HORIZON_DAYS:
+        return Recommendation(
+            False,
+            None,
+            f"losing {100 * rho:.3f} % a day, the energy lost since {_date(current.since)} "
+            f"would take more than {HORIZON_DAYS // 365} years to be worth the cleaning's "
+            f"{cleaning_cost:.2f}",
+            optimal,
+            lost,
+        )
     by = current.since + math.ceil(t_due)
     return Recommendation(
         False,
