@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
-from app.cells.services import calibrations
+from app.cells.services import calibrations, hand_eye
 from app.cells.services.calibrations import Board
 from app.platform.http.deps import (
     Admin,
@@ -164,13 +164,79 @@ async def calibrate_stereo(
     return _body(row)
 
 
+def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing: Timing) -> Any:
+    fields = form.fields
+    setup = (fields.get("setup") or ["eye_to_hand"])[0]
+    if setup not in ("eye_to_hand", "eye_in_hand"):
+        raise Unprocessable(f"setup {setup!r}: eye_to_hand or eye_in_hand")
+    calibration_id = (fields.get("calibration_id") or [""])[0]
+    if not calibration_id:
+        raise Unprocessable("calibration_id: the camera's calibration (POST /calibrations)")
+    return hand_eye.calibrate(
+        session,
+        calibration_id=calibration_id,
+        files=form.required_files("files"),
+        poses=fields.get("poses", []),
+        setup=setup,
+        board=board,
+        max_pixels=max_pixels,
+        now=timing.now(),
+    )
+
+
+@router.post(
+    "/hand-eye",
+    status_code=201,
+    responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
+    openapi_extra=multipart_body(
+        files="files",
+        poses="text",
+        calibration_id="text",
+        setup="text",
+        pattern_cols="text",
+        pattern_rows="text",
+        square_size="text",
+    ),
+)
+async def calibrate_hand_eye(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    timing: TimingDep,
+    _: Admin,
+    pattern_cols: Cols = 9,
+    pattern_rows: Rows = 6,
+    square_size: Square = 0.025,
+) -> JSONResponse:
+    """Where a camera is on a robot, from views of a board (multipart ``files``) and the
+    flange's pose in the base for each (``poses``, one JSON text per file, in order:
+    ``{"rotation": 3×3, "translation": [x, y, z]}`` or ``{"rvec", "tvec"}``, in metres), with
+    the camera's ``calibration_id`` and ``setup`` (``eye_to_hand``: a fixed camera, the board
+    on the flange; ``eye_in_hand``: the camera on the flange). Answers ``camera_to_base`` or
+    ``camera_to_flange`` (4×4: camera coordinates into that frame), the board's pose, and
+    residuals per view and RMS in px, mm and degrees. ``square_size`` is in metres."""
+    if content_type(request) != "multipart/form-data":
+        raise UnsupportedMediaType("send the views and poses as multipart/form-data")
+    form = await read_form(
+        request,
+        settings.max_upload_bytes,
+        max_files=500,
+        parts=("files", "poses", "calibration_id", "setup", *PATTERN_FIELDS),
+    )
+    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    row = await image_work(
+        request, partial(_hand_eye, session, form, board, settings.max_pixels, timing)
+    )
+    return _body(row)
+
+
 @router.get("", responses=AUTH_ERRORS)
 def list_calibrations(
     session: SessionDep,
     _: Reader,
     kind: Annotated[
-        Literal["single", "stereo"] | None,
-        Query(description="Only cameras (single) or only stereo pairs."),
+        Literal["single", "stereo", "hand_eye"] | None,
+        Query(description="Only cameras (single), stereo pairs or hand-eye calibrations."),
     ] = None,
     limit: Limit = 50,
     offset: Offset = 0,

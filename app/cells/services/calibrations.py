@@ -29,7 +29,7 @@ class Board:
     square: float
 
 
-def _detect(
+def detect_boards(
     files: list[tuple[str | None, bytes]], board: Board, max_pixels: int
 ) -> tuple[list[NDArray[np.float32] | None], list[dict[str, str]], tuple[int, int] | None]:
     """The board's corners in each image (None where it is not used), the images not used with
@@ -106,7 +106,7 @@ def calibrate_camera(
     max_pixels: int,
     now: datetime,
 ) -> Calibration:
-    found, rejected, size = _detect(files, board, max_pixels)
+    found, rejected, size = detect_boards(files, board, max_pixels)
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
     used = [names[i] for i, c in enumerate(found) if c is not None]
     points = [c for c in found if c is not None]
@@ -149,8 +149,8 @@ def calibrate_pair(
     """Each camera on its own views, then their relative pose from the simultaneous pairs."""
     if len(left) != len(right):
         raise Unprocessable(f"{len(left)} left but {len(right)} right images: pair them in order")
-    lf, lrej, lsize = _detect(left, board, max_pixels)
-    rf, rrej, rsize = _detect(right, board, max_pixels)
+    lf, lrej, lsize = detect_boards(left, board, max_pixels)
+    rf, rrej, rsize = detect_boards(right, board, max_pixels)
     obj = calibration.board_points(board.cols, board.rows, board.square)
     lpts = [c for c in lf if c is not None]
     rpts = [c for c in rf if c is not None]
