@@ -148,6 +148,22 @@ class CalibratedCamera(Schema):
         return r
 
 
+class RobotFrame(Schema):
+    """Where a calibrated rig stands in a robot's base: one of its cameras' hand-eye
+    calibration (eye to hand, ``POST /calibrations/hand-eye``)."""
+
+    hand_eye_id: str = Field(max_length=64, description="The hand-eye calibration's id.")
+    camera: int = Field(0, ge=0, le=63, description="Which of the rig's cameras it calibrated.")
+    rig_unit_m: float = Field(
+        1.0,
+        gt=0,
+        le=1000,
+        allow_inf_nan=False,
+        description="The rig's unit of length in metres (0.001 for a rig calibrated in mm): "
+        "the robot's base is in metres.",
+    )
+
+
 class RigSpec(Schema):
     """A rig's geometry: what ``PUT /rigs/{id}`` replaces."""
 
@@ -167,6 +183,11 @@ class RigSpec(Schema):
         "size (422 wrong_image_size). Calibrated rigs give it per camera.",
     )
     cameras: list[CalibratedCamera] | None = None
+    robot: RobotFrame | None = Field(
+        default=None,
+        description="Calibrated rigs: the hand-eye calibration of one of its cameras, so that "
+        "triangulate answers in the robot's base too (frame=robot).",
+    )
     calibration_id: str | None = Field(
         default=None,
         max_length=64,
@@ -216,9 +237,17 @@ class TriangulateIn(Schema):
         description="Cross rigs: all 8 coordinates (ML), inverse-variance weights, or the "
         "plain mean of the ten estimates (eq. 4.47).",
     )
+    frame: Literal["rig", "robot"] = Field(
+        default="rig",
+        description="rig: the rig's own frame and unit; robot: the robot's base [m], for a "
+        "rig carrying a hand-eye calibration (``robot``).",
+    )
 
 
 class TriangulateOut(Out):
+    frame: Literal["rig", "robot"] = Field(
+        default="rig", description="The frame of ``points``: the rig's, or the robot's base [m]."
+    )
     points: list[list[float] | None]
     reprojection_rms_px: list[float | None]
     null_reasons: list[Literal["too_few_views", "behind_camera", "no_depth"] | None] = Field(

@@ -186,6 +186,61 @@ def test_the_camera_is_found_in_the_robots_base(
     assert [c["id"] for c in listed] == [out["id"]]
 
 
+def test_a_rig_carrying_it_answers_in_the_robots_base(
+    client: TestClient, admin: dict[str, str], views: Any
+) -> None:
+    """A stereo rig in mm whose camera 0 was hand-eye calibrated: triangulate with
+    frame=robot puts a point where the hand-eye puts it, within 3 mm of the truth."""
+    cs, files = views
+    cid = intrinsics(client, admin, files)
+    poses = [pose_json(flange_of(c)) for c in cs]
+    r = post(client, admin, files=files, poses=poses, calibration_id=cid, setup="eye_to_hand")
+    x = np.array(r.json()["camera_to_base"])
+    cam = client.get(f"/calibrations/{cid}", headers=admin).json()
+    k, dist = np.array(cam["K"]), np.array(cam["dist"])
+    cameras = [
+        {"K": cam["K"], "dist": cam["dist"], "R": np.eye(3).tolist(), "t": [0.0, 0.0, 0.0]},
+        {"K": cam["K"], "dist": cam["dist"], "R": np.eye(3).tolist(), "t": [-100.0, 0.0, 0.0]},
+    ]
+    robot = {"hand_eye_id": r.json()["id"], "camera": 0, "rig_unit_m": 0.001}
+    body = {"id": "cell", "kind": "calibrated", "cameras": cameras, "robot": robot}
+    assert client.post("/rigs", json=body, headers=admin).status_code == 201
+    in_cam = np.array([[0.02, 0.01, 0.5], [-0.05, 0.03, 0.7]])  # before camera 0 [m]
+    truth = in_cam @ CAMERA_IN_BASE[:3, :3].T + CAMERA_IN_BASE[:3, 3]  # in the base
+    observations = []
+    for p in in_cam * 1000:  # the rig's mm
+        seen = []
+        for c in cameras:
+            uv = cv2.projectPoints(p[None], np.zeros(3), np.array(c["t"]), k, dist)[0]
+            seen.append(uv.ravel().tolist())
+        observations.append(seen)
+    got = client.post(
+        "/rigs/cell/triangulate",
+        json={"observations": observations, "frame": "robot"},
+        headers=admin,
+    ).json()
+    assert got["frame"] == "robot"
+    points = np.array(got["points"])
+    expected = in_cam @ x[:3, :3].T + x[:3, 3]  # where the hand-eye puts them
+    np.testing.assert_allclose(points, expected, atol=1e-6)
+    assert np.abs(points - truth).max() < 3e-3
+    rig = client.post(
+        "/rigs/cell/triangulate", json={"observations": observations}, headers=admin
+    ).json()
+    np.testing.assert_allclose(np.array(rig["points"]), in_cam * 1000, atol=1e-3)
+    plain = {"id": "plain", "kind": "calibrated", "cameras": cameras}
+    assert client.post("/rigs", json=plain, headers=admin).status_code == 201
+    refused = client.post(
+        "/rigs/plain/triangulate",
+        json={"observations": observations, "frame": "robot"},
+        headers=admin,
+    )
+    assert refused.status_code == 422
+    assert "no hand-eye calibration" in refused.json()["detail"]
+    other = {**body, "id": "other", "robot": {**robot, "hand_eye_id": cid}}
+    assert client.post("/rigs", json=other, headers=admin).status_code == 422
+
+
 class TestRefused:
     """422 naming the pose; nothing stored."""
 

@@ -112,8 +112,9 @@ def _clean(values: np.ndarray) -> list[float | None]:
 def triangulate(
     rig_id: RigId, body: TriangulateIn, session: SessionDep, _: RobotOrAdmin
 ) -> TriangulateOut:
-    """Points in the rig's frame from pixel observations (null for a camera that did not see
-    the point), with per-point reprojection RMS; for the cross, the ten pairwise depths."""
+    """Points in the rig's frame (or, ``frame=robot``, the robot's base [m], for a rig carrying
+    a hand-eye calibration) from pixel observations (null for a camera that did not see the
+    point), with per-point reprojection RMS; for the cross, the ten pairwise depths."""
     row = rigs.get(session, rig_id)
     n_cams = rigs.cameras(row)
     obs = np.full((len(body.observations), n_cams, 2), np.nan)
@@ -126,8 +127,10 @@ def triangulate(
                     raise Unprocessable(f"point {i}, camera {k}: expected [u, v]")
                 obs[i, k] = uv
     out = rigs.triangulate(row, obs, body.method, body.pan_tilt_deg)
+    points = rigs.in_base(row, out.points) if body.frame == "robot" else out.points
     return TriangulateOut(
-        points=[None if not np.isfinite(p).all() else p.tolist() for p in out.points],
+        frame=body.frame,
+        points=[None if not np.isfinite(p).all() else p.tolist() for p in points],
         reprojection_rms_px=_clean(out.reprojection_rms),
         null_reasons=out.reasons,
         z_estimates=None if out.z_estimates is None else [_clean(e) for e in out.z_estimates],

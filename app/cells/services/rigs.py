@@ -21,8 +21,8 @@ from app.cells.core.triangulation import (
     triangulate_cross,
     triangulate_views,
 )
-from app.cells.models import Rig
-from app.cells.schemas import RigSpec
+from app.cells.models import Calibration, Rig
+from app.cells.schemas import RigSpec, RobotFrame
 from app.cells.services import calibrations
 from app.platform.db.base import utcnow
 from app.platform.http.errors import Conflict, Unprocessable
@@ -33,7 +33,7 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
     """The geometry a rig keeps, checked: a cross's f_px, ax, ay, principal point; or the
     calibrated cameras, given or from a stereo calibration."""
     if body.kind == "cross":
-        if body.cameras is not None or body.calibration_id is not None:
+        if body.cameras is not None or body.calibration_id is not None or body.robot is not None:
             raise Unprocessable("a cross rig takes f_px, ax, ay and principal_point")
         if body.f_px is None or body.ax is None or body.ay is None:
             raise Unprocessable("a cross rig needs f_px, ax and ay")
@@ -47,11 +47,22 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
         }
     if body.image_size is not None:
         raise Unprocessable("a calibrated rig gives image_size per camera (cameras[i].image_size)")
+    robot = {}
+    if body.robot is not None:
+        given = body.cameras
+        cams = (
+            [c.model_dump() for c in given]
+            if given is not None
+            else calibrations.stereo_cameras(session, body.calibration_id or "")
+            if body.calibration_id is not None
+            else []
+        )
+        robot = {"robot": robot_frame(session, body.robot, cams)}
     if body.calibration_id is not None:
         if body.cameras is not None:
             raise Unprocessable("give the cameras or a calibration_id, not both")
         cameras = calibrations.stereo_cameras(session, body.calibration_id)
-        return {"cameras": cameras, "calibration_id": body.calibration_id}
+        return {"cameras": cameras, "calibration_id": body.calibration_id, **robot}
     if not body.cameras or len(body.cameras) < 2:
         raise Unprocessable(
             "a calibrated rig needs at least 2 cameras, or the calibration_id of a stereo pair"
@@ -69,7 +80,60 @@ def spec_of(session: Session, body: RigSpec) -> dict[str, Any]:
             "every camera has the same lens centre (−Rᵀt): with no baseline between them no "
             "point can be triangulated; check each camera's t"
         )
-    return {"cameras": cameras}
+    return {"cameras": cameras, **robot}
+
+
+K_TOLERANCE = 0.01
+"""A rig camera's K may differ from the hand-eye calibration's by this share and be the same
+camera."""
+
+
+def robot_frame(
+    session: Session, robot: RobotFrame, cameras: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """The rig's frame in the robot's base: ``rig_to_base`` (4×4) maps a rig point, in metres,
+    into the base: ``X · [R_k | u t_k]`` with ``X`` the hand-eye's base ← camera and camera
+    ``k`` at ``R_k``, ``t_k`` in the rig (its unit ``u`` metres)."""
+    if robot.camera >= len(cameras):
+        raise Unprocessable(f"robot.camera: the rig has {len(cameras)} cameras")
+    row = session.get(Calibration, robot.hand_eye_id)
+    if row is None or row.kind != "hand_eye":
+        raise Unprocessable(
+            f"robot.hand_eye_id: no hand-eye calibration {robot.hand_eye_id!r}",
+            code="no_such_calibration",
+        )
+    if row.result["setup"] != "eye_to_hand":
+        raise Unprocessable(
+            "robot.hand_eye_id: an eye-in-hand calibration places the camera on the flange, "
+            "which moves; a rig's cameras stand still: give a fixed camera's (eye_to_hand)"
+        )
+    cam = cameras[robot.camera]
+    measured = session.get(Calibration, row.result["calibration_id"])
+    if measured is not None:
+        k_he = np.array((measured.result.get("left") or measured.result)["K"], dtype=np.float64)
+        k_rig = np.array(cam["K"], dtype=np.float64)
+        if np.abs(k_rig - k_he).max() > K_TOLERANCE * float(k_he[0, 0]):
+            raise Unprocessable(
+                f"robot: camera {robot.camera}'s K is not the hand-eye calibration's camera's: "
+                "calibrate that camera, or name the rig's camera it is"
+            )
+    x = np.array(row.result["camera_to_base"], dtype=np.float64)
+    pose = np.eye(4)
+    pose[:3, :3] = np.array(cam["R"], dtype=np.float64)
+    pose[:3, 3] = robot.rig_unit_m * np.array(cam["t"], dtype=np.float64)
+    return {**robot.model_dump(), "rig_to_base": (x @ pose).tolist()}
+
+
+def in_base(row: Rig, points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rig points (N, 3) in the robot's base [m]; 422 for a rig without a hand-eye."""
+    robot = row.spec.get("robot")
+    if robot is None:
+        raise Unprocessable(
+            "frame=robot: the rig carries no hand-eye calibration (PUT /rigs/{id} with robot)"
+        )
+    m = np.array(robot["rig_to_base"], dtype=np.float64)
+    metres = points * float(robot["rig_unit_m"])
+    return np.asarray(metres @ m[:3, :3].T + m[:3, 3], dtype=np.float64)
 
 
 def create(session: Session, rig_id: str, body: RigSpec) -> Rig:
