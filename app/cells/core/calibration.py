@@ -42,9 +42,11 @@ are refined in the full image. The detectors' time grows faster than the pixel c
 12 MP photo with a board the classic one took 21 s, on one without 236 s."""
 
 
-SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-"""The sector-based detector searching hard and localising to its best (OpenCV's own advice for
-calibration); the classic detector is the fallback."""
+SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
+"""The sector-based detector searching hard; the classic detector is the fallback. Without
+``CALIB_CB_ACCURACY``: ``cornerSubPix`` refines its corners to the same place (the OpenCV
+sample's calibration agrees to 0.0001 px), and it made 20 views of 1 MP take 9.1 s on one core
+instead of 2.7 (``bench/calibration.py``)."""
 
 REFINE_SHARE = 0.35
 """``cornerSubPix``'s half-window is this share of the smallest spacing of neighbouring corners
@@ -155,6 +157,15 @@ class Intrinsics:
     tvecs: list[NDArray[np.float64]]
     image_size: tuple[int, int]
     """(width, height) [px]."""
+    loo_per_view: NDArray[np.float64] | None = None
+    """Each view's reprojection RMS [px] through the intrinsics fitted without it (its own
+    pose fitted to it with those): how well the camera model predicts a view it did not
+    learn from."""
+    loo_rms: float | None = None
+    """Over every corner of every view so held out [px]."""
+    pixel_sigma: dict[str, float] | None = None
+    """How far [px, RMS radius] the intrinsics' uncertainty moves the image of a ray through
+    the image's centre and through its corner: ``centre``, ``corner``."""
 
 
 STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -222,16 +233,108 @@ def fit_intrinsics(
             f" determine the focal length only to ±{100 * worst:.0f} %, worse than"
             f" ±{100 * MAX_REL_STD_F:.0f} %; add views, and {advice}"
         )
+    k = np.asarray(k, dtype=np.float64)
+    dist = np.asarray(dist, dtype=np.float64).ravel()[:5]
+    tvecs = [np.asarray(t, dtype=np.float64).ravel() for t in tvecs]
+    loo = leave_one_out(object_points, image_points, image_size, k, dist)
     return Intrinsics(
-        K=np.asarray(k, dtype=np.float64),
-        dist=np.asarray(dist, dtype=np.float64).ravel()[:5],
+        K=k,
+        dist=dist,
         rms=float(rms),
         per_view_rms=np.asarray(per_view, dtype=np.float64).ravel(),
         std=std,
         rvecs=rvecs,
-        tvecs=[np.asarray(t, dtype=np.float64).ravel() for t in tvecs],
+        tvecs=tvecs,
         image_size=image_size,
+        loo_per_view=loo,
+        loo_rms=float(np.sqrt(np.mean(loo**2))),
+        pixel_sigma=pixel_sigma(object_points, image_points, k, dist, rvecs, tvecs, image_size),
     )
+
+
+def _view_rms(
+    obj: NDArray[np.float32],
+    pts: NDArray[np.float32],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+) -> float:
+    """The view's reprojection RMS [px] with its pose fitted to it through ``k``, ``dist``."""
+    ok, rvec, tvec = cv2.solvePnP(obj, pts, k, dist)
+    if not ok:
+        return float("inf")
+    rvec, tvec = cv2.solvePnPRefineLM(obj, pts, k, dist, rvec, tvec)
+    proj = _cv.projectPoints(obj, rvec, tvec, k, dist)[0].reshape(-1, 2)
+    return float(np.sqrt(np.mean(np.sum((proj - pts.reshape(-1, 2)) ** 2, axis=1))))
+
+
+def leave_one_out(
+    object_points: list[NDArray[np.float32]],
+    image_points: list[NDArray[np.float32]],
+    image_size: tuple[int, int],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Each view's reprojection RMS [px] through the intrinsics fitted to the other views
+    (started from the full fit's, ``CALIB_USE_INTRINSIC_GUESS``), its own pose fitted to it:
+    the fit's RMS judges the model on the views it fitted, this on one it did not (its 6 pose
+    parameters still fitted to its own corners, so it is a little optimistic)."""
+    out = np.empty(len(image_points))
+    for i in range(len(image_points)):
+        rest_o = object_points[:i] + object_points[i + 1 :]
+        rest_i = image_points[:i] + image_points[i + 1 :]
+        _, k_i, d_i, *_ = _cv.calibrateCamera(
+            rest_o,
+            rest_i,
+            image_size,
+            k.copy(),
+            dist.copy(),
+            flags=cv2.CALIB_USE_INTRINSIC_GUESS,
+        )
+        out[i] = _view_rms(object_points[i], image_points[i], k_i, d_i.ravel())
+    return out
+
+
+def pixel_sigma(
+    object_points: list[NDArray[np.float32]],
+    image_points: list[NDArray[np.float32]],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    rvecs: list[NDArray[np.float64]],
+    tvecs: list[NDArray[np.float64]],
+    image_size: tuple[int, int],
+) -> dict[str, float]:
+    """How far [px, RMS radius] the intrinsics' uncertainty moves the image of the rays
+    through the image's centre and its corner: the full covariance of the fit, ``σ² (JᵀJ)⁻¹``
+    over the intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) and every view's pose, ``σ²`` the
+    residuals' variance, its intrinsics block carried through each ray's projection Jacobian.
+    OpenCV reports only that block's diagonal (``std``); the correlations (fx with k1, cx with
+    p1) shrink or grow what a pixel feels."""
+    views = len(image_points)
+    n_int = 9
+    rows, resid = [], []
+    for v in range(views):
+        proj, jac = _cv.projectPoints(object_points[v], rvecs[v], tvecs[v], k, dist)
+        pts = image_points[v].reshape(-1, 2)
+        resid.append((proj.reshape(-1, 2) - pts).ravel())
+        # OpenCV's Jacobian columns: rvec (3), tvec (3), f (2), c (2), distortion (5)
+        block = np.zeros((jac.shape[0], n_int + 6 * views))
+        block[:, :n_int] = jac[:, 6 : 6 + n_int]
+        block[:, n_int + 6 * v : n_int + 6 * v + 6] = jac[:, :6]
+        rows.append(block)
+    j = np.vstack(rows)
+    r = np.concatenate(resid)
+    dof = max(r.size - j.shape[1], 1)
+    cov = float(r @ r) / dof * np.linalg.pinv(j.T @ j)[:n_int, :n_int]
+    w, h = image_size
+    out = {}
+    for name, pixel in (("centre", (k[0, 2], k[1, 2])), ("corner", (0.0, 0.0))):
+        norm = cv2.undistortPoints(np.array([[pixel]], np.float64), k, dist).reshape(2)
+        ray = np.array([[norm[0], norm[1], 1.0]])
+        _, jac = _cv.projectPoints(ray, np.zeros(3), np.zeros(3), k, dist)
+        ji = jac[:, 6 : 6 + n_int]
+        out[name] = float(np.sqrt(np.trace(ji @ cov @ ji.T)))
+    del w, h
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,6 +347,10 @@ class StereoPose:
     baseline: float
     """|T| [square units]."""
     rotation_deg: float
+    loo_per_pair: NDArray[np.float64] | None = None
+    """Each pair's right-camera reprojection RMS [px] through the R, T fitted without it: the
+    board's pose fitted to the left view, carried to the right camera."""
+    loo_rms: float | None = None
 
 
 def stereo(
@@ -270,6 +377,56 @@ def stereo(
     r = np.asarray(r, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64).ravel()
     angle = float(np.degrees(np.linalg.norm(cv2.Rodrigues(r)[0])))
+    loo = None
+    if len(left_points) >= 3:
+        loo = np.array(
+            [
+                _held_out_pair(object_points, left_points, right_points, left, right, i)
+                for i in range(len(left_points))
+            ]
+        )
     return StereoPose(
-        R=r, T=t, rms=float(rms), baseline=float(np.linalg.norm(t)), rotation_deg=angle
+        R=r,
+        T=t,
+        rms=float(rms),
+        baseline=float(np.linalg.norm(t)),
+        rotation_deg=angle,
+        loo_per_pair=loo,
+        loo_rms=None if loo is None else float(np.sqrt(np.mean(loo**2))),
     )
+
+
+def _held_out_pair(
+    object_points: list[NDArray[np.float32]],
+    left_points: list[NDArray[np.float32]],
+    right_points: list[NDArray[np.float32]],
+    left: Intrinsics,
+    right: Intrinsics,
+    i: int,
+) -> float:
+    """Pair ``i``'s right-camera RMS [px] through the pair's pose fitted without it."""
+
+    def rest(xs: list[Any]) -> list[Any]:
+        return xs[:i] + xs[i + 1 :]
+
+    *_, r, t, _, _ = _cv.stereoCalibrate(
+        rest(object_points),
+        rest(left_points),
+        rest(right_points),
+        left.K,
+        left.dist,
+        right.K,
+        right.dist,
+        left.image_size,
+        flags=cv2.CALIB_FIX_INTRINSIC,
+    )
+    ok, rvec, tvec = cv2.solvePnP(object_points[i], left_points[i], left.K, left.dist)
+    if not ok:
+        return float("inf")
+    rl = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
+    rr = np.asarray(r, dtype=np.float64) @ rl
+    tr = np.asarray(r, dtype=np.float64) @ tvec.ravel() + np.asarray(t, dtype=np.float64).ravel()
+    proj = _cv.projectPoints(object_points[i], cv2.Rodrigues(rr)[0], tr, right.K, right.dist)[
+        0
+    ].reshape(-1, 2)
+    return float(np.sqrt(np.mean(np.sum((proj - right_points[i].reshape(-1, 2)) ** 2, axis=1))))

@@ -86,12 +86,17 @@ def detect_boards(
 
 
 def _intrinsics_out(c: calibration.Intrinsics, used: list[str]) -> dict[str, Any]:
+    loo = c.loo_per_view if c.loo_per_view is not None else c.per_view_rms
+    flagged = set(calibration.flagged_views(c.per_view_rms)) | set(calibration.flagged_views(loo))
     return {
         "K": c.K.tolist(),
         "dist": c.dist.tolist(),
         "rms_px": c.rms,
+        "loo_rms_px": c.loo_rms,
         "per_view_rms_px": c.per_view_rms.tolist(),
-        "views_flagged": [used[i] for i in calibration.flagged_views(c.per_view_rms)],
+        "per_view_loo_px": loo.tolist(),
+        "pixel_sigma_px": c.pixel_sigma,
+        "views_flagged": [used[i] for i in sorted(flagged)],
         "std": c.std,
         "views_used": used,
         "image_size": list(c.image_size),
@@ -191,6 +196,8 @@ def calibrate_pair(
             "baseline": pose.baseline,
             "rotation_deg": pose.rotation_deg,
             "rms_px": pose.rms,
+            "loo_rms_px": pose.loo_rms,
+            "per_pair_loo_px": None if pose.loo_per_pair is None else pose.loo_per_pair.tolist(),
             "pairs_used": len(pairs),
             "views_rejected": lrej + rrej,
             "pattern": [board.cols, board.rows],
