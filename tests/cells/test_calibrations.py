@@ -61,7 +61,8 @@ def test_left_camera_matches_the_reference(client: TestClient, admin: dict[str, 
     # (OpenCV 5.0.0, this service's corners), within the 20 % the fit's RMS may flatter
     assert c["rms_px"] <= c["loo_rms_px"] <= 1.2 * c["rms_px"]
     assert len(c["per_view_loo_px"]) == 13
-    assert all(loo >= fit - 1e-9 for loo, fit in zip(c["per_view_loo_px"], c["per_view_rms_px"]))
+    pairs = zip(c["per_view_loo_px"], c["per_view_rms_px"], strict=True)
+    assert all(loo >= fit - 1e-9 for loo, fit in pairs)
     # a ray through the principal point moves only with cx and cy: the full covariance's
     # figure there is their standard deviations' (OpenCV's, from the same covariance) in
     # quadrature; at the corner the distortion's uncertainty adds (k3 is barely constrained)

@@ -4,7 +4,6 @@ service from the same views, K known only to the renderer)."""
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import cv2
@@ -14,39 +13,17 @@ from fastapi.testclient import TestClient
 
 from app.cells.core import hand_eye
 from app.cells.core.calibration import board_points
-from tests.cells.scenes import checkerboard_photo
-from tests.factories.cells import K_RENDER
-
-SQUARE = 0.03  # m: the 9 × 6 board of 30 mm squares
-CENTRE = np.array([4 * SQUARE, 2.5 * SQUARE, 0.0])
-# eye to hand: the camera fixed in the base, looking back and down at the robot; the board on
-# the flange, 10 cm out along its axis
-CAMERA_IN_BASE = hand_eye.rigid(cv2.Rodrigues(np.array([2.2, 0.1, -0.3]))[0], np.r_[0.9, 0.2, 0.7])
-BOARD_ON_FLANGE = hand_eye.rigid(cv2.Rodrigues(np.array([0.0, 0.1, 0.2]))[0], np.r_[0.0, 0.02, 0.1])
-
-
-def board_poses(n: int, seed: int) -> list[np.ndarray]:
-    """Camera ← board: turned by ≈ 17° about random axes through its centre, 0.6 m ahead."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(n):
-        r = cv2.Rodrigues(rng.normal(0, 0.3, 3))[0]
-        t = -r @ CENTRE + np.r_[0.0, 0.0, 0.6] + rng.normal(0, [0.03, 0.03, 0.05])
-        out.append(hand_eye.rigid(r, t))
-    return out
-
-
-def flange_of(board_in_camera: np.ndarray) -> np.ndarray:
-    """Base ← flange that puts the board there: F⁻¹ X C = Y, so F = X C Y⁻¹."""
-    return CAMERA_IN_BASE @ board_in_camera @ hand_eye.inverse(BOARD_ON_FLANGE)
-
-
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(a[:3, :3].T @ b[:3, :3])[0])))
-
-
-def pose_json(f: np.ndarray) -> str:
-    return json.dumps({"rotation": f[:3, :3].tolist(), "translation": f[:3, 3].tolist()})
+from tests.factories.cells import (
+    BOARD_ON_FLANGE,
+    CAMERA_IN_BASE,
+    CENTRE,
+    SQUARE,
+    angle_deg,
+    board_poses,
+    flange_of,
+    pose_json,
+    render,
+)
 
 
 class TestCore:
@@ -124,16 +101,6 @@ class TestCore:
     )
     def test_impossible_poses(self, rotation: Any, translation: Any, says: str) -> None:
         assert says in (hand_eye.check_pose(rotation, translation) or "")
-
-
-def render(cs: list[np.ndarray], size: tuple[int, int] = (1280, 960)) -> list[bytes]:
-    k = K_RENDER * np.array([[2.0], [2.0], [1.0]])  # the 640 × 480 camera at 1280 × 960
-    out = []
-    for i, c in enumerate(cs):
-        rvec = cv2.Rodrigues(c[:3, :3])[0].ravel()
-        image = checkerboard_photo(k, rvec, c[:3, 3], size, square=SQUARE, seed=i)
-        out.append(cv2.imencode(".png", image)[1].tobytes())
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -155,6 +155,8 @@ VIEWER_READS = {
     ("GET", "/frames/{frame_id}/region.jpg"),
     ("GET", "/calibrations"),
     ("GET", "/calibrations/{calibration_id}"),
+    ("GET", "/rigs"),
+    ("GET", "/rigs/{rig_id}"),
 }
 """What a viewer token may do: the farm and cells boards' reads."""
 ROBOT_MAY = {

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from tests.factories.air import calibrate, sky_jpeg
+from tests.factories.cells import CAMERA_IN_BASE, board_poses, flange_of, pose_json, render
 from tests.factories.energy import plant
 from tests.factories.solar import CLEAN_RGB, DUST, clean_set, panel_jpeg
 
@@ -397,6 +398,66 @@ def test_the_cells_page_outlines_a_part(browser: Any, live: str, admin: dict[str
     assert p.page.locator("#corners tbody tr").count() == 4
     p.page.wait_for_function("document.querySelector('#outlined').naturalWidth > 0")
     p.shot("cells-outline")
+    assert p.errors == []
+
+
+def test_the_cells_page_names_calibrations_and_draws_rigs(
+    browser: Any, live: str, admin: dict[str, str]
+) -> None:
+    """A named camera calibration charted per view (fitted and held out, in px, at least
+    300 px wide), a hand-eye calibration of it, and a rig carrying it drawn with its two
+    cameras and the robot's base."""
+    cs = board_poses(8, seed=21)
+    files = render(cs, size=(640, 480))
+    views = [("files", (f"v{i}.png", f, "image/png")) for i, f in enumerate(files)]
+    board = {"pattern_cols": "9", "pattern_rows": "6", "square_size": "0.03"}
+    with httpx.Client(base_url=live, timeout=60) as http:
+        r = http.post(
+            "/calibrations", files=views, data={**board, "name": "Cell 2, left"}, headers=admin
+        )
+        assert r.status_code == 201, r.text
+        cam = r.json()
+        poses = [pose_json(flange_of(c)) for c in cs]
+        form = {**board, "calibration_id": cam["id"], "setup": "eye_to_hand", "poses": poses}
+        he = http.post("/calibrations/hand-eye", files=views, data=form, headers=admin)
+        assert he.status_code == 201, he.text
+        cameras = [
+            {"K": cam["K"], "dist": cam["dist"], "R": np.eye(3).tolist(), "t": [0.0, 0.0, 0.0]},
+            {"K": cam["K"], "dist": cam["dist"], "R": np.eye(3).tolist(), "t": [-0.1, 0.0, 0.0]},
+        ]
+        rig = {
+            "id": "cell2",
+            "kind": "calibrated",
+            "cameras": cameras,
+            "robot": {"hand_eye_id": he.json()["id"]},
+        }
+        assert http.post("/rigs", json=rig, headers=admin).status_code == 201
+    assert (
+        np.linalg.norm(np.array(he.json()["camera_to_base"])[:3, 3] - CAMERA_IN_BASE[:3, 3]) < 0.01
+    )
+    p = Page(browser)
+    p.sign_in(f"{live}/cells", admin)
+    p.page.locator(".calibration-title").nth(1).wait_for()
+    titles = p.page.locator(".calibration-title").all_inner_texts()
+    assert any(t.startswith("Cell 2, left · camera · RMS") and "held out" in t for t in titles)
+    assert any("hand-eye" in t and "m in the base" in t for t in titles), titles
+    chart = p.page.locator(f".calibration[data-id='{cam['id']}'] canvas")
+    assert chart.bounding_box()["width"] >= 300
+    where = f".calibration[data-id='{cam['id']}'] canvas"
+    p.page.wait_for_function(f'Chart.getChart(document.querySelector("{where}")) !== undefined')
+    shown = p.page.evaluate(
+        f'() => {{ const c = Chart.getChart(document.querySelector("{where}"));'
+        " return [c.data.datasets.map((d) => d.label), c.options.scales.y.title.text]; }"
+    )
+    labels, axis = shown
+    assert labels[:2] == ["fitted [px]", "held out [px]"]
+    assert labels[2].startswith("held-out RMS")
+    assert axis == "reprojection error [px]"
+    rig_canvas = p.page.locator(".rig[data-id='cell2'] canvas")
+    assert rig_canvas.get_attribute("data-cameras") == "2"
+    assert rig_canvas.get_attribute("data-robot") == "yes"
+    assert "in the robot's base" in p.page.locator(".rig[data-id='cell2'] figcaption").inner_text()
+    p.shot("cells-calibrations")
     assert p.errors == []
 
 

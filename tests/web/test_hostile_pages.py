@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 
 from tests.factories import make_jpeg
 from tests.factories.air import calibrate, sky_jpeg
+from tests.factories.cells import rendered_views
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
@@ -68,7 +69,7 @@ def browser() -> Iterator[Any]:
 def test_hostile_names_run_nothing_on_any_page(
     browser: Any, live: str, admin: dict[str, str]
 ) -> None:
-    """Cameras, a panel and a viewer named with script; every page opened (the boards
+    """Cameras, a panel, a viewer and a calibration named with script; every page opened (the boards
     signed in) under the pages' real policy: no dialog, no request to the probe, no policy
     violation from the pages' own code, and the names shown as text."""
     from playwright.sync_api import expect
@@ -95,6 +96,19 @@ def test_hostile_names_run_nothing_on_any_page(
                 == 201
             )
             assert http.post("/viewers", json={"name": name}, headers=admin).status_code == 201
+        views = [("files", (f"v{i}.jpg", v, "image/jpeg")) for i, v in enumerate(rendered_views(5))]
+        r = http.post(
+            "/calibrations",
+            files=views,
+            data={
+                "pattern_cols": "9",
+                "pattern_rows": "6",
+                "square_size": "25",
+                "name": HOSTILE[0],
+            },
+            headers=admin,
+        )
+        assert r.status_code == 201, r.text
         roof = http.post(
             "/cameras", json={"id": "roof", "kind": "panel", "panel_id": "p0"}, headers=admin
         ).json()["token"]
@@ -123,6 +137,9 @@ def test_hostile_names_run_nothing_on_any_page(
         if path == "/farm":
             page.locator(".tile").first.wait_for()
             assert HOSTILE[1] in page.locator("#panels").inner_text()
+        if path == "/cells":
+            page.locator(".calibration-title").first.wait_for()
+            assert HOSTILE[0] in page.locator("#calibrations").inner_text()
         if path == "/display/{camera}":
             expect(page.locator("#name")).to_have_text(HOSTILE[0])  # polls, no eval
         if path == "/map":

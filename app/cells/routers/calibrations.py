@@ -47,15 +47,36 @@ Square = Annotated[
 
 
 def _out(row: Any) -> dict[str, Any]:
-    return {"id": row.id, "created_at": row.created_at.isoformat(), "kind": row.kind, **row.result}
+    return {
+        "id": row.id,
+        "created_at": row.created_at.isoformat(),
+        "kind": row.kind,
+        "name": None,
+        **row.result,
+    }
+
+
+def _named(row: Any, name: str | None) -> Any:
+    if name is not None:
+        row.result = {**row.result, "name": name}
+    return row
 
 
 def _body(row: Any) -> JSONResponse:
     return JSONResponse(_out(row), status_code=201)
 
 
-PATTERN_FIELDS = ("pattern_cols", "pattern_rows", "square_size")
-"""Text fields a calibration upload may carry instead of the query parameters."""
+PATTERN_FIELDS = ("pattern_cols", "pattern_rows", "square_size", "name")
+"""Text fields a calibration upload may carry: the pattern instead of the query parameters,
+and the calibration's name."""
+
+
+def _name(form: Any) -> str | None:
+    """The optional ``name`` field (the camera's, as people call it), up to 200 characters."""
+    given = (form.fields.get("name") or [""])[0].strip()
+    if len(given) > 200:
+        raise Unprocessable("name: at most 200 characters")
+    return given or None
 
 
 async def _form(request: Request, limit: int, *images: str) -> Any:
@@ -91,7 +112,7 @@ def _single(session: Session, files: Any, board: Board, max_pixels: int, timing:
     status_code=201,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
-        files="files", pattern_cols="text", pattern_rows="text", square_size="text"
+        files="files", pattern_cols="text", pattern_rows="text", square_size="text", name="text"
     ),
 )
 async def calibrate(
@@ -112,10 +133,11 @@ async def calibrate(
     if not files:
         raise Unprocessable("no images in field files")
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    name = _name(form)
     row = await image_work(
         request, partial(_single, session, files, board, settings.max_pixels, timing)
     )
-    return _body(row)
+    return _body(_named(row, name))
 
 
 def _pair(
@@ -131,7 +153,12 @@ def _pair(
     status_code=201,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
-        left="files", right="files", pattern_cols="text", pattern_rows="text", square_size="text"
+        left="files",
+        right="files",
+        pattern_cols="text",
+        pattern_rows="text",
+        square_size="text",
+        name="text",
     ),
 )
 async def calibrate_stereo(
@@ -149,6 +176,7 @@ async def calibrate_stereo(
     baseline |T| with the intrinsics held fixed."""
     form = await _form(request, settings.max_upload_bytes, "left", "right")
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    name = _name(form)
     row = await image_work(
         request,
         partial(
@@ -161,7 +189,7 @@ async def calibrate_stereo(
             timing,
         ),
     )
-    return _body(row)
+    return _body(_named(row, name))
 
 
 def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing: Timing) -> Any:
@@ -196,6 +224,7 @@ def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing
         pattern_cols="text",
         pattern_rows="text",
         square_size="text",
+        name="text",
     ),
 )
 async def calibrate_hand_eye(
@@ -224,10 +253,11 @@ async def calibrate_hand_eye(
         parts=("files", "poses", "calibration_id", "setup", *PATTERN_FIELDS),
     )
     board = _board(form, Board(pattern_cols, pattern_rows, square_size))
+    name = _name(form)
     row = await image_work(
         request, partial(_hand_eye, session, form, board, settings.max_pixels, timing)
     )
-    return _body(row)
+    return _body(_named(row, name))
 
 
 @router.get("", responses=AUTH_ERRORS)

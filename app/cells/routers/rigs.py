@@ -28,6 +28,7 @@ from app.cells.services import grid, rigs
 from app.platform.db.session import release
 from app.platform.http.deps import (
     Admin,
+    AnyReader,
     Limit,
     Offset,
     RigId,
@@ -65,14 +66,14 @@ def create_rig(body: RigCreate, session: SessionDep, _: Admin) -> RigOut:
 
 @router.get("", response_model=list[RigOut], responses=AUTH_ERRORS)
 def list_rigs(
-    session: SessionDep, _: RobotOrAdmin, limit: Limit = 100, offset: Offset = 0
+    session: SessionDep, _: AnyReader, limit: Limit = 100, offset: Offset = 0
 ) -> list[RigOut]:
     """Rigs, ordered by id."""
     return [RigOut.model_validate(r) for r in rigs.listed(session, limit=limit, offset=offset)]
 
 
 @router.get("/{rig_id}", response_model=RigOut, responses={**AUTH_ERRORS, **NOT_FOUND})
-def get_rig(rig_id: RigId, session: SessionDep, _: RobotOrAdmin) -> RigOut:
+def get_rig(rig_id: RigId, session: SessionDep, _: AnyReader) -> RigOut:
     """One rig."""
     return RigOut.model_validate(rigs.get(session, rig_id))
 
