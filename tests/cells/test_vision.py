@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from app.cells.services import vision as vision_service
 from app.main import create_app
 from tests.cells.scenes import PRISM_OUTLINE, cylinder_scene, light_prism_scene, prism_scene
-from tests.factories import ADMIN_TOKEN, empty_tables
+from tests.factories import ADMIN_TOKEN, SHARED_DATA, empty_tables
 from tests.factories.cells import corner_error
 
 
@@ -155,6 +155,49 @@ class TestBadInput:
 
     def test_needs_a_token(self, client: TestClient) -> None:
         assert post(client, "/vision/outline", encode(prism_scene()), {}).status_code == 401
+
+
+PARTS = SHARED_DATA / "parts"
+
+
+@pytest.mark.skipif(not PARTS.exists(), reason="shared data absent")
+class TestRealParts:
+    """The three real photos of ``../shared/data/parts`` with their hand-checked corners
+    (``corners.json``: the crossings of the fitted sides, to about 2 px)."""
+
+    def _truth(self, name: str) -> np.ndarray:
+        import json
+
+        return np.array(json.loads((PARTS / "corners.json").read_text())[name]["corners"])
+
+    def test_the_pcb_on_grey_within_2_px(self, client: TestClient, admin: dict[str, str]) -> None:
+        r = post(client, "/vision/outline", (PARTS / "pcb_plate_grey.jpg").read_bytes(), admin)
+        assert r.status_code == 200, r.text
+        found = np.array(r.json()["corners"])
+        truth = self._truth("pcb_plate_grey.jpg")
+        assert len(found) == len(truth) == 4
+        # the truth runs clockwise on screen, the answer counter-clockwise: nearest to each
+        nearest = np.linalg.norm(found[None, :, :] - truth[:, None, :], axis=2).min(axis=1)
+        assert nearest.max() <= 2.0
+
+    @pytest.mark.parametrize("name", ["box_doorway_carpet.jpg", "parcel_blue_carpet.jpg"])
+    @pytest.mark.parametrize("part", ["auto", "dark", "light"])
+    def test_parts_on_carpet_are_refused_in_one_voice(
+        self, client: TestClient, admin: dict[str, str], name: str, part: str
+    ) -> None:
+        """No outline on carpet yet: a 422 that says what was looked for, as what, and what
+        to try, the shade named alike throughout."""
+        data = (PARTS / name).read_bytes()
+        r = post(client, "/vision/outline", data, admin, part=part)
+        assert r.status_code == 422, r.text
+        detail = r.json()["detail"]
+        assert r.json()["code"] == "outline_not_found"
+        looked = "lighter" if "looked for as lighter" in detail else "darker"
+        assert f"is {looked} than its surroundings (the part was looked for as {looked}" in detail
+        other = {"lighter": "dark", "darker": "light"}[looked]
+        assert f"try part={other}" in detail
+        if part != "auto":
+            assert f"as asked (part={part})" in detail
 
 
 @pytest.mark.parametrize("threads", [1, 3])

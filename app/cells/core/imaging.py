@@ -905,6 +905,23 @@ CURVED_MIN_SIDE = 0.12
 """In a curved outline, straight sides are at least this fraction of the contour's length."""
 
 
+def not_standing_out(light: bool, *, given: bool) -> str:
+    """Why no part was found when none stands out from its ground, in the part's own terms: it
+    was looked for as lighter (or darker) than its surroundings, as given or as the image's
+    levels suggested, and what to try instead."""
+    shade, other = ("lighter", "dark") if light else ("darker", "light")
+    how = (
+        "as asked (part=" + ("light" if light else "dark") + ")"
+        if given
+        else ("as the image's levels suggested")
+    )
+    return (
+        f"no part stands out: no convex region off the image's border is {shade} than its "
+        f"surroundings (the part was looked for as {shade}, {how}); try part={other}, or a "
+        "roi around the part"
+    )
+
+
 def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     """The outline of the part in a greyscale image: corners and sides, or contour and ellipses,
     with how well the shape fits its edges; ``OutlineNotFound`` when none fits.
@@ -931,10 +948,7 @@ def outline(grey: Grey, params: OutlineParams = OutlineParams()) -> Outline:
     sigma = params.canny.sigma
     level = part_level(base, sigma)
     if level is None:
-        raise OutlineNotFound(
-            "no part stands out: no convex region off the image's border is darker than its "
-            "surroundings" + (" (the part was taken as lighter)" if light else "")
-        )
+        raise OutlineNotFound(not_standing_out(light, given=params.part != "auto"))
     work, theta = base, None
     if params.shadow:
         work, theta, _ = suppress_shadow(base, alpha=params.alpha, theta=params.theta, part=level)
