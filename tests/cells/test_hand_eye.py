@@ -48,7 +48,7 @@ class TestCore:
     def test_eye_to_hand_recovers_the_camera(self) -> None:
         cs = board_poses(14, seed=3)
         pts, seen = self._views(cs)
-        obj = board_points(9, 6, SQUARE)
+        obj = [board_points(9, 6, SQUARE)] * len(cs)
         got = hand_eye.solve(
             [flange_of(c) for c in cs], seen, obj, pts, self.K, np.zeros(5), eye_in_hand=False
         )
@@ -69,7 +69,13 @@ class TestCore:
         # F X C = Y: F = Y C⁻¹ X⁻¹
         flange = [board_in_base @ hand_eye.inverse(c) @ hand_eye.inverse(on_flange) for c in cs]
         got = hand_eye.solve(
-            flange, seen, board_points(9, 6, SQUARE), pts, self.K, np.zeros(5), eye_in_hand=True
+            flange,
+            seen,
+            [board_points(9, 6, SQUARE)] * len(cs),
+            pts,
+            self.K,
+            np.zeros(5),
+            eye_in_hand=True,
         )
         assert np.linalg.norm(got.X[:3, 3] - on_flange[:3, 3]) < 0.5e-3
         assert angle_deg(got.X, on_flange) < 0.05
@@ -84,7 +90,7 @@ class TestCore:
             hand_eye.solve(
                 [flange_of(c) for c in cs],
                 seen,
-                board_points(9, 6, SQUARE),
+                [board_points(9, 6, SQUARE)] * len(cs),
                 pts,
                 self.K,
                 np.zeros(5),

@@ -162,3 +162,35 @@ def render(cs: list[np.ndarray], size: tuple[int, int] = (1280, 960)) -> list[by
         image = checkerboard_photo(k, rvec, c[:3, 3], size, square=SQUARE, seed=i)
         out.append(cv2.imencode(".png", image)[1].tobytes())
     return out
+
+
+def charuco_photo(
+    k: np.ndarray,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    size: tuple[int, int],
+    board: Any,
+    *,
+    seed: int = 0,
+) -> np.ndarray:
+    """OpenCV's ChArUco ``board`` at pose (rvec, tvec) of a distortion-free pinhole camera
+    ``k`` on a grey image, as ``checkerboard_photo`` renders a checkerboard: the board's
+    texture (40 px a square, a square's margin) through the plane's homography at 4×, area-
+    averaged down, with noise. Board point (X, Y, 0) is where ``getChessboardCorners`` puts it
+    (the board's outer corner at the origin)."""
+    from tests.cells.scenes import finish
+
+    sx, sy = board.getChessboardSize()
+    px = 40
+    texture = board.generateImage((sx * px + 2 * px, sy * px + 2 * px), marginSize=px)
+    r = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
+    plane = k @ np.column_stack([r[:, 0], r[:, 1], np.asarray(tvec, np.float64)])
+    s = board.getSquareLength() / px
+    # texture pixel centre (u, v) → board (X, Y): the board starts at the margin's inner edge
+    to_board = np.array([[s, 0, -(px - 0.5) * s], [0, s, -(px - 0.5) * s], [0, 0, 1]])
+    up = np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]])
+    big = cv2.warpPerspective(
+        texture, up @ plane @ to_board, (4 * size[0], 4 * size[1]), borderValue=128
+    )
+    image = cv2.resize(big, size, interpolation=cv2.INTER_AREA).astype(np.float64)
+    return finish(image, noise=1.0, blur=0.0, seed=seed)

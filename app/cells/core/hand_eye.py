@@ -173,7 +173,7 @@ def _chain(
 def solve(
     flange: list[NDArray[np.float64]],
     board_in_camera: list[NDArray[np.float64]],
-    object_points: NDArray[np.float32],
+    object_points: list[NDArray[np.float32]],
     image_points: list[NDArray[np.float32]],
     k: NDArray[np.float64],
     dist: NDArray[np.float64],
@@ -181,8 +181,9 @@ def solve(
     eye_in_hand: bool,
 ) -> HandEye:
     """``X`` and the board's pose from ≥ 3 views: each view's flange pose ``F_i`` (base ←
-    flange, 4×4), the board's pose in the camera ``C_i`` (4×4) and its corners (N, 2) [px],
-    with the board's corners ``object_points`` (N, 3) and the camera's ``k`` and ``dist``.
+    flange, 4×4), the board's pose in the camera ``C_i`` (4×4), the corners it saw on the
+    board (Nᵢ, 3) and in the image (Nᵢ, 2) [px] (a ChArUco board's views see different
+    corners), with the camera's ``k`` and ``dist``.
 
     Raises ``HandEyeError`` when the motions turn about one axis only."""
     n = len(flange)
@@ -205,13 +206,13 @@ def solve(
     u, _, vt = np.linalg.svd(sum(y[:3, :3] for y in ys))
     y0 = rigid(u @ vt, np.mean([y[:3, 3] for y in ys], axis=0))
 
-    obj = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+    objs = [np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in object_points]
     seen = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points]
 
     def residuals(v: NDArray[np.float64]) -> NDArray[np.float64]:
         x, y = _mat(v[:6]), _mat(v[6:])
         out = []
-        for gi, pts in zip(g, seen, strict=True):
+        for gi, obj, pts in zip(g, objs, seen, strict=True):
             cb = _chain(gi, x, y)
             proj = _cv.projectPoints(obj, _log(cb[:3, :3]), cb[:3, 3], k, dist)[0]
             out.append((proj.reshape(-1, 2) - pts).ravel())
@@ -219,8 +220,8 @@ def solve(
 
     fit = least_squares(residuals, np.concatenate([_vec(x0), _vec(y0)]), method="lm")
     x, y = _mat(fit.x[:6]), _mat(fit.x[6:])
-    err = fit.fun.reshape(n, -1, 2)
-    per_px = np.sqrt((err**2).sum(axis=2).mean(axis=1))
+    ends = np.cumsum([2 * len(o) for o in objs])[:-1]
+    per_px = np.array([np.sqrt(np.mean(e**2) * 2) for e in np.split(fit.fun, ends)])
     mm, deg = [], []
     for gi, ci in zip(g, board_in_camera, strict=True):
         d = inverse(ci) @ _chain(gi, x, y)
@@ -230,7 +231,7 @@ def solve(
     return HandEye(
         X=x,
         Y=y,
-        rms_px=float(np.sqrt(np.mean(err**2) * 2)),
+        rms_px=float(np.sqrt(np.mean(fit.fun**2) * 2)),
         per_view_px=per_px,
         per_view_mm=mm_a,
         per_view_deg=deg_a,

@@ -36,8 +36,13 @@ from app.platform.timing import Timing
 router = APIRouter(prefix="/calibrations", tags=["stereo"])
 
 # OpenCV's detectors need at least 3 inner corners each way
-Cols = Annotated[int, Query(ge=3, le=100, description="Inner corners per row.")]
-Rows = Annotated[int, Query(ge=3, le=100, description="Inner corners per column.")]
+Cols = Annotated[
+    int, Query(ge=3, le=100, description="Inner corners per row (a ChArUco board: squares across).")
+]
+Rows = Annotated[
+    int,
+    Query(ge=3, le=100, description="Inner corners per column (a ChArUco board: squares down)."),
+]
 Square = Annotated[
     float,
     Query(
@@ -66,7 +71,15 @@ def _body(row: Any) -> JSONResponse:
     return JSONResponse(_out(row), status_code=201)
 
 
-PATTERN_FIELDS = ("pattern_cols", "pattern_rows", "square_size", "name")
+PATTERN_FIELDS = (
+    "pattern_cols",
+    "pattern_rows",
+    "square_size",
+    "name",
+    "board",
+    "dictionary",
+    "marker_size",
+)
 """Text fields a calibration upload may carry: the pattern instead of the query parameters,
 and the calibration's name."""
 
@@ -86,19 +99,34 @@ async def _form(request: Request, limit: int, *images: str) -> Any:
 
 
 def _board(form: Any, default: Board) -> Board:
-    """The pattern from the multipart fields when given there, else from the query."""
+    """The pattern from the multipart fields when given there, else from the query; a ChArUco
+    board (``board=charuco``) with its ``dictionary`` and ``marker_size``."""
     fields = form.fields
+    kind = (fields.get("board") or ["checkerboard"])[0]
+    if kind not in ("checkerboard", "charuco"):
+        raise Unprocessable(f"board {kind!r}: checkerboard or charuco", code="bad_board")
     try:
         cols = int(fields.get("pattern_cols", [default.cols])[0])
         rows = int(fields.get("pattern_rows", [default.rows])[0])
         square = float(fields.get("square_size", [default.square])[0])
+        marker = float(fields["marker_size"][0]) if "marker_size" in fields else None
     except ValueError:
         raise Unprocessable(
-            "pattern_cols, pattern_rows must be integers, square_size a number"
+            "pattern_cols, pattern_rows must be integers, square_size and marker_size numbers"
         ) from None
     if not (3 <= cols <= 100 and 3 <= rows <= 100) or not 0 < square <= 1e6:
         raise Unprocessable("pattern_cols, pattern_rows must be 3–100 and square_size > 0")
-    return Board(cols, rows, square)
+    if kind == "checkerboard":
+        return Board(cols, rows, square)
+    if marker is None:
+        raise Unprocessable(
+            "a ChArUco board needs marker_size (its markers' side, in square_size's unit)",
+            code="bad_board",
+        )
+    dictionary = (fields.get("dictionary") or ["DICT_5X5_100"])[0]
+    made = Board(cols, rows, square, "charuco", dictionary, marker)
+    made.charuco()  # 422 now for a board OpenCV cannot make
+    return made
 
 
 def _single(session: Session, files: Any, board: Board, max_pixels: int, timing: Timing) -> Any:

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.cells.core import calibration
+from app.cells.core import calibration, charuco
 from app.cells.models import Calibration
 from app.platform.frames.jpeg import JpegError, decode_image
 from app.platform.http.errors import Unprocessable
@@ -25,13 +25,50 @@ from app.platform.lookup import get_or_404
 @dataclass(frozen=True, slots=True)
 class Board:
     cols: int
+    """Checkerboard: inner corners across; ChArUco: squares across."""
     rows: int
     square: float
+    kind: str = "checkerboard"
+    """checkerboard, or charuco (markers in the white squares: partly visible boards count)."""
+    dictionary: str = "DICT_5X5_100"
+    marker: float | None = None
+    """ChArUco: the markers' side, in the square's unit."""
+
+    def charuco(self) -> Any:
+        """OpenCV's ChArUco board; 422 naming what is wrong with it."""
+        try:
+            return charuco.board(
+                self.cols, self.rows, self.square, self.marker or 0.0, self.dictionary
+            )
+        except ValueError as exc:
+            raise Unprocessable(str(exc), code="bad_board") from None
+
+    def described(self) -> dict[str, Any]:
+        """What the calibration keeps of the board."""
+        out: dict[str, Any] = {"pattern": [self.cols, self.rows], "square_size": self.square}
+        if self.kind == "charuco":
+            out |= {"board": "charuco", "dictionary": self.dictionary, "marker_size": self.marker}
+        return out
+
+
+def _found(grey: NDArray[np.uint8], board: Board, made: Any) -> charuco.Found | None:
+    """One view's corners with their ids and board points, of either kind of board."""
+    if board.kind == "charuco":
+        return charuco.find(grey, made)
+    corners = calibration.find_corners(grey, board.cols, board.rows)
+    if corners is None:
+        return None
+    obj = calibration.board_points(board.cols, board.rows, board.square)
+    return charuco.Found(np.arange(len(obj), dtype=np.int32), obj, corners)
+
+
+def _same(a: charuco.Found, b: charuco.Found) -> bool:
+    return np.array_equal(a.ids, b.ids) and calibration.same_view(a.image_points, b.image_points)
 
 
 def detect_boards(
     files: list[tuple[str | None, bytes]], board: Board, max_pixels: int
-) -> tuple[list[NDArray[np.float32] | None], list[dict[str, str]], tuple[int, int] | None]:
+) -> tuple[list[charuco.Found | None], list[dict[str, str]], tuple[int, int] | None]:
     """The board's corners in each image (None where it is not used), the images not used with
     the reason, and the image size calibrated for.
 
@@ -42,7 +79,14 @@ def detect_boards(
     gave a focal length 76 % off with an RMS of 0.16 px."""
     labels = [name or f"file {i + 1}" for i, (name, _) in enumerate(files)]
     reasons: dict[int, str] = {}
-    corners: dict[int, NDArray[np.float32]] = {}
+    corners: dict[int, charuco.Found] = {}
+    made = board.charuco() if board.kind == "charuco" else None
+    what = (
+        f"no ChArUco board of {board.cols}×{board.rows} squares ({board.dictionary}) with "
+        f"{charuco.MIN_CORNERS} corners or more found"
+        if board.kind == "charuco"
+        else f"no {board.cols}×{board.rows} checkerboard found"
+    )
     sizes: dict[int, tuple[int, int]] = {}
     for i, (_, data) in enumerate(files):
         try:
@@ -56,9 +100,9 @@ def detect_boards(
         if min(sizes[i]) < calibration.MIN_SIDE:
             reasons[i] = f"{sizes[i][0]}×{sizes[i][1]} is too small"
             continue
-        found = calibration.find_corners(np.asarray(grey, np.uint8), board.cols, board.rows)
+        found = _found(np.asarray(grey, np.uint8), board, made)
         if found is None:
-            reasons[i] = f"no {board.cols}×{board.rows} checkerboard found"
+            reasons[i] = what
         else:
             corners[i] = found
     size: tuple[int, int] | None = None
@@ -71,9 +115,7 @@ def detect_boards(
     for i in sorted(corners):
         if sizes[i] != size:
             reasons[i] = f"size {sizes[i]} differs from {size}, the size of most views"
-        elif (
-            twin := next((j for j in kept if calibration.same_view(corners[j], corners[i])), None)
-        ) is not None:
+        elif (twin := next((j for j in kept if _same(corners[j], corners[i])), None)) is not None:
             reasons[i] = (
                 f"the same view as {labels[twin]}: a view counts once (move the board or"
                 " the camera between views)"
@@ -114,16 +156,17 @@ def calibrate_camera(
     found, rejected, size = detect_boards(files, board, max_pixels)
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
     used = [names[i] for i, c in enumerate(found) if c is not None]
-    points = [c for c in found if c is not None]
-    if size is None or len(points) < 3:
+    views = [c for c in found if c is not None]
+    if size is None or len(views) < 3:
         raise Unprocessable(
-            f"{len(points)} of {len(files)} images are usable views of the board; at least 3"
+            f"{len(views)} of {len(files)} images are usable views of the board; at least 3"
             " are needed (views_rejected says why the others are not)",
             views_rejected=rejected,
         )
-    obj = calibration.board_points(board.cols, board.rows, board.square)
     try:
-        result = calibration.fit_intrinsics([obj] * len(points), points, size)
+        result = calibration.fit_intrinsics(
+            [v.object_points for v in views], [v.image_points for v in views], size
+        )
     except calibration.CalibrationError as exc:
         raise Unprocessable(str(exc), views_rejected=rejected) from None
     row = Calibration(
@@ -133,8 +176,7 @@ def calibrate_camera(
         result={
             **_intrinsics_out(result, used),
             "views_rejected": rejected,
-            "pattern": [board.cols, board.rows],
-            "square_size": board.square,
+            **board.described(),
         },
     )
     session.add(row)
@@ -156,7 +198,6 @@ def calibrate_pair(
         raise Unprocessable(f"{len(left)} left but {len(right)} right images: pair them in order")
     lf, lrej, lsize = detect_boards(left, board, max_pixels)
     rf, rrej, rsize = detect_boards(right, board, max_pixels)
-    obj = calibration.board_points(board.cols, board.rows, board.square)
     lpts = [c for c in lf if c is not None]
     rpts = [c for c in rf if c is not None]
     if lsize is None or rsize is None or len(lpts) < 3 or len(rpts) < 3:
@@ -165,11 +206,19 @@ def calibrate_pair(
             " least 3 of each are needed (views_rejected says why the others are not)",
             views_rejected=lrej + rrej,
         )
-    pairs = [(a, b) for a, b in zip(lf, rf, strict=True) if a is not None and b is not None]
+    pairs = [
+        shared
+        for a, b in zip(lf, rf, strict=True)
+        if a is not None and b is not None and (shared := charuco.common(a, b)) is not None
+    ]
     cals = []
     for side, pts, size in (("left", lpts, lsize), ("right", rpts, rsize)):
         try:
-            cals.append(calibration.fit_intrinsics([obj] * len(pts), pts, size))
+            cals.append(
+                calibration.fit_intrinsics(
+                    [v.object_points for v in pts], [v.image_points for v in pts], size
+                )
+            )
         except calibration.CalibrationError as exc:
             raise Unprocessable(f"{side} camera: {exc}", views_rejected=lrej + rrej) from None
     lcal, rcal = cals
@@ -180,7 +229,11 @@ def calibrate_pair(
             views_rejected=lrej + rrej,
         )
     pose = calibration.stereo(
-        [obj] * len(pairs), [a for a, _ in pairs], [b for _, b in pairs], lcal, rcal
+        [a.object_points for a, _ in pairs],
+        [a.image_points for a, _ in pairs],
+        [b.image_points for _, b in pairs],
+        lcal,
+        rcal,
     )
     lnames = [n or f"left {i + 1}" for i, (n, _) in enumerate(left)]
     rnames = [n or f"right {i + 1}" for i, (n, _) in enumerate(right)]
@@ -200,8 +253,7 @@ def calibrate_pair(
             "per_pair_loo_px": None if pose.loo_per_pair is None else pose.loo_per_pair.tolist(),
             "pairs_used": len(pairs),
             "views_rejected": lrej + rrej,
-            "pattern": [board.cols, board.rows],
-            "square_size": board.square,
+            **board.described(),
         },
     )
     session.add(row)

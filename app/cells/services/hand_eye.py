@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
-from app.cells.core import calibration, hand_eye
+from app.cells.core import charuco, hand_eye
 from app.cells.models import Calibration
 from app.cells.services.calibrations import Board, detect_boards
 from app.platform.http.errors import Unprocessable
@@ -77,21 +77,20 @@ def _intrinsics(session: Session, calibration_id: str) -> tuple[Any, Any, list[i
 
 
 def _posed(
-    found: list[NDArray[np.float32] | None],
+    found: list[charuco.Found | None],
     flange: list[NDArray[np.float64]],
-    obj: NDArray[np.float32],
     k: NDArray[np.float64],
     dist: NDArray[np.float64],
     names: list[str],
     rejected: list[dict[str, str]],
-) -> tuple[list[str], list[Any], list[Any], list[Any]]:
+) -> tuple[list[str], list[Any], list[Any], list[charuco.Found]]:
     """The views with the board found and its pose solved: names, flange poses, the board's
     pose in the camera (4×4) and the corners; a view whose pose fails joins ``rejected``."""
     used, f_used, c_used, p_used = [], [], [], []
-    for i, corners in enumerate(found):
-        if corners is None:
+    for i, view in enumerate(found):
+        if view is None:
             continue
-        ok, rvec, tvec = cv2.solvePnP(obj, corners, k, dist)
+        ok, rvec, tvec = cv2.solvePnP(view.object_points, view.image_points, k, dist)
         if not ok:
             rejected.append({"file": names[i], "reason": "the board's pose could not be solved"})
             continue
@@ -99,7 +98,7 @@ def _posed(
         used.append(names[i])
         f_used.append(flange[i])
         c_used.append(hand_eye.rigid(r, np.asarray(tvec, dtype=np.float64).ravel()))
-        p_used.append(corners)
+        p_used.append(view)
     return used, f_used, c_used, p_used
 
 
@@ -138,12 +137,17 @@ def calibrate(
             f"{size[0]}×{size[1]}: calibrate this camera first",
             views_rejected=rejected,
         )
-    obj = calibration.board_points(board.cols, board.rows, board.square)
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
-    used, f_used, c_used, p_used = _posed(found, flange, obj, k, dist, names, rejected)
+    used, f_used, c_used, views = _posed(found, flange, k, dist, names, rejected)
     try:
         result = hand_eye.solve(
-            f_used, c_used, obj, p_used, k, dist, eye_in_hand=setup == "eye_in_hand"
+            f_used,
+            c_used,
+            [v.object_points for v in views],
+            [v.image_points for v in views],
+            k,
+            dist,
+            eye_in_hand=setup == "eye_in_hand",
         )
     except hand_eye.HandEyeError as exc:
         raise Unprocessable(str(exc), code="not_observable", views_rejected=rejected) from None
@@ -171,8 +175,7 @@ def calibrate(
             ],
             "views_used": used,
             "views_rejected": rejected,
-            "pattern": [board.cols, board.rows],
-            "square_size": board.square,
+            **board.described(),
         },
     )
     session.add(row)
