@@ -139,6 +139,12 @@ def calibrate(
         )
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
     used, f_used, c_used, views = _posed(found, flange, k, dist, names, rejected)
+    if len(views) < 3:
+        raise Unprocessable(
+            f"{len(views)} of {len(files)} images are usable views of the board; at least 3 "
+            "are needed (views_rejected says why the others are not)",
+            views_rejected=rejected,
+        )
     try:
         result = hand_eye.solve(
             f_used,
