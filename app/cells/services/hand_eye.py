@@ -102,6 +102,39 @@ def _posed(
     return used, f_used, c_used, p_used
 
 
+def _described(
+    result: hand_eye.HandEye,
+    setup: Setup,
+    calibration_id: str,
+    used: list[str],
+    rejected: list[dict[str, str]],
+    board: Board,
+) -> dict[str, Any]:
+    """What a hand-eye calibration keeps and answers."""
+    frame = "camera_to_flange" if setup == "eye_in_hand" else "camera_to_base"
+    board_key = "board_in_base" if setup == "eye_in_hand" else "board_on_flange"
+    return {
+        "setup": setup,
+        "calibration_id": calibration_id,
+        frame: result.X.tolist(),
+        board_key: result.Y.tolist(),
+        "closed_form": result.closed_form.tolist(),
+        "rms_px": result.rms_px,
+        "rms_mm": result.rms_mm,
+        "rms_deg": result.rms_deg,
+        "axis_spread_deg": result.axis_spread_deg,
+        "per_view": [
+            {"file": name, "rms_px": float(px), "mm": float(mm), "deg": float(deg)}
+            for name, px, mm, deg in zip(
+                used, result.per_view_px, result.per_view_mm, result.per_view_deg, strict=True
+            )
+        ],
+        "views_used": used,
+        "views_rejected": rejected,
+        **board.described(),
+    }
+
+
 def calibrate(
     session: Session,
     *,
@@ -157,32 +190,11 @@ def calibrate(
         )
     except hand_eye.HandEyeError as exc:
         raise Unprocessable(str(exc), code="not_observable", views_rejected=rejected) from None
-    frame = "camera_to_flange" if setup == "eye_in_hand" else "camera_to_base"
-    board_key = "board_in_base" if setup == "eye_in_hand" else "board_on_flange"
     row = Calibration(
         id=str(uuid.uuid4()),
         created_at=now,
         kind="hand_eye",
-        result={
-            "setup": setup,
-            "calibration_id": calibration_id,
-            frame: result.X.tolist(),
-            board_key: result.Y.tolist(),
-            "closed_form": result.closed_form.tolist(),
-            "rms_px": result.rms_px,
-            "rms_mm": result.rms_mm,
-            "rms_deg": result.rms_deg,
-            "axis_spread_deg": result.axis_spread_deg,
-            "per_view": [
-                {"file": name, "rms_px": float(px), "mm": float(mm), "deg": float(deg)}
-                for name, px, mm, deg in zip(
-                    used, result.per_view_px, result.per_view_mm, result.per_view_deg, strict=True
-                )
-            ],
-            "views_used": used,
-            "views_rejected": rejected,
-            **board.described(),
-        },
+        result=_described(result, setup, calibration_id, used, rejected, board),
     )
     session.add(row)
     session.flush()
