@@ -287,6 +287,7 @@ def _fit(
 
 
 FORTNIGHT = 14
+"""Days of expected energy averaged for "a day like the last ones" in the losses a day."""
 
 
 def _current(
