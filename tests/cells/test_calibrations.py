@@ -84,9 +84,9 @@ def test_stereo_baseline(client: TestClient, admin: dict[str, str]) -> None:
     assert s["baseline"] == pytest.approx(3.327, rel=0.005)
     assert s["rms_px"] <= 0.21
     assert s["rotation_deg"] == pytest.approx(0.51, abs=0.05)
-    # each pair through the R, T fitted without it (its board placed by the left view alone,
-    # whose own error then adds): 0.263 px
-    assert s["rms_px"] < s["loo_rms_px"] < 1.5 * s["rms_px"]
+    # each pair through the R, T fitted without it, its board placed by both views at once as
+    # the fit places its own: 0.199 px against the fit's 0.195
+    assert s["rms_px"] < s["loo_rms_px"] <= 1.2 * s["rms_px"]
     assert len(s["per_pair_loo_px"]) == s["pairs_used"]
     assert s["left"]["loo_rms_px"] <= 1.2 * s["left"]["rms_px"]
 

@@ -14,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import least_squares
 
 _cv: Any = cv2  # OpenCV's stubs type these calls for UMat only
 
@@ -348,8 +349,8 @@ class StereoPose:
     """|T| [square units]."""
     rotation_deg: float
     loo_per_pair: NDArray[np.float64] | None = None
-    """Each pair's right-camera reprojection RMS [px] through the R, T fitted without it: the
-    board's pose fitted to the left view, carried to the right camera."""
+    """Each pair's reprojection RMS [px] over both views through the R, T fitted without it,
+    the board's pose fitted to both views with R, T held."""
     loo_rms: float | None = None
 
 
@@ -404,7 +405,9 @@ def _held_out_pair(
     right: Intrinsics,
     i: int,
 ) -> float:
-    """Pair ``i``'s right-camera RMS [px] through the pair's pose fitted without it."""
+    """Pair ``i``'s reprojection RMS [px] over both its views through the R, T fitted without
+    it, the board's pose fitted to both views at once (as ``stereoCalibrate`` fits the poses
+    of the views it is given, whose RMS this sits beside)."""
 
     def rest(xs: list[Any]) -> list[Any]:
         return xs[:i] + xs[i + 1 :]
@@ -420,13 +423,21 @@ def _held_out_pair(
         left.image_size,
         flags=cv2.CALIB_FIX_INTRINSIC,
     )
+    r = np.asarray(r, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64).ravel()
+    obj = np.asarray(object_points[i], dtype=np.float64)
+    seen_l = np.asarray(left_points[i], dtype=np.float64).reshape(-1, 2)
+    seen_r = np.asarray(right_points[i], dtype=np.float64).reshape(-1, 2)
     ok, rvec, tvec = cv2.solvePnP(object_points[i], left_points[i], left.K, left.dist)
     if not ok:
         return float("inf")
-    rl = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
-    rr = np.asarray(r, dtype=np.float64) @ rl
-    tr = np.asarray(r, dtype=np.float64) @ tvec.ravel() + np.asarray(t, dtype=np.float64).ravel()
-    proj = _cv.projectPoints(object_points[i], cv2.Rodrigues(rr)[0], tr, right.K, right.dist)[
-        0
-    ].reshape(-1, 2)
-    return float(np.sqrt(np.mean(np.sum((proj - right_points[i].reshape(-1, 2)) ** 2, axis=1))))
+
+    def residuals(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+        rl = np.asarray(cv2.Rodrigues(pose[:3])[0], dtype=np.float64)
+        pl = _cv.projectPoints(obj, pose[:3], pose[3:], left.K, left.dist)[0].reshape(-1, 2)
+        rr = cv2.Rodrigues(r @ rl)[0]
+        pr = _cv.projectPoints(obj, rr, r @ pose[3:] + t, right.K, right.dist)[0]
+        return np.concatenate([(pl - seen_l).ravel(), (pr.reshape(-1, 2) - seen_r).ravel()])
+
+    fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm")
+    return float(np.sqrt(np.mean(fit.fun**2) * 2))
