@@ -363,3 +363,25 @@ class TestUnbackedSides:
     def test_a_polygon_its_edges_back_is_kept(self) -> None:
         near, points, square = square_outline()
         np.testing.assert_array_equal(prune(square, near, points), square)
+
+
+def test_sampling_more_points_than_remap_takes_in_a_column() -> None:
+    """40,000 points (``cv2.remap`` asserts fewer than 32,767 rows a map): each the bilinear
+    blend of its four neighbours, computed here by hand."""
+    from app.cells.core.imaging import _sample
+
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0, 255, (100, 120)).astype(np.float32)
+    at = np.column_stack([rng.uniform(0, 118, 40_000), rng.uniform(0, 98, 40_000)])
+    x0, y0 = np.floor(at[:, 0]).astype(int), np.floor(at[:, 1]).astype(int)
+    fx, fy = at[:, 0] - x0, at[:, 1] - y0
+    expected = (
+        image[y0, x0] * (1 - fx) * (1 - fy)
+        + image[y0, x0 + 1] * fx * (1 - fy)
+        + image[y0 + 1, x0] * (1 - fx) * fy
+        + image[y0 + 1, x0 + 1] * fx * fy
+    )
+    got = _sample(image, at)
+    assert got.shape == (40_000,)
+    # remap's bilinear weights are fixed-point (1/32 of a pixel): within 255/32
+    np.testing.assert_allclose(got, expected, atol=255 / 32)

@@ -292,11 +292,21 @@ class Gradient:
         return cls(smooth, gx, gy)
 
 
+SAMPLE_ROW = 1024
+"""Points remapped a row at a time: ``cv2.remap`` asserts its maps have fewer than 32,767 rows
+(SHRT_MAX), and a large photo's part yields more edge points than that."""
+
+
 def _sample(image: NDArray[np.float32], at: NDArray[np.floating]) -> NDArray[np.float32]:
     """``image`` at the points ``at`` (n, 2) (x, y), bilinear, shape (n,)."""
-    xy = np.asarray(at, dtype=np.float32)
-    out = cv2.remap(image, xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR)
-    return np.asarray(out, dtype=np.float32).ravel()
+    xy = np.asarray(at, dtype=np.float32).reshape(-1, 2)
+    n = xy.shape[0]
+    rows = max(1, -(-n // SAMPLE_ROW))
+    grid = np.zeros((rows * SAMPLE_ROW, 2), np.float32)
+    grid[:n] = xy
+    maps = grid.reshape(rows, SAMPLE_ROW, 2)
+    out = cv2.remap(image, maps[:, :, 0].copy(), maps[:, :, 1].copy(), cv2.INTER_LINEAR)
+    return np.asarray(out, dtype=np.float32).ravel()[:n]
 
 
 def _unit(g: NDArray[np.float32]) -> NDArray[np.float32]:
