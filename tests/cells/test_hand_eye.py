@@ -139,7 +139,7 @@ def intrinsics(client: TestClient, admin: dict[str, str], files: list[bytes]) ->
 def test_the_camera_is_found_in_the_robots_base(
     client: TestClient, admin: dict[str, str], views: Any
 ) -> None:
-    """The issue's target: 14 rendered poses, a 9 × 6 board of 30 mm, intrinsics the service
+    """The accuracy asked of it: 14 rendered poses, a 9 × 6 board of 30 mm, intrinsics the service
     calibrated from the same views: within 3 mm and 0.3° of the truth."""
     cs, files = views
     cid = intrinsics(client, admin, files)

@@ -13,7 +13,7 @@ from tests.factories.energy import plant
 
 
 class TestSimulatedPlant:
-    """The issue's plant: 150 days, seasons and clouds of 20–100 %, dust at 0.3 %/day, one
+    """The reference plant: 150 days, seasons and clouds of 20–100 %, dust at 0.3 %/day, one
     cleaning on day 60, 1 % noise."""
 
     @pytest.mark.parametrize("seed", range(5))
@@ -72,7 +72,7 @@ class TestSimulatedPlant:
 
 
 class TestRecommendation:
-    """Price 0.25 a kWh and 2.00 a cleaning, the issue's plant cleaned on day 40 and followed
+    """Price 0.25 a kWh and 2.00 a cleaning, the reference plant cleaned on day 40 and followed
     day by day: off ten days after the cleaning, on once the interval of least cost per day
     has passed, ``τ* = √(2C / (ρ E P))`` with the true rate and the plant's mean clean
     energy."""

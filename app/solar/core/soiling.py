@@ -13,8 +13,8 @@ at the interval's start, the panel just after its cleaning:
 
 .. math:: SR(t) = \\frac{a + b\\,t}{a}
 
-with ``t`` days since that cleaning. This is the simpler estimator the issue allows in place of
-SRR's Monte Carlo over interval choices: one set of intervals, and for the interval of the ratio
+with ``t`` days since that cleaning. This is a simpler estimator than SRR's Monte Carlo over
+interval choices: one set of intervals, and for the interval of the ratio
 Sen's distribution-free interval of the slope (95 %) carried to ``t``. ``bench/soiling_eval.py``
 measures it against RdTools on the same series, and ``tests/solar/test_soiling.py`` against the
 intervals RdTools reports on its own test data.
