@@ -166,3 +166,15 @@ def test_the_rendered_board_is_found_to_a_tenth_of_a_pixel() -> None:
 def test_a_view_over_three_times_the_median_is_flagged() -> None:
     assert flagged_views(np.array([0.2, 0.18, 0.21, 0.7, 0.19])) == [3]
     assert flagged_views(np.array([0.2, 0.18, 0.21, 0.59, 0.19])) == []
+
+
+def test_views_are_held_out_alone_then_in_twenty_folds() -> None:
+    """Up to 20 views each is held out alone; 500 views cost 20 refits, every view in one."""
+    from app.cells.core.calibration import HELD_OUT_FITS, folds
+
+    assert folds(3) == [[0], [1], [2]]
+    assert len(folds(HELD_OUT_FITS)) == HELD_OUT_FITS
+    many = folds(500)
+    assert len(many) == HELD_OUT_FITS
+    assert sorted(i for f in many for i in f) == list(range(500))
+    assert many[0][:3] == [0, 20, 40]

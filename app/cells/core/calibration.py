@@ -268,6 +268,18 @@ def _view_rms(
     return float(np.sqrt(np.mean(np.sum((proj - pts.reshape(-1, 2)) ** 2, axis=1))))
 
 
+HELD_OUT_FITS = 20
+"""Refits a held-out error takes at most: up to this many views each is held out alone; more
+are held out in this many interleaved folds (view i in fold i mod 20), so that 500 views cost
+20 refits, not 500 (each of them a calibration of all the others)."""
+
+
+def folds(n: int) -> list[list[int]]:
+    """The views held out together: each alone up to ``HELD_OUT_FITS``, else interleaved."""
+    k = min(n, HELD_OUT_FITS)
+    return [list(range(f, n, k)) for f in range(k)]
+
+
 def leave_one_out(
     object_points: list[NDArray[np.float32]],
     image_points: list[NDArray[np.float32]],
@@ -276,22 +288,23 @@ def leave_one_out(
     dist: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Each view's reprojection RMS [px] through the intrinsics fitted to the other views
-    (started from the full fit's, ``CALIB_USE_INTRINSIC_GUESS``), its own pose fitted to it:
-    the fit's RMS judges the model on the views it fitted, this on one it did not (its 6 pose
-    parameters still fitted to its own corners, so it is a little optimistic)."""
+    (started from the full fit's, ``CALIB_USE_INTRINSIC_GUESS``; in ``folds``), its own pose
+    fitted to it: the fit's RMS judges the model on the views it fitted, this on one it did
+    not (its 6 pose parameters still fitted to its own corners, so it is a little
+    optimistic)."""
     out = np.empty(len(image_points))
-    for i in range(len(image_points)):
-        rest_o = object_points[:i] + object_points[i + 1 :]
-        rest_i = image_points[:i] + image_points[i + 1 :]
-        _, k_i, d_i, *_ = _cv.calibrateCamera(
-            rest_o,
-            rest_i,
+    for fold in folds(len(image_points)):
+        kept = [i for i in range(len(image_points)) if i not in set(fold)]
+        _, k_f, d_f, *_ = _cv.calibrateCamera(
+            [object_points[i] for i in kept],
+            [image_points[i] for i in kept],
             image_size,
             k.copy(),
             dist.copy(),
             flags=cv2.CALIB_USE_INTRINSIC_GUESS,
         )
-        out[i] = _view_rms(object_points[i], image_points[i], k_i, d_i.ravel())
+        for i in fold:
+            out[i] = _view_rms(object_points[i], image_points[i], k_f, d_f.ravel())
     return out
 
 
@@ -364,28 +377,13 @@ def stereo(
     """The pair's relative pose from simultaneous views, intrinsics held fixed."""
     if len(left_points) < 1:
         raise CalibrationError("no view where both cameras found the board")
-    rms, *_, r, t, _, _ = _cv.stereoCalibrate(
-        object_points,
-        left_points,
-        right_points,
-        left.K,
-        left.dist,
-        right.K,
-        right.dist,
-        left.image_size,
-        flags=cv2.CALIB_FIX_INTRINSIC,
-    )
-    r = np.asarray(r, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64).ravel()
+    rms, r, t = _stereo_fit(object_points, left_points, right_points, left, right)
     angle = float(np.degrees(np.linalg.norm(cv2.Rodrigues(r)[0])))
     loo = None
     if len(left_points) >= 3:
-        loo = np.array(
-            [
-                _held_out_pair(object_points, left_points, right_points, left, right, i)
-                for i in range(len(left_points))
-            ]
-        )
+        loo = np.empty(len(left_points))
+        for fold in folds(len(left_points)):
+            loo[fold] = _held_out_pairs(object_points, left_points, right_points, left, right, fold)
     return StereoPose(
         R=r,
         T=t,
@@ -397,25 +395,18 @@ def stereo(
     )
 
 
-def _held_out_pair(
+def _stereo_fit(
     object_points: list[NDArray[np.float32]],
     left_points: list[NDArray[np.float32]],
     right_points: list[NDArray[np.float32]],
     left: Intrinsics,
     right: Intrinsics,
-    i: int,
-) -> float:
-    """Pair ``i``'s reprojection RMS [px] over both its views through the R, T fitted without
-    it, the board's pose fitted to both views at once (as ``stereoCalibrate`` fits the poses
-    of the views it is given, whose RMS this sits beside)."""
-
-    def rest(xs: list[Any]) -> list[Any]:
-        return xs[:i] + xs[i + 1 :]
-
-    *_, r, t, _, _ = _cv.stereoCalibrate(
-        rest(object_points),
-        rest(left_points),
-        rest(right_points),
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """``stereoCalibrate`` with the intrinsics held: RMS [px], R and T (x₂ = R x₁ + T)."""
+    rms, *_, r, t, _, _ = _cv.stereoCalibrate(
+        object_points,
+        left_points,
+        right_points,
         left.K,
         left.dist,
         right.K,
@@ -423,12 +414,48 @@ def _held_out_pair(
         left.image_size,
         flags=cv2.CALIB_FIX_INTRINSIC,
     )
-    r = np.asarray(r, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64).ravel()
-    obj = np.asarray(object_points[i], dtype=np.float64)
-    seen_l = np.asarray(left_points[i], dtype=np.float64).reshape(-1, 2)
-    seen_r = np.asarray(right_points[i], dtype=np.float64).reshape(-1, 2)
-    ok, rvec, tvec = cv2.solvePnP(object_points[i], left_points[i], left.K, left.dist)
+    return float(rms), np.asarray(r, dtype=np.float64), np.asarray(t, dtype=np.float64).ravel()
+
+
+def _held_out_pairs(
+    object_points: list[NDArray[np.float32]],
+    left_points: list[NDArray[np.float32]],
+    right_points: list[NDArray[np.float32]],
+    left: Intrinsics,
+    right: Intrinsics,
+    fold: list[int],
+) -> list[float]:
+    """The reprojection RMS [px] over both views of each pair in ``fold``, through the R, T
+    fitted without them, each board's pose fitted to both its views at once (as
+    ``stereoCalibrate`` fits the poses of the views it is given, whose RMS this sits beside)."""
+    kept = [i for i in range(len(left_points)) if i not in set(fold)]
+    _, r, t = _stereo_fit(
+        [object_points[i] for i in kept],
+        [left_points[i] for i in kept],
+        [right_points[i] for i in kept],
+        left,
+        right,
+    )
+    return [
+        _pair_rms(object_points[i], left_points[i], right_points[i], left, right, r, t)
+        for i in fold
+    ]
+
+
+def _pair_rms(
+    object_points: NDArray[np.float32],
+    left_points: NDArray[np.float32],
+    right_points: NDArray[np.float32],
+    left: Intrinsics,
+    right: Intrinsics,
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+) -> float:
+    """One pair's RMS [px] over both views with R, T held, its board's pose fitted to both."""
+    obj = np.asarray(object_points, dtype=np.float64)
+    seen_l = np.asarray(left_points, dtype=np.float64).reshape(-1, 2)
+    seen_r = np.asarray(right_points, dtype=np.float64).reshape(-1, 2)
+    ok, rvec, tvec = cv2.solvePnP(object_points, left_points, left.K, left.dist)
     if not ok:
         return float("inf")
 
