@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypedDict
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
-from sqlalchemy.orm import Session
 
+from app.cells.models import Calibration
 from app.cells.services import calibrations, hand_eye
 from app.cells.services.calibrations import Board
 from app.platform.http.deps import (
@@ -31,6 +32,7 @@ from app.platform.http.responses import (
     multipart_body,
 )
 from app.platform.http.uploads import content_type, read_form
+from app.platform.settings import Settings
 from app.platform.timing import Timing
 
 router = APIRouter(prefix="/calibrations", tags=["stereo"])
@@ -61,27 +63,8 @@ def _out(row: Any) -> dict[str, Any]:
     }
 
 
-def _named(row: Any, name: str | None) -> Any:
-    if name is not None:
-        row.result = {**row.result, "name": name}
-    return row
-
-
 def _body(row: Any) -> JSONResponse:
     return JSONResponse(_out(row), status_code=201)
-
-
-PATTERN_FIELDS = (
-    "pattern_cols",
-    "pattern_rows",
-    "square_size",
-    "name",
-    "board",
-    "dictionary",
-    "marker_size",
-)
-"""Text fields a calibration upload may carry: the pattern instead of the query parameters,
-and the calibration's name."""
 
 
 def _name(form: Any) -> str | None:
@@ -92,10 +75,54 @@ def _name(form: Any) -> str | None:
     return given or None
 
 
-async def _form(request: Request, limit: int, *images: str) -> Any:
+class _BoardParts(TypedDict):
+    pattern_cols: str
+    pattern_rows: str
+    square_size: str
+    name: str
+    board: str
+    dictionary: str
+    marker_size: str
+
+
+BOARD_PARTS = _BoardParts(
+    pattern_cols="text",
+    pattern_rows="text",
+    square_size="text",
+    name="text",
+    board="text",
+    dictionary="text",
+    marker_size="text",
+)
+"""The board's fields in the uploads' OpenAPI schemas."""
+
+PATTERN_FIELDS = tuple(BOARD_PARTS)
+"""Text fields a calibration upload may carry: the pattern instead of the query parameters,
+the board's kind, and the calibration's name."""
+
+
+async def _form(request: Request, limit: int, *parts: str) -> Any:
+    """The upload's multipart body: the route's ``parts`` (files and text) and the board's."""
     if content_type(request) != "multipart/form-data":
-        raise UnsupportedMediaType("send the checkerboard images as multipart/form-data")
-    return await read_form(request, limit, max_files=500, parts=(*images, *PATTERN_FIELDS))
+        raise UnsupportedMediaType("send the board's views as multipart/form-data")
+    return await read_form(request, limit, max_files=500, parts=(*parts, *PATTERN_FIELDS))
+
+
+async def _calibrated(
+    request: Request,
+    form: Any,
+    default: Board,
+    settings: Settings,
+    timing: Timing,
+    run: Callable[..., Calibration],
+) -> JSONResponse:
+    """Run a calibration (``run`` given the board, the name, the pixel limit and the time) off
+    the event loop, among the image workers, and answer 201 with what it stored."""
+    board = _board(form, default)
+    work = partial(
+        run, board=board, name=_name(form), max_pixels=settings.max_pixels, now=timing.now()
+    )
+    return _body(await image_work(request, work))
 
 
 def _board(form: Any, default: Board) -> Board:
@@ -129,19 +156,11 @@ def _board(form: Any, default: Board) -> Board:
     return made
 
 
-def _single(session: Session, files: Any, board: Board, max_pixels: int, timing: Timing) -> Any:
-    return calibrations.calibrate_camera(
-        session, files, board, max_pixels=max_pixels, now=timing.now()
-    )
-
-
 @router.post(
     "",
     status_code=201,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
-    openapi_extra=multipart_body(
-        files="files", pattern_cols="text", pattern_rows="text", square_size="text", name="text"
-    ),
+    openapi_extra=multipart_body(files="files", **BOARD_PARTS),
 )
 async def calibrate(
     request: Request,
@@ -160,34 +179,16 @@ async def calibrate(
     files = form.files_of("files")
     if not files:
         raise Unprocessable("no images in field files")
-    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
-    name = _name(form)
-    row = await image_work(
-        request, partial(_single, session, files, board, settings.max_pixels, timing)
-    )
-    return _body(_named(row, name))
-
-
-def _pair(
-    session: Session, left: Any, right: Any, board: Board, max_pixels: int, timing: Timing
-) -> Any:
-    return calibrations.calibrate_pair(
-        session, left, right, board, max_pixels=max_pixels, now=timing.now()
-    )
+    default = Board(pattern_cols, pattern_rows, square_size)
+    run = partial(calibrations.calibrate_camera, session, files)
+    return await _calibrated(request, form, default, settings, timing, run)
 
 
 @router.post(
     "/stereo",
     status_code=201,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
-    openapi_extra=multipart_body(
-        left="files",
-        right="files",
-        pattern_cols="text",
-        pattern_rows="text",
-        square_size="text",
-        name="text",
-    ),
+    openapi_extra=multipart_body(left="files", right="files", **BOARD_PARTS),
 )
 async def calibrate_stereo(
     request: Request,
@@ -203,24 +204,14 @@ async def calibrate_stereo(
     the same order): both cameras' intrinsics, then R, T (x_right = R x_left + T) and the
     baseline |T| with the intrinsics held fixed."""
     form = await _form(request, settings.max_upload_bytes, "left", "right")
-    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
-    name = _name(form)
-    row = await image_work(
-        request,
-        partial(
-            _pair,
-            session,
-            form.files_of("left"),
-            form.files_of("right"),
-            board,
-            settings.max_pixels,
-            timing,
-        ),
-    )
-    return _body(_named(row, name))
+    left, right = form.files_of("left"), form.files_of("right")
+    run = partial(calibrations.calibrate_pair, session, left, right)
+    default = Board(pattern_cols, pattern_rows, square_size)
+    return await _calibrated(request, form, default, settings, timing, run)
 
 
-def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing: Timing) -> Any:
+def _hand_eye_fields(form: Any) -> dict[str, Any]:
+    """The hand-eye upload's own fields: the camera's calibration, the setup, the poses."""
     fields = form.fields
     setup = (fields.get("setup") or ["eye_to_hand"])[0]
     if setup not in ("eye_to_hand", "eye_in_hand"):
@@ -228,16 +219,12 @@ def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing
     calibration_id = (fields.get("calibration_id") or [""])[0]
     if not calibration_id:
         raise Unprocessable("calibration_id: the camera's calibration (POST /calibrations)")
-    return hand_eye.calibrate(
-        session,
-        calibration_id=calibration_id,
-        files=form.required_files("files"),
-        poses=fields.get("poses", []),
-        setup=setup,
-        board=board,
-        max_pixels=max_pixels,
-        now=timing.now(),
-    )
+    return {
+        "calibration_id": calibration_id,
+        "files": form.required_files("files"),
+        "poses": fields.get("poses", []),
+        "setup": setup,
+    }
 
 
 @router.post(
@@ -245,14 +232,7 @@ def _hand_eye(session: Session, form: Any, board: Board, max_pixels: int, timing
     status_code=201,
     responses={**AUTH_ERRORS, **BODY_ERRORS, **UNPROCESSABLE},
     openapi_extra=multipart_body(
-        files="files",
-        poses="text",
-        calibration_id="text",
-        setup="text",
-        pattern_cols="text",
-        pattern_rows="text",
-        square_size="text",
-        name="text",
+        files="files", poses="text", calibration_id="text", setup="text", **BOARD_PARTS
     ),
 )
 async def calibrate_hand_eye(
@@ -272,20 +252,12 @@ async def calibrate_hand_eye(
     on the flange; ``eye_in_hand``: the camera on the flange). Answers ``camera_to_base`` or
     ``camera_to_flange`` (4×4: camera coordinates into that frame), the board's pose, and
     residuals per view and RMS in px, mm and degrees. ``square_size`` is in metres."""
-    if content_type(request) != "multipart/form-data":
-        raise UnsupportedMediaType("send the views and poses as multipart/form-data")
-    form = await read_form(
-        request,
-        settings.max_upload_bytes,
-        max_files=500,
-        parts=("files", "poses", "calibration_id", "setup", *PATTERN_FIELDS),
+    form = await _form(
+        request, settings.max_upload_bytes, "files", "poses", "calibration_id", "setup"
     )
-    board = _board(form, Board(pattern_cols, pattern_rows, square_size))
-    name = _name(form)
-    row = await image_work(
-        request, partial(_hand_eye, session, form, board, settings.max_pixels, timing)
-    )
-    return _body(_named(row, name))
+    run = partial(hand_eye.calibrate, session, **_hand_eye_fields(form))
+    default = Board(pattern_cols, pattern_rows, square_size)
+    return await _calibrated(request, form, default, settings, timing, run)
 
 
 @router.get("", responses=AUTH_ERRORS)

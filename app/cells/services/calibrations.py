@@ -152,7 +152,9 @@ def calibrate_camera(
     *,
     max_pixels: int,
     now: datetime,
+    name: str | None = None,
 ) -> Calibration:
+    """A camera's intrinsics from its views of the board, stored (kind ``single``)."""
     found, rejected, size = detect_boards(files, board, max_pixels)
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
     used = [names[i] for i, c in enumerate(found) if c is not None]
@@ -174,6 +176,7 @@ def calibrate_camera(
         created_at=now,
         kind="single",
         result={
+            "name": name,
             **_intrinsics_out(result, used),
             "views_rejected": rejected,
             **board.described(),
@@ -192,6 +195,7 @@ def calibrate_pair(
     *,
     max_pixels: int,
     now: datetime,
+    name: str | None = None,
 ) -> Calibration:
     """Each camera on its own views, then their relative pose from the simultaneous pairs."""
     if len(left) != len(right):
@@ -242,6 +246,7 @@ def calibrate_pair(
         created_at=now,
         kind="stereo",
         result={
+            "name": name,
             "left": _intrinsics_out(lcal, [lnames[i] for i, c in enumerate(lf) if c is not None]),
             "right": _intrinsics_out(rcal, [rnames[i] for i, c in enumerate(rf) if c is not None]),
             "R": pose.R.tolist(),

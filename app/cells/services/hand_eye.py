@@ -145,6 +145,7 @@ def calibrate(
     board: Board,
     max_pixels: int,
     now: datetime,
+    name: str | None = None,
 ) -> Calibration:
     """Solve the hand-eye calibration and store it (kind ``hand_eye``). Every pose is checked
     before an image is decoded; views without the board are left out with their pose."""
@@ -194,7 +195,7 @@ def calibrate(
         id=str(uuid.uuid4()),
         created_at=now,
         kind="hand_eye",
-        result=_described(result, setup, calibration_id, used, rejected, board),
+        result={"name": name, **_described(result, setup, calibration_id, used, rejected, board)},
     )
     session.add(row)
     session.flush()
