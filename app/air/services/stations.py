@@ -3,8 +3,6 @@ and a camera's frames paired with their readings."""
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,7 +27,7 @@ from app.air.services.cameras import sky_camera
 from app.platform.db.models import Camera, Frame
 from app.platform.frames.cameras import insert_new
 from app.platform.http.errors import Unprocessable
-from app.platform.http.uploads import first_error
+from app.platform.http.uploads import csv_models, item_error
 from app.platform.lookup import get_or_404
 
 EARTH_RADIUS_KM = 6371.0088
@@ -124,35 +122,27 @@ _READINGS = TypeAdapter(list[StationReadingIn])
 
 
 def parse_json(body: bytes) -> list[StationReadingIn]:
-    """A JSON list of ``{"at", "pm25"}``; 422 naming the first bad item's field."""
+    """A JSON list of ``{"at", "pm25"}``; 422 naming the first bad item's field
+    (``readings[3].pm25``)."""
     try:
         readings = _READINGS.validate_json(body)
     except ValidationError as exc:
-        where, message = first_error(exc)
-        raise Unprocessable(f"readings[{where}]: {message}", code="bad_readings") from None
+        raise Unprocessable(item_error(exc, "readings"), code="bad_readings") from None
     return _bounded(readings)
 
 
 def parse_csv(text: str) -> list[StationReadingIn]:
     """CSV with a header ``at,pm25`` (other columns ignored); 422 naming the first bad row
     (its line number) and field."""
-    rows = csv.DictReader(io.StringIO(text.lstrip("\ufeff")))
-    missing = {"at", "pm25"} - set(rows.fieldnames or ())
-    if missing:
-        raise Unprocessable(
-            f"the CSV's header must name at and pm25; missing {', '.join(sorted(missing))}",
-            code="bad_readings",
-        )
-    out = []
-    for line, row in enumerate(rows, start=2):
-        try:
-            out.append(StationReadingIn.model_validate({"at": row["at"], "pm25": row["pm25"]}))
-        except ValidationError as exc:
-            where, message = first_error(exc)
-            raise Unprocessable(f"line {line}, {where}: {message}", code="bad_readings") from None
-        if len(out) > MAX_READINGS:
-            break
-    return _bounded(out)
+    rows = csv_models(
+        text,
+        StationReadingIn,
+        required=("at", "pm25"),
+        columns=("at", "pm25"),
+        code="bad_readings",
+        limit=MAX_READINGS,
+    )
+    return _bounded([r for _, r in rows])
 
 
 def _bounded(readings: list[StationReadingIn]) -> list[StationReadingIn]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import re
 from collections.abc import AsyncGenerator, Collection
 from dataclasses import dataclass
@@ -270,6 +272,48 @@ def first_error(exc: ValidationError) -> tuple[str, str]:
     """Where the first of pydantic's errors is (its location, dotted) and what it says."""
     first = exc.errors()[0]
     return ".".join(str(p) for p in first["loc"]), first["msg"]
+
+
+def item_error(exc: ValidationError, items: str) -> str:
+    """The first of pydantic's errors over a list named ``items``, located as a client writes
+    it (``days[3].kwh``), and what it says."""
+    first = exc.errors()[0]
+    at, *inside = first["loc"] or ("",)
+    return f"{items}[{at}]" + "".join(f".{p}" for p in inside) + f": {first['msg']}"
+
+
+def csv_models(
+    text: str,
+    model: type[M],
+    *,
+    required: Collection[str],
+    columns: Collection[str],
+    code: str,
+    limit: int,
+) -> list[tuple[int, M]]:
+    """The rows of a CSV as ``model``, each with its line number: the header must name every
+    ``required`` column; of each row the ``columns`` it fills are validated (an empty cell is
+    left out, other columns ignored); 422 ``code`` naming the first bad line and field. At most
+    ``limit`` + 1 rows are read: the caller refuses more."""
+    rows = csv.DictReader(io.StringIO(text.lstrip("\ufeff")))
+    missing = set(required) - set(rows.fieldnames or ())
+    if missing:
+        raise Unprocessable(
+            f"the CSV's header must name {' and '.join(required)}; missing "
+            f"{', '.join(sorted(missing))}",
+            code=code,
+        )
+    out: list[tuple[int, M]] = []
+    for line, row in enumerate(rows, start=2):
+        given = {k: v.strip() for k in columns if (v := row.get(k)) is not None and v.strip()}
+        try:
+            out.append((line, model.model_validate(given)))
+        except ValidationError as exc:
+            where, message = first_error(exc)
+            raise Unprocessable(f"line {line}, {where}: {message}", code=code) from None
+        if len(out) > limit:
+            break
+    return out
 
 
 def content_type(request: Request) -> str:

@@ -3,8 +3,6 @@ energy is not given, stored one row a day, read back as arrays for the soiling a
 
 from __future__ import annotations
 
-import csv
-import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
@@ -18,7 +16,7 @@ from sqlalchemy.orm import Session
 
 from app.platform.frames.cameras import check_in_service
 from app.platform.http.errors import Unprocessable
-from app.platform.http.uploads import first_error
+from app.platform.http.uploads import csv_models, item_error
 from app.solar.core import expected
 from app.solar.models import CleaningTask, EnergyDay, Panel
 from app.solar.schemas import EnergyDayIn
@@ -43,10 +41,7 @@ def parse_json(body: bytes, today: date) -> list[Named]:
     try:
         days = _DAYS.validate_json(body)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        at, *inside = first["loc"] or ("",)
-        where = f"days[{at}]" + "".join(f".{p}" for p in inside)
-        raise Unprocessable(f"{where}: {first['msg']}", code="bad_energy") from None
+        raise Unprocessable(item_error(exc, "days"), code="bad_energy") from None
     return _bounded(days, [f"days[{i}]" for i in range(len(days))], today)
 
 
@@ -54,26 +49,15 @@ def parse_csv(text: str, today: date) -> list[Named]:
     """CSV with a header naming ``date`` and ``kwh`` and optionally ``expected_kwh``,
     ``poa_kwh_m2``, ``ghi_kwh_m2``, ``rain_mm`` (other columns ignored, an empty cell is
     left out); 422 naming the first bad line and field."""
-    rows = csv.DictReader(io.StringIO(text.lstrip("\ufeff")))
-    missing = {"date", "kwh"} - set(rows.fieldnames or ())
-    if missing:
-        raise Unprocessable(
-            f"the CSV's header must name date and kwh; missing {', '.join(sorted(missing))}",
-            code="bad_energy",
-        )
-    out = []
-    lines = []
-    for line, row in enumerate(rows, start=2):
-        given = {k: v.strip() for k in COLUMNS if (v := row.get(k)) is not None and v.strip()}
-        try:
-            out.append(EnergyDayIn.model_validate(given))
-        except ValidationError as exc:
-            where, message = first_error(exc)
-            raise Unprocessable(f"line {line}, {where}: {message}", code="bad_energy") from None
-        lines.append(line)
-        if len(out) > MAX_DAYS:
-            break
-    return _bounded(out, [f"line {n}" for n in lines], today)
+    rows = csv_models(
+        text,
+        EnergyDayIn,
+        required=("date", "kwh"),
+        columns=COLUMNS,
+        code="bad_energy",
+        limit=MAX_DAYS,
+    )
+    return _bounded([d for _, d in rows], [f"line {n}" for n, _ in rows], today)
 
 
 def _bounded(days: list[EnergyDayIn], names: list[str], today: date) -> list[Named]:
