@@ -12,7 +12,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.cells.core import laser_grid, pantilt
+from app.cells.core import hand_eye, laser_grid, pantilt
 from app.cells.core.triangulation import (
     CrossRig,
     RigArrays,
@@ -118,9 +118,10 @@ def robot_frame(
                 "calibrate that camera, or name the rig's camera it is"
             )
     x = np.array(row.result["camera_to_base"], dtype=np.float64)
-    pose = np.eye(4)
-    pose[:3, :3] = np.array(cam["R"], dtype=np.float64)
-    pose[:3, 3] = robot.rig_unit_m * np.array(cam["t"], dtype=np.float64)
+    pose = hand_eye.rigid(
+        np.array(cam["R"], dtype=np.float64),
+        robot.rig_unit_m * np.array(cam["t"], dtype=np.float64),
+    )
     return {**robot.model_dump(), "rig_to_base": (x @ pose).tolist()}
 
 
