@@ -80,6 +80,37 @@ class TestCore:
         assert np.linalg.norm(got.X[:3, 3] - on_flange[:3, 3]) < 0.5e-3
         assert angle_deg(got.X, on_flange) < 0.05
 
+    def test_views_numbered_from_the_other_end_or_misnumbered(self) -> None:
+        """A checkerboard numbered from its other end in some views (it looks the same turned
+        by 180°) is read as the robot's motion says; a view whose corners are shifted by a
+        square (a detector's misnumbering) is left out."""
+        cs = board_poses(14, seed=5)
+        pts, _ = self._views(cs)
+        obj = board_points(9, 6, SQUARE)
+        k, dist = self.K, np.zeros(5)
+        grid = [p.reshape(6, 9, 2) for p in pts]
+        readings = []
+        for n, p in enumerate(grid):
+            if n in (2, 6, 9):
+                p = p[::-1, ::-1]  # numbered from the other end
+            if n == 4:
+                p = np.concatenate([p[:, 1:], p[:, -1:] + (p[:, -1:] - p[:, -2:-1])], axis=1)
+            corners = np.ascontiguousarray(p.reshape(-1, 1, 2), dtype=np.float32)
+            ways = []
+            for c in (corners, corners[::-1].copy()):
+                _, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, c, k, dist, flags=cv2.SOLVEPNP_IPPE)
+                for rv, tv in zip(rvecs, tvecs, strict=True):
+                    pose = hand_eye.rigid(cv2.Rodrigues(rv)[0], tv.ravel())
+                    ways.append(hand_eye.Reading(pose, obj, c))
+            readings.append(ways)
+        got, kept, dropped = hand_eye.solve_numbered(
+            [flange_of(c) for c in cs], readings, k, dist, eye_in_hand=False
+        )
+        assert dropped == [4]
+        assert len(kept) == 13
+        assert np.linalg.norm(got.X[:3, 3] - CAMERA_IN_BASE[:3, 3]) < 0.5e-3
+        assert angle_deg(got.X, CAMERA_IN_BASE) < 0.05
+
     def test_turning_about_one_axis_is_not_observable(self) -> None:
         cs = []
         for k in range(8):

@@ -119,6 +119,35 @@ def axis_spread_deg(motions: list[tuple[NDArray[np.float64], NDArray[np.float64]
     return float(np.degrees(np.arccos(cos.min())))
 
 
+def _angle(r: NDArray[np.float64]) -> float:
+    """A rotation's angle [rad]."""
+    return math.acos(max(-1.0, min(1.0, (float(np.trace(r)) - 1.0) / 2.0)))
+
+
+def consistent(
+    flange: list[NDArray[np.float64]],
+    candidates: list[list[NDArray[np.float64]]],
+    *,
+    eye_in_hand: bool,
+) -> list[int]:
+    """Which of each view's candidate board poses (camera ← board, 4×4) numbers the board as
+    the first view does. A checkerboard turned by 180° looks the same, and a detector numbers
+    its corners from either end: the camera's pose of it is then turned by 180° about its
+    normal, and calibration does not care, but hand-eye does. ``A X = X B`` keeps angles: the
+    robot's rotation between the first view and view ``i`` turns by as much as the board does
+    in the camera, so each view takes the candidate whose turn from the first view's matches
+    the robot's best."""
+    if not candidates:
+        return []
+    g = [f if eye_in_hand else inverse(f) for f in flange]
+    chosen = [0]
+    for i in range(1, len(candidates)):
+        turn = _angle((inverse(g[i]) @ g[0])[:3, :3])
+        miss = [abs(_angle((c @ inverse(candidates[0][0]))[:3, :3]) - turn) for c in candidates[i]]
+        chosen.append(int(np.argmin(miss)))
+    return chosen
+
+
 def park_martin(
     motions: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
 ) -> NDArray[np.float64]:
@@ -240,3 +269,84 @@ def solve(
         axis_spread_deg=spread,
         closed_form=x0,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class Reading:
+    """One way of numbering a view's corners: the board's pose in the camera it gives (4×4),
+    the corners on the board (N, 3) and in the image (N, 2) [px]."""
+
+    pose: NDArray[np.float64]
+    object_points: NDArray[np.float32]
+    image_points: NDArray[np.float32]
+
+
+MAX_RENUMBERINGS = 3
+"""Times the views' numbering is read again from the fitted chain before it is taken."""
+
+OUTLIER_FACTOR = 3.0
+"""A view whose corners lie this many times the views' median RMS from where the chain puts
+them (and over ``OUTLIER_FLOOR_PX``) is left out and the rest solved again: its corners were
+misnumbered by the detector, or its pose mistyped."""
+OUTLIER_FLOOR_PX = 1.0
+
+
+def solve_numbered(
+    flange: list[NDArray[np.float64]],
+    readings: list[list[Reading]],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    *,
+    eye_in_hand: bool,
+) -> tuple[HandEye, list[int], list[int]]:
+    """``solve`` over the views' readings numbered alike (``_numbered``), leaving out views
+    that disagree with the rest (``OUTLIER_FACTOR``) while 3 or more remain. Returns the
+    solution, the views it kept and those it left out (indices into ``readings``)."""
+    kept = list(range(len(readings)))
+    dropped: list[int] = []
+    while True:
+        result = _numbered(
+            [flange[i] for i in kept], [readings[i] for i in kept], k, dist, eye_in_hand
+        )
+        limit = max(OUTLIER_FACTOR * float(np.median(result.per_view_px)), OUTLIER_FLOOR_PX)
+        worst = int(np.argmax(result.per_view_px))
+        if result.per_view_px[worst] <= limit or len(kept) <= 3:
+            return result, kept, dropped
+        dropped.append(kept.pop(worst))
+
+
+def _numbered(
+    flange: list[NDArray[np.float64]],
+    readings: list[list[Reading]],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    eye_in_hand: bool,
+) -> HandEye:
+    """``solve`` with each view's reading chosen first as ``consistent`` chooses, then, from
+    the fitted chain, the reading nearest where the chain puts its board, until no choice
+    changes."""
+    chosen = consistent(flange, [[r.pose for r in rs] for rs in readings], eye_in_hand=eye_in_hand)
+    g = [f if eye_in_hand else inverse(f) for f in flange]
+    for _ in range(MAX_RENUMBERINGS + 1):
+        picked = [rs[c] for rs, c in zip(readings, chosen, strict=True)]
+        result = solve(
+            flange,
+            [r.pose for r in picked],
+            [r.object_points for r in picked],
+            [r.image_points for r in picked],
+            k,
+            dist,
+            eye_in_hand=eye_in_hand,
+        )
+        nearest = [
+            int(
+                np.argmin(
+                    [_angle((inverse(r.pose) @ _chain(gi, result.X, result.Y))[:3, :3]) for r in rs]
+                )
+            )
+            for gi, rs in zip(g, readings, strict=True)
+        ]
+        if nearest == chosen:
+            break
+        chosen = nearest
+    return result

@@ -76,30 +76,61 @@ def _intrinsics(session: Session, calibration_id: str) -> tuple[Any, Any, list[i
     return k, dist, list(cam.get("image_size") or [])
 
 
+def _poses(
+    view: charuco.Found, k: NDArray[np.float64], dist: NDArray[np.float64]
+) -> list[NDArray[np.float64]]:
+    """The board's poses in the camera (4×4) its corners allow: a plane seen from afar or
+    nearly face on has two that reproject almost alike (IPPE gives both), and hand-eye lets the
+    robot's motion choose (``hand_eye.solve_numbered``)."""
+    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+        view.object_points, view.image_points, k, dist, flags=cv2.SOLVEPNP_IPPE
+    )
+    return [
+        hand_eye.rigid(
+            np.asarray(cv2.Rodrigues(rv)[0], dtype=np.float64),
+            np.asarray(tv, dtype=np.float64).ravel(),
+        )
+        for rv, tv in zip(rvecs, tvecs, strict=True)
+    ]
+
+
+def _readings(view: charuco.Found, board: Board) -> list[charuco.Found]:
+    """The ways a view's corners may be numbered: a ChArUco board's one (by its ids), a
+    checkerboard's two (from either end: it looks the same turned by 180°)."""
+    if board.kind == "charuco":
+        return [view]
+    turned = charuco.Found(view.ids, view.object_points, view.image_points[::-1].copy())
+    return [view, turned]
+
+
 def _posed(
     found: list[charuco.Found | None],
     flange: list[NDArray[np.float64]],
     k: NDArray[np.float64],
     dist: NDArray[np.float64],
+    board: Board,
     names: list[str],
     rejected: list[dict[str, str]],
-) -> tuple[list[str], list[Any], list[Any], list[charuco.Found]]:
-    """The views with the board found and its pose solved: names, flange poses, the board's
-    pose in the camera (4×4) and the corners; a view whose pose fails joins ``rejected``."""
-    used, f_used, c_used, p_used = [], [], [], []
+) -> tuple[list[str], list[Any], list[list[hand_eye.Reading]]]:
+    """The views with the board found and its pose solved: names, flange poses, and each
+    view's readings: every numbering (``_readings``) with every pose it allows (``_poses``);
+    a view without one joins ``rejected``."""
+    used, f_used, readings = [], [], []
     for i, view in enumerate(found):
         if view is None:
             continue
-        ok, rvec, tvec = cv2.solvePnP(view.object_points, view.image_points, k, dist)
-        if not ok:
+        ways = [
+            hand_eye.Reading(pose, w.object_points, w.image_points)
+            for w in _readings(view, board)
+            for pose in _poses(w, k, dist)
+        ]
+        if not ways:
             rejected.append({"file": names[i], "reason": "the board's pose could not be solved"})
             continue
-        r = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
         used.append(names[i])
         f_used.append(flange[i])
-        c_used.append(hand_eye.rigid(r, np.asarray(tvec, dtype=np.float64).ravel()))
-        p_used.append(view)
-    return used, f_used, c_used, p_used
+        readings.append(ways)
+    return used, f_used, readings
 
 
 def _described(
@@ -172,25 +203,28 @@ def calibrate(
             views_rejected=rejected,
         )
     names = [n or f"file {i + 1}" for i, (n, _) in enumerate(files)]
-    used, f_used, c_used, views = _posed(found, flange, k, dist, names, rejected)
-    if len(views) < 3:
+    used, f_used, readings = _posed(found, flange, k, dist, board, names, rejected)
+    if len(readings) < 3:
         raise Unprocessable(
-            f"{len(views)} of {len(files)} images are usable views of the board; at least 3 "
+            f"{len(readings)} of {len(files)} images are usable views of the board; at least 3 "
             "are needed (views_rejected says why the others are not)",
             views_rejected=rejected,
         )
     try:
-        result = hand_eye.solve(
-            f_used,
-            c_used,
-            [v.object_points for v in views],
-            [v.image_points for v in views],
-            k,
-            dist,
-            eye_in_hand=setup == "eye_in_hand",
+        result, kept, dropped = hand_eye.solve_numbered(
+            f_used, readings, k, dist, eye_in_hand=setup == "eye_in_hand"
         )
     except hand_eye.HandEyeError as exc:
         raise Unprocessable(str(exc), code="not_observable", views_rejected=rejected) from None
+    rejected += [
+        {
+            "file": used[i],
+            "reason": "its board lies far from where the robot's other poses put it (corners "
+            "misnumbered, or its pose mistyped): left out",
+        }
+        for i in dropped
+    ]
+    used = [used[i] for i in kept]
     row = Calibration(
         id=str(uuid.uuid4()),
         created_at=now,
