@@ -25,6 +25,10 @@ from app.solar.services.lookup import get_panel
 MAX_DAYS = 40_000
 """Days one import takes at most (a century of one panel; a farm's export goes per panel)."""
 
+GHI_CHUNK = 2000
+"""Days modelled from GHI at once: pvlib works on every hour of them, and 40,000 days at once
+took 346 MB."""
+
 FIRST_DAY = date(1980, 1, 1)
 """Output from before this is taken for a mistyped year."""
 
@@ -127,13 +131,18 @@ def _modelled(panel: Panel, named: Sequence[Named]) -> list[tuple[float, str]]:
             )
         ordinals = np.array([days[i].date.toordinal() for i in ghi_at], dtype=np.int64)
         ghi = np.array([days[i].ghi_kwh_m2 for i in ghi_at], dtype=np.float64)
-        poa = expected.poa_from_ghi(
-            ordinals,
-            ghi,
-            lat=panel.lat or 0.0,
-            lon=panel.lon or 0.0,
-            tilt=panel.tilt or 0.0,
-            azimuth=panel.azimuth or 0.0,
+        poa = np.concatenate(
+            [
+                expected.poa_from_ghi(
+                    ordinals[start : start + GHI_CHUNK],
+                    ghi[start : start + GHI_CHUNK],
+                    lat=panel.lat or 0.0,
+                    lon=panel.lon or 0.0,
+                    tilt=panel.tilt or 0.0,
+                    azimuth=panel.azimuth or 0.0,
+                )
+                for start in range(0, len(ghi_at), GHI_CHUNK)
+            ]
         )
         for i, e in zip(ghi_at, expected.energy_from_poa(poa, panel.kwp or 0.0), strict=True):
             out[i] = (float(e), "ghi")
