@@ -18,7 +18,8 @@ from app.solar.services.lookup import get_panel
 
 GATE_WINDOW = timedelta(days=400)
 """The output the cleaning trigger weighs: it runs on a camera's verdict, in the ingest's
-transaction, and a decade of output took 80 ms to analyse; 400 days hold the current soiling
+transaction, and a decade of output takes 18 ms to analyse (400 days, 2 ms); 400 days hold
+the current soiling
 interval and those before it that give a short one its clean level."""
 
 RECENT = timedelta(days=7)
