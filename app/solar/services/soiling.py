@@ -19,8 +19,7 @@ from app.solar.services.lookup import get_panel
 GATE_WINDOW = timedelta(days=400)
 """The output the cleaning trigger weighs: it runs on a camera's verdict, in the ingest's
 transaction, and a decade of output takes 18 ms to analyse (400 days, 2 ms); 400 days hold
-the current soiling
-interval and those before it that give a short one its clean level."""
+the current soiling interval and those before it that give a short one its clean level."""
 
 RECENT = timedelta(days=7)
 """Output older than this does not weigh in the cleaning trigger: the panel's camera does."""
